@@ -1,0 +1,1 @@
+"""Benchmarks and quality tables (`bakery bench …`): measure encodings against independent references."""

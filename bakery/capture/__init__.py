@@ -1,0 +1,68 @@
+"""Capture: what each probe sees, as a radiance cube on the bake grid (pure numpy + Embree, no ``pxr``).
+
+:func:`capture_probes` renders (or loads, for probes with a captured image) one (6, N, N, 3) float32 cube per
+probe of a :class:`bakery.capture.scene.CaptureScene`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from bakery.capture.image import load_captured_cube
+from bakery.capture.render import CaptureStats, ProbeRenderer, capture_probe_cube, probe_seed
+from bakery.capture.scene import CaptureScene, Dome, Light, Material, Mesh, ProbeSpec
+
+__all__ = [
+    "CaptureReport",
+    "CaptureScene",
+    "CaptureStats",
+    "Dome",
+    "Light",
+    "Material",
+    "Mesh",
+    "ProbeRenderer",
+    "ProbeSpec",
+    "capture_probe_cube",
+    "capture_probes",
+    "probe_seed",
+]
+
+
+@dataclass(frozen=True)
+class CaptureReport:
+    """Totals of one capture run: rays traced, seconds spent rendering, probes rendered and loaded from images."""
+
+    rays: int
+    seconds: float
+    rendered: int
+    loaded: int
+
+    @property
+    def rays_per_second(self) -> float:
+        return self.rays / self.seconds if self.seconds > 0 else 0.0
+
+
+def capture_probes(
+    scene: CaptureScene, face_size: int, samples: int = 4, bounces: int = 1, base_seed: int = 0
+) -> tuple[np.ndarray, CaptureReport]:
+    """Radiance cubes (P, 6, N, N, 3) float32 of every probe of ``scene`` (in ``scene.probes`` order)."""
+    cubes = np.zeros((len(scene.probes), 6, face_size, face_size, 3), dtype=np.float32)
+    renderer: ProbeRenderer | None = None
+    rays, seconds, rendered, loaded = 0, 0.0, 0, 0
+    for i, probe in enumerate(scene.probes):
+        if probe.image:
+            cubes[i] = load_captured_cube(probe.image, np.asarray(probe.rotation), face_size)
+            loaded += 1
+            continue
+        if renderer is None:
+            start = time.perf_counter()
+            renderer = ProbeRenderer(scene, samples=samples, bounces=bounces, base_seed=base_seed)
+            seconds += time.perf_counter() - start
+        cubes[i], stats = renderer.render(np.asarray(probe.position), face_size, probe.name)
+        rays += stats.rays
+        seconds += stats.seconds
+        rendered += 1
+    return cubes, CaptureReport(rays=rays, seconds=seconds, rendered=rendered, loaded=loaded)

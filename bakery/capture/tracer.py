@@ -1,0 +1,101 @@
+"""Batched ray queries against the scene's triangles with Embree (``embreex``).
+
+All triangles of all meshes go into one Embree scene; ``primID`` indexes the concatenated triangle arrays, so
+per-triangle normals, albedo and emission are plain numpy gathers. Queries are issued in chunks of
+:data:`CHUNK` rays (Embree's stream API is single-call per chunk; there is no per-ray Python loop).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from embreex import rtcore_scene as rtcs
+from embreex.mesh_construction import TriangleMesh
+
+from bakery.capture.scene import CaptureScene
+
+#: Rays per Embree call.
+CHUNK = 1 << 18
+#: Distance used for "no hit" and for unbounded shadow rays (metres).
+FAR = 1e30
+
+
+class SceneTracer:
+    """Closest-hit and occlusion queries, plus per-triangle shading data.
+
+    Attributes:
+        normals: (T, 3) unit geometric normals (right-hand rule on the triangle's vertex order).
+        albedo: (T, 3) diffuse albedo; emission: (T, 3) emitted radiance.
+        epsilon: ray-origin offset in metres (scaled to the scene's size).
+        rays_cast: running count of rays traced (for rays/s reports).
+    """
+
+    def __init__(self, scene: CaptureScene) -> None:
+        triangles = [m.triangles.reshape(-1, 3, 3) for m in scene.meshes if m.triangles.size]
+        self.empty = not triangles
+        tris = np.concatenate(triangles).astype(np.float64) if triangles else np.zeros((0, 3, 3))
+        self.albedo = np.concatenate(
+            [np.broadcast_to(m.material.albedo, (m.triangles.shape[0], 3)) for m in scene.meshes if m.triangles.size]
+            or [np.zeros((0, 3))]
+        )
+        self.emission = np.concatenate(
+            [
+                np.broadcast_to(np.asarray(m.material.emission, dtype=np.float64), (m.triangles.shape[0], 3))
+                for m in scene.meshes
+                if m.triangles.size
+            ]
+            or [np.zeros((0, 3))]
+        )
+        cross = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]) if len(tris) else np.zeros((0, 3))
+        length = np.linalg.norm(cross, axis=-1, keepdims=True)
+        self.normals = np.where(length > 0, cross / np.maximum(length, 1e-300), np.array([0.0, 1.0, 0.0]))
+        if len(tris):
+            lo, hi = tris.reshape(-1, 3).min(axis=0), tris.reshape(-1, 3).max(axis=0)
+            diagonal = float(np.linalg.norm(hi - lo))
+        else:
+            diagonal = 1.0
+        self.epsilon = 1e-5 * max(diagonal, 1e-3) + 1e-7
+        self.rays_cast = 0
+        self._scene = None
+        if not self.empty:
+            self._scene = rtcs.EmbreeScene()
+            # Embree keeps a reference to the mesh buffer through the scene object.
+            self._mesh = TriangleMesh(self._scene, tris.astype(np.float32))
+
+    def intersect(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Closest hit of rays (M, 3): triangle index (M,) (−1 on miss) and distance t (M,) (FAR on miss)."""
+        m = origins.shape[0]
+        self.rays_cast += m
+        prim = np.full(m, -1, dtype=np.int64)
+        t = np.full(m, FAR)
+        if self._scene is None or m == 0:
+            return prim, t
+        for start in range(0, m, CHUNK):
+            stop = min(m, start + CHUNK)
+            out = self._scene.run(
+                np.ascontiguousarray(origins[start:stop], dtype=np.float32),
+                np.ascontiguousarray(directions[start:stop], dtype=np.float32),
+                output=1,
+            )
+            hit = out["primID"] >= 0
+            prim[start:stop] = out["primID"]
+            t[start:stop] = np.where(hit, out["tfar"], FAR)
+        return prim, t
+
+    def occluded(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray) -> np.ndarray:
+        """Whether each segment origin + t·direction, 0 < t < distance, hits a triangle: bool (M,)."""
+        m = origins.shape[0]
+        self.rays_cast += m
+        if self._scene is None or m == 0:
+            return np.zeros(m, dtype=bool)
+        result = np.zeros(m, dtype=bool)
+        for start in range(0, m, CHUNK):
+            stop = min(m, start + CHUNK)
+            dist = np.minimum(distances[start:stop], FAR).astype(np.float32)
+            out = self._scene.run(
+                np.ascontiguousarray(origins[start:stop], dtype=np.float32),
+                np.ascontiguousarray(directions[start:stop], dtype=np.float32),
+                dists=np.ascontiguousarray(dist),
+                query="OCCLUDED",
+            )
+            result[start:stop] = np.asarray(out) >= 0
+        return result

@@ -1,0 +1,70 @@
+"""Every convention bakery uses, written once.
+
+All other modules import from here; every store records :func:`convention_attributes` at its root.
+
+================================  ===========================================================================
+Convention                        Value
+================================  ===========================================================================
+Bake frame                        Right-handed, +Y up. Directions are unit 3-vectors (x, y, z) in this frame.
+SH basis                          Real, orthonormal over the sphere, Condon–Shortley phase as in the ZH3 paper
+                                  (seed 001, Eq. 4–5): Y1,-1 = -c·y, Y1,0 = c·z, Y1,1 = -c·x, c = sqrt(3/4π).
+SH index                          k = l·(l+1) + m, m ∈ [-l, l]; arrays are (..., (L+1)², channels).
+SH content                        Stored SH coefficients are of **radiance**. Irradiance is the cosine-lobe
+                                  convolution applied at evaluation: band factors A_l (π, 2π/3, π/4, 0, -π/24 …).
+Irradiance                        E(n) = ∫ L(ω) max(0, n·ω) dω (not divided by π): constant L = c gives E = πc.
+Radiance units                    Those of the input (scene-linear, as read); no exposure applied by default.
+Colour                            Linear Rec.709/sRGB primaries; luminance weights (0.2126, 0.7152, 0.0722).
+Cube face order                   +X, -X, +Y, -Y, +Z, -Z (faces 0–5).
+Cube face orientation             OpenGL / D3D / KTX cube maps: texel (row i, column j) of a face of size N has
+                                  s = (j+½)/N, t = (i+½)/N, u = 2s-1, v = 2t-1 and direction ∝
+                                  +X:(1,-v,-u)  -X:(-1,-v,u)  +Y:(u,1,v)  -Y:(u,-1,-v)  +Z:(u,-v,1)  -Z:(-u,-v,-1).
+Equirect (latlong) orientation    OpenEXR / USD DomeLight: row 0 = zenith (+Y), column 0 = longitude +π; a
+                                  direction with longitude φ = atan2(x, z) and latitude asin(y) sits at
+                                  s = ½ - φ/2π, t = ½ - latitude/π. The image centre looks down +Z.
+Angular map (Debevec)             u, v ∈ [-1, 1] (v up), r = √(u²+v²) ≤ 1; direction = (u·sin(πr)/r, v·sin(πr)/r,
+                                  cos(πr)): the disc centre is +Z, the rim is -Z. Texels outside the disc are masked.
+Roughness                         Every stored roughness is GGX α unless its name says ``perceptual``; α = r².
+================================  ===========================================================================
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+#: Rec.709 luminance weights for linear RGB.
+LUMINANCE_WEIGHTS = np.array([0.2126, 0.7152, 0.0722])
+
+#: Cube face names in storage order.
+CUBE_FACES = ("+X", "-X", "+Y", "-Y", "+Z", "-Z")
+
+#: The table above as data, recorded in every store (root attribute ``conventions``, a JSON object).
+CONVENTIONS: dict[str, str] = {
+    "frame": "right-handed, +Y up",
+    "sh_basis": "real orthonormal, Condon-Shortley phase: Y1,-1=-c*y, Y1,0=c*z, Y1,1=-c*x (ZH3 paper Eq. 4-5)",
+    "sh_index": "k = l*(l+1) + m",
+    "sh_content": "radiance coefficients; irradiance = cosine-lobe convolution A_l at evaluation",
+    "irradiance": "E(n) = integral L(w) max(0, n.w) dw (not divided by pi)",
+    "radiance_units": "as input, scene-linear",
+    "colour": "linear Rec.709 RGB; luminance = 0.2126 R + 0.7152 G + 0.0722 B",
+    "cube_face_order": "+X,-X,+Y,-Y,+Z,-Z",
+    "cube_face_orientation": "OpenGL/D3D/KTX: u=2s-1, v=2t-1 (t down rows); +X:(1,-v,-u) -X:(-1,-v,u) "
+    "+Y:(u,1,v) -Y:(u,-1,-v) +Z:(u,-v,1) -Z:(-u,-v,-1)",
+    "equirect_orientation": "row 0 = +Y (zenith), column 0 = longitude +pi, longitude = atan2(x, z), "
+    "image centre = +Z (OpenEXR / USD DomeLight)",
+    "angular_map": "Debevec: centre = +Z, rim = -Z, direction = (u sin(pi r)/r, v sin(pi r)/r, cos(pi r)), v up",
+    "roughness": "GGX alpha unless named perceptual; alpha = perceptual^2",
+}
+
+
+def convention_attributes() -> dict[str, str]:
+    """The conventions as one JSON string plus one attribute per entry, for a store's root."""
+    attributes = {f"convention.{key}": value for key, value in CONVENTIONS.items()}
+    attributes["conventions"] = json.dumps(CONVENTIONS, sort_keys=True)
+    return attributes
+
+
+def luminance(rgb: np.ndarray) -> np.ndarray:
+    """Rec.709 luminance of linear RGB along the last axis. ``rgb``: (..., 3) → (...)."""
+    return np.asarray(rgb) @ LUMINANCE_WEIGHTS

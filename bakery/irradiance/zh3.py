@@ -1,0 +1,246 @@
+"""ZH3: linear SH plus one zonal quadratic coefficient per channel on a shared axis (seed 001).
+
+References
+    [ZH3] T. Roughton, P.-P. Sloan, A. Silvennoinen, M. Iwanicki, P. Shirley. "ZH3: Quadratic Zonal Harmonics".
+          Proc. ACM Comput. Graph. Interact. Tech. 7(1), 2024 (seed 001).
+
+Notation
+    f0, f1   DC (P, C) and linear band (P, 3, C) of radiance SH, m = −1, 0, 1 (index order of the conventions)
+    v        linear band as a Cartesian vector (−f1,1, −f1,−1, f1,0): f1·Y1(ω) = √(3/4π) v·ω
+    a        unit zonal axis (P, 3) shared by the channels: the optimal linear direction of the luminance SH
+    q        Y2(a) (P, 5), the band-2 basis at the axis
+    f2^0     zonal L2 *radiance* coefficient per channel in the frame of a (P, C)  ([ZH3] Eq. 10)
+
+Stored ZH3 = (f0, f1, f2^0); the axis is recomputed from f1 by the reader (luminance weights of the conventions).
+Irradiance: E(n) = π f0 Y00 + (2π/3) f1·Y1(n) + (π/4) f2^0 Y20(a·n)   ([ZH3] Listing 1, unnormalised cosine).
+"""
+
+from __future__ import annotations
+
+import warnings
+from math import pi, sqrt
+
+import numpy as np
+from scipy.optimize import minimize
+
+from bakery.conventions import LUMINANCE_WEIGHTS
+from bakery.errors import DegenerateInputWarning
+from bakery.sh.basis import evaluate_sh_basis
+from bakery.sh.convolution import cosine_lobe_band_factors
+
+#: [ZH3] Eq. 21: curve-fit hallucination f2^0 = (0.6 p² + 0.08 p) f0, p = |f1^0| / f0.
+PAPER_HALLUCINATION_CURVE = (0.6, 0.08)
+
+#: Axis used when the luminance linear band vanishes (constant or perfectly balanced lighting).
+FALLBACK_AXIS = np.array([0.0, 0.0, 1.0])
+
+_C20 = sqrt(5.0 / (16.0 * pi))
+_C2 = sqrt(15.0 / (4.0 * pi))
+
+
+def linear_band_vector(linear_sh: np.ndarray) -> np.ndarray:
+    """v = (−f1,1, −f1,−1, f1,0) per channel: (P, ≥4, C) → (P, 3, C)."""
+    return np.stack([-linear_sh[:, 3], -linear_sh[:, 1], linear_sh[:, 2]], axis=1)
+
+
+def optimal_linear_direction(vector: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """normalize(v) (P, 3) and a mask (P,) of probes whose v vanished and got :data:`FALLBACK_AXIS`.
+
+    [ZH3] Sec. 2.2 / Eq. 32: the optimal linear direction is normalize(−f1,1, −f1,−1, f1,0).
+    """
+    norm = np.linalg.norm(vector, axis=-1)
+    degenerate = ~(norm > 1e-30)
+    axis = np.where(degenerate[:, None], FALLBACK_AXIS[None, :], vector / np.where(degenerate, 1.0, norm)[:, None])
+    return axis, degenerate
+
+
+def luminance_axis(linear_sh: np.ndarray) -> np.ndarray:
+    """Shared zonal axis (P, 3): optimal linear direction of the luminance SH ([ZH3] Sec. 3.2, Eq. 29–32)."""
+    axis, _ = optimal_linear_direction(linear_band_vector(linear_sh) @ LUMINANCE_WEIGHTS)
+    return axis
+
+
+def band2_at(axis: np.ndarray) -> np.ndarray:
+    """q = Y2(axis) (P, 5): band-2 basis (indices 4..8) at the axis."""
+    return evaluate_sh_basis(axis, 2)[:, 4:9]
+
+
+def solve_zonal_l2(band2: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """Least-squares zonal L2 radiance coefficient f2^0 (P, C) of band-2 SH (P, 5, C) along ``axis`` (P, 3).
+
+    [ZH3] Eq. 9–10: k2 = (4π/5) q·f2 and l2^0 = K_2^0 k2 = √(4π/5) q·f2.
+    """
+    return sqrt(4.0 * pi / 5.0) * np.einsum("pk,pkc->pc", band2_at(axis), band2)
+
+
+def expand_zh3_to_sh3(linear_sh: np.ndarray, zonal_l2: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """Radiance SH3 (P, 9, C) equal to the ZH3 (linear SH (P, 4, C), f2^0 (P, C), axis (P, 3)).
+
+    The band-2 part of a zonal lobe is f2^0 √(4π/5) Y2(a) ([ZH3] Sec. 2.1, Eq. 2).
+    """
+    band2 = sqrt(4.0 * pi / 5.0) * band2_at(axis)[:, :, None] * zonal_l2[:, None, :]
+    return np.concatenate([linear_sh[:, :4], band2], axis=1)
+
+
+def evaluate_zh3_irradiance(
+    linear_sh: np.ndarray, zonal_l2: np.ndarray, normals: np.ndarray, axis: np.ndarray | None = None
+) -> np.ndarray:
+    """Irradiance (P, N, C) at unit normals (N, 3), as a shader would ([ZH3] Listing 1 with A_l = π, 2π/3, π/4)."""
+    if axis is None:
+        axis = luminance_axis(linear_sh)
+    a = cosine_lobe_band_factors(2)
+    basis = evaluate_sh_basis(normals, 1)  # (N, 4)
+    linear = np.einsum("nk,pkc->pnc", basis * a[[0, 1, 1, 1]], linear_sh[:, :4])
+    t = normals @ axis.T  # (N, P)
+    zonal = _C20 * (3.0 * t.T**2 - 1.0)  # (P, N)
+    return linear + a[2] * zonal[:, :, None] * zonal_l2[:, None, :]
+
+
+# -----------------------------------------------------------------------------------------------------------------
+# ZH3 on the luminance axis ([ZH3] Sec. 3.1–3.2)
+def fit_zh3_luminance(radiance_sh: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(linear SH (P, 4, C), f2^0 (P, C)) of radiance SH3 (P, 9, C) with the shared luminance axis."""
+    linear = radiance_sh[:, :4].copy()
+    axis = luminance_axis(linear)
+    return linear, solve_zonal_l2(radiance_sh[:, 4:9], axis)
+
+
+# -----------------------------------------------------------------------------------------------------------------
+# ZH3 with a solved axis ([ZH3] Sec. 3.3, Eq. 11, App. C)
+def axis_error(linear_irr: np.ndarray, target_irr: np.ndarray) -> np.ndarray:
+    """[ZH3] Eq. 11 per probe: ‖f − t1‖² + Σ_c ‖k_c q − t2_c‖² with k_c = (4π/5) q·t2_c (irradiance SH).
+
+    Args:
+        linear_irr: (P, 3, C) candidate linear band f (irradiance SH, m = −1, 0, 1).
+        target_irr: (P, 9, C) target irradiance SH t.
+    Returns:
+        (P,) error. Uses ‖k q − t2‖² = ‖t2‖² − (4π/5)(q·t2)² since ‖q‖² = 5/4π.
+    """
+    error, _ = _axis_error_and_gradient(linear_irr, target_irr)
+    return error
+
+
+def _axis_error_and_gradient(f: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. 11 and its gradient with respect to f (P, 3, C). Derivation (our own, equivalent to [ZH3] App. C):
+
+    E = Σ_c ‖f_c − t1_c‖² + Σ_c (‖t2_c‖² − (4π/5) s_c²),  s_c = Y2(a)·t2_c,  a = normalize(u),
+    u = (−ℓ_1, −ℓ_−1, ℓ_0), ℓ = Σ_c w_c f_c (luminance, Eq. 29–30, 32).
+    ∂E/∂a = −(8π/5) Σ_c s_c J_Y2(a)ᵀ t2_c (J_Y2 of Eq. 28);  ∂E/∂u = (I − a aᵀ)/‖u‖ · ∂E/∂a (Eq. 36);
+    ∂E/∂ℓ = (−∂E/∂u_y, ∂E/∂u_z, −∂E/∂u_x);  ∂E/∂f_c = 2(f_c − t1_c) + w_c ∂E/∂ℓ (Eq. 34).
+    """
+    t1, t2 = t[:, 1:4], t[:, 4:9]
+    ell = f @ LUMINANCE_WEIGHTS  # (P, 3) in m order (−1, 0, 1)
+    u = np.stack([-ell[:, 2], -ell[:, 0], ell[:, 1]], axis=-1)
+    norm_u = np.maximum(np.linalg.norm(u, axis=-1), 1e-30)
+    a = u / norm_u[:, None]
+    q = band2_at(a)  # (P, 5)
+    s = np.einsum("pk,pkc->pc", q, t2)
+    error = np.sum((f - t1) ** 2, axis=(1, 2)) + np.sum(t2**2, axis=(1, 2)) - (4.0 * pi / 5.0) * np.sum(s**2, axis=1)
+    x, y, z = a[:, 0], a[:, 1], a[:, 2]
+    zero = np.zeros_like(x)
+    # J_Y2: (P, 5, 3) — rows are the five band-2 functions, columns d/dx, d/dy, d/dz ([ZH3] Eq. 28).
+    jac = np.stack(
+        [
+            np.stack([_C2 * y, _C2 * x, zero], -1),
+            np.stack([zero, -_C2 * z, -_C2 * y], -1),
+            np.stack([zero, zero, 6.0 * _C20 * z], -1),
+            np.stack([-_C2 * z, zero, -_C2 * x], -1),
+            np.stack([_C2 * x, -_C2 * y, zero], -1),
+        ],
+        axis=1,
+    )
+    # Row 5: ∇[√(15/16π)(x² − y²)] = √(15/16π)(2x, −2y, 0) = √(15/4π)(x, −y, 0).
+    de_da = -(8.0 * pi / 5.0) * np.einsum("pc,pkj,pkc->pj", s, jac, t2)
+    de_du = (de_da - a * np.sum(a * de_da, axis=-1, keepdims=True)) / norm_u[:, None]
+    de_dell = np.stack([-de_du[:, 1], de_du[:, 2], -de_du[:, 0]], axis=-1)  # back to m order (−1, 0, 1)
+    grad = 2.0 * (f - t1) + de_dell[:, :, None] * LUMINANCE_WEIGHTS[None, None, :]
+    return error, grad
+
+
+def solve_zh3_axis(
+    radiance_sh: np.ndarray, max_iterations: int = 200, batch_size: int = 256
+) -> tuple[np.ndarray, np.ndarray, dict]:
+    """ZH3 with the linear band re-solved to minimise [ZH3] Eq. 11 (irradiance SH error), with L-BFGS.
+
+    The problems of a batch are independent; they are solved jointly as one separable sum, each probe's term
+    divided by its target energy ‖t‖² so that bright probes do not dominate the stopping test. Each probe keeps
+    the luminance-axis start unless the solve lowered its own Eq. 11 error, so the result is never worse.
+
+    Returns:
+        linear SH (P, 4, C) (radiance; DC unchanged, Eq. 11's f0 = t0), f2^0 (P, C) along the solved axis, and
+        statistics {"improved": int, "iterations": int}.
+    """
+    a = cosine_lobe_band_factors(2)
+    scale = a[[0, 1, 1, 1, 2, 2, 2, 2, 2]][None, :, None]
+    target = radiance_sh[:, :9] * scale
+    linear_out = radiance_sh[:, :4].copy()
+    improved = 0
+    iterations = 0
+    for start in range(0, radiance_sh.shape[0], batch_size):
+        t = target[start : start + batch_size]
+        p, _, ch = t.shape
+        weight = 1.0 / np.maximum(np.sum(t**2, axis=(1, 2)), 1e-300)
+        f_start = t[:, 1:4].copy()
+
+        def objective(flat: np.ndarray, t=t, weight=weight, p=p, ch=ch) -> tuple[float, np.ndarray]:
+            e, g = _axis_error_and_gradient(flat.reshape(p, 3, ch), t)
+            return float(np.sum(e * weight)), (g * weight[:, None, None]).reshape(-1)
+
+        result = minimize(
+            objective, f_start.reshape(-1), jac=True, method="L-BFGS-B", options={"maxiter": max_iterations}
+        )
+        iterations = max(iterations, int(result.nit))
+        f_solved = result.x.reshape(p, 3, ch)
+        better = axis_error(f_solved, t) < axis_error(f_start, t)
+        improved += int(better.sum())
+        f_final = np.where(better[:, None, None], f_solved, f_start)
+        linear_out[start : start + p, 1:4] = f_final / a[1]
+    axis = luminance_axis(linear_out)
+    return linear_out, solve_zonal_l2(radiance_sh[:, 4:9], axis), {"improved": improved, "iterations": iterations}
+
+
+# -----------------------------------------------------------------------------------------------------------------
+# Hallucinated ZH3 ([ZH3] Sec. 3.4.3–3.4.4, Listing 1)
+def hallucination_ratio(linear_sh: np.ndarray, axis: np.ndarray | None = None) -> np.ndarray:
+    """p = |v_c·a| / f0_c per channel (P, C) on the luminance axis ([ZH3] Listing 1); 0 where f0 ≤ 0."""
+    if axis is None:
+        axis = luminance_axis(linear_sh)
+    projected = np.abs(np.einsum("pj,pjc->pc", axis, linear_band_vector(linear_sh)))
+    f0 = linear_sh[:, 0]
+    return np.where(f0 > 0, projected / np.where(f0 > 0, f0, 1.0), 0.0)
+
+
+def hallucinate_zonal_l2(linear_sh: np.ndarray, curve: tuple[float, float] = PAPER_HALLUCINATION_CURVE) -> np.ndarray:
+    """Hallucinated f2^0 (P, C) = (c2 p² + c1 p) f0 ([ZH3] Eq. 21 with curve = (c2, c1))."""
+    p = hallucination_ratio(linear_sh)
+    return (curve[0] * p * p + curve[1] * p) * linear_sh[:, 0]
+
+
+def fit_hallucination_curve(
+    radiance_sh: np.ndarray, minimum_samples: int = 12
+) -> tuple[tuple[float, float], int, bool]:
+    """Fit (c2, c1) of f2^0 ≈ (c2 p² + c1 p) f0 to a scene's own probes by linear least squares.
+
+    The target is the luminance-axis f2^0 solved from each probe's SH3 ([ZH3] Eq. 10); samples are (probe, channel)
+    pairs with f0 > 0. With fewer than ``minimum_samples`` usable samples the paper's curve (Eq. 21) is returned.
+
+    Returns:
+        (curve, samples used, fitted?)
+    """
+    linear = radiance_sh[:, :4]
+    axis = luminance_axis(linear)
+    target = solve_zonal_l2(radiance_sh[:, 4:9], axis).reshape(-1)
+    p = hallucination_ratio(linear, axis).reshape(-1)
+    f0 = linear[:, 0].reshape(-1)
+    usable = f0 > 0
+    if usable.sum() < minimum_samples or np.ptp(p[usable]) < 1e-6:
+        return PAPER_HALLUCINATION_CURVE, int(usable.sum()), False
+    design = np.stack([p * p * f0, p * f0], axis=-1)[usable]
+    # Each sample weighted by 1/f0 so that the fit is on the ratio f2/f0 (scale-free across probes).
+    w = 1.0 / f0[usable]
+    coefficients, *_ = np.linalg.lstsq(design * w[:, None], target[usable] * w, rcond=None)
+    if not np.all(np.isfinite(coefficients)):
+        warnings.warn("hallucination curve fit was not finite; using the paper's curve", DegenerateInputWarning,
+                      stacklevel=2)
+        return PAPER_HALLUCINATION_CURVE, int(usable.sum()), False
+    return (float(coefficients[0]), float(coefficients[1])), int(usable.sum()), True

@@ -1,0 +1,94 @@
+"""Probes and batches of captured radiance: what encoders consume.
+
+A probe's capture is a cube map on the bake grid (:mod:`bakery.sphere.cubemap`, conventions in
+:mod:`bakery.conventions`): (6, N, N, 3) float32 linear radiance seen from the probe's position.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bakery.sh.projection import SHProjector
+from bakery.sphere.cubemap import cube_texel_directions, cube_texel_solid_angles
+from bakery.sphere.grid import SphericalSamples
+
+PROBE_KINDS = ("irradiance", "reflection")
+
+
+@dataclass(frozen=True)
+class Probe:
+    """Identity and placement of one probe (plain data; USD prims become these).
+
+    Attributes:
+        name: unique, stable identity (a prim path, or ``/environment`` for a distant probe).
+        kinds: which encodings families it needs, subset of :data:`PROBE_KINDS`.
+        position: (3,) bake-frame position in metres (zeros for a distant probe).
+        settings: per-probe overrides (e.g. ``{"encodings": [...]}``), plain JSON-able data.
+    """
+
+    name: str
+    kinds: tuple[str, ...] = PROBE_KINDS
+    position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    settings: dict = field(default_factory=dict)
+
+
+_GRID_CACHE: dict[tuple[int, int], SHProjector] = {}
+
+
+def cube_projector(face_size: int, max_band: int) -> SHProjector:
+    """SH projector of the bake cube grid, cached per (face size, band limit)."""
+    key = (face_size, max_band)
+    if key not in _GRID_CACHE:
+        _GRID_CACHE[key] = SHProjector(
+            cube_texel_directions(face_size).reshape(-1, 3), cube_texel_solid_angles(face_size).reshape(-1), max_band
+        )
+    return _GRID_CACHE[key]
+
+
+class ProbeBatch:
+    """Captured radiance of P probes on one bake grid, with derived quantities cached.
+
+    Args:
+        cubes: (P, 6, N, N, 3) float32 radiance.
+        reference_samples: optional per-probe full-resolution quadratures (the source image of a distant probe),
+            used by reference integrators and error reports; ``None`` means the cube itself is the reference.
+    """
+
+    def __init__(self, cubes: np.ndarray, reference_samples: list[SphericalSamples] | None = None) -> None:
+        cubes = np.asarray(cubes, dtype=np.float32)
+        if cubes.ndim != 5 or cubes.shape[1] != 6 or cubes.shape[2] != cubes.shape[3] or cubes.shape[4] != 3:
+            raise ValueError(f"cubes must be (P, 6, N, N, 3), got {cubes.shape}")
+        self.cubes = cubes
+        self.reference_samples = reference_samples
+        self._sh: dict[int, np.ndarray] = {}
+
+    @property
+    def count(self) -> int:
+        return int(self.cubes.shape[0])
+
+    @property
+    def face_size(self) -> int:
+        return int(self.cubes.shape[2])
+
+    def texels(self) -> np.ndarray:
+        """Radiance (P, 6·N·N, 3) flattened in cube texel order."""
+        return self.cubes.reshape(self.count, -1, 3)
+
+    def radiance_sh(self, max_band: int = 2) -> np.ndarray:
+        """Radiance SH (P, (L+1)², 3), projected with one matrix product for the batch (cached)."""
+        if max_band not in self._sh:
+            self._sh[max_band] = cube_projector(self.face_size, max_band).project(self.texels())
+        return self._sh[max_band]
+
+    def samples(self, index: int) -> SphericalSamples:
+        """Full-resolution quadrature of probe ``index`` (the reference), or its cube if none was given."""
+        if self.reference_samples is not None:
+            return self.reference_samples[index]
+        n = self.face_size
+        return SphericalSamples(
+            directions=cube_texel_directions(n).reshape(-1, 3),
+            solid_angles=cube_texel_solid_angles(n).reshape(-1),
+            radiance=self.cubes[index].reshape(-1, 3).astype(np.float64),
+        )

@@ -1,0 +1,112 @@
+"""Cube maps: texel directions, exact texel solid angles, direction → (face, u, v) and bilinear lookup.
+
+Face order and orientation are the OpenGL/D3D/KTX ones recorded in :mod:`bakery.conventions`.
+
+Notation
+    N       face size in texels
+    u, v    face coordinates in [-1, 1]; u grows with the column, v with the row (downwards)
+    Ω       solid angle (sr)
+
+References
+    [Driscoll] M. Driscoll, "Cubemap texel solid angle", 2012: the solid angle of the face region from the face
+    centre to (u, v) on the unit-distance plane is atan2(u·v, √(u²+v²+1)).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+# Direction of (u, v) on each face, as (major axis sign and index) and the u, v axes (convention table).
+# dir = major * e_axis + u * U + v * V
+_FACE_FRAMES = np.array(
+    [
+        # major             U              V
+        [[1, 0, 0], [0, 0, -1], [0, -1, 0]],  # +X: (1, -v, -u)
+        [[-1, 0, 0], [0, 0, 1], [0, -1, 0]],  # -X: (-1, -v, u)
+        [[0, 1, 0], [1, 0, 0], [0, 0, 1]],  # +Y: (u, 1, v)
+        [[0, -1, 0], [1, 0, 0], [0, 0, -1]],  # -Y: (u, -1, -v)
+        [[0, 0, 1], [1, 0, 0], [0, -1, 0]],  # +Z: (u, -v, 1)
+        [[0, 0, -1], [-1, 0, 0], [0, -1, 0]],  # -Z: (-u, -v, -1)
+    ],
+    dtype=np.float64,
+)
+
+
+def cube_face_uv_to_direction(face: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Unit directions (..., 3) of face coordinates ``u, v`` ∈ [-1, 1] on faces ``face`` (ints 0–5)."""
+    frames = _FACE_FRAMES[np.asarray(face)]
+    d = frames[..., 0, :] + np.asarray(u)[..., None] * frames[..., 1, :] + np.asarray(v)[..., None] * frames[..., 2, :]
+    return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+def _texel_centres(face_size: int) -> np.ndarray:
+    return (np.arange(face_size, dtype=np.float64) + 0.5) / face_size * 2.0 - 1.0
+
+
+def cube_texel_directions(face_size: int) -> np.ndarray:
+    """Texel-centre directions (6, N, N, 3), indexed [face, row, column]."""
+    c = _texel_centres(face_size)
+    v, u = np.meshgrid(c, c, indexing="ij")
+    faces = np.arange(6)[:, None, None]
+    return cube_face_uv_to_direction(np.broadcast_to(faces, (6, face_size, face_size)), u[None], v[None])
+
+
+def _area_element(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    # [Driscoll] solid angle of the rectangle (0,0)–(x,y) on the plane at unit distance.
+    return np.arctan2(x * y, np.sqrt(x * x + y * y + 1.0))
+
+
+def cube_texel_solid_angles(face_size: int) -> np.ndarray:
+    """Exact solid angle (6, N, N) of every texel; the total is 4π to rounding."""
+    edges = np.linspace(-1.0, 1.0, face_size + 1)
+    x0, x1 = edges[:-1], edges[1:]
+    # Ω = A(x0,y0) - A(x0,y1) - A(x1,y0) + A(x1,y1), rows (v) first.
+    v0, u0 = np.meshgrid(x0, x0, indexing="ij")
+    v1, u1 = np.meshgrid(x1, x1, indexing="ij")
+    omega = _area_element(u0, v0) - _area_element(u0, v1) - _area_element(u1, v0) + _area_element(u1, v1)
+    return np.broadcast_to(omega, (6, face_size, face_size)).copy()
+
+
+def direction_to_cube_face_uv(directions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Face index (...), and u, v ∈ [-1, 1] (...) of directions (..., 3) (need not be normalised).
+
+    Ties on face edges go to the axis listed first (x, then y, then z).
+    """
+    d = np.asarray(directions, dtype=np.float64)
+    a = np.abs(d)
+    axis = np.where((a[..., 0] >= a[..., 1]) & (a[..., 0] >= a[..., 2]), 0, np.where(a[..., 1] >= a[..., 2], 1, 2))
+    major = np.take_along_axis(d, axis[..., None], axis=-1)[..., 0]
+    face = 2 * axis + (major < 0)
+    frames = _FACE_FRAMES[face]
+    scale = np.where(np.abs(major) > 0, 1.0 / np.abs(major), 0.0)
+    u = np.einsum("...k,...k->...", d, frames[..., 1, :]) * scale
+    v = np.einsum("...k,...k->...", d, frames[..., 2, :]) * scale
+    return face, np.clip(u, -1.0, 1.0), np.clip(v, -1.0, 1.0)
+
+
+def direction_to_cube_texel(directions: np.ndarray, face_size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Face, row and column (ints, ...) of the texel containing each direction (..., 3)."""
+    face, u, v = direction_to_cube_face_uv(directions)
+    col = np.clip(((u + 1.0) * 0.5 * face_size).astype(np.int64), 0, face_size - 1)
+    row = np.clip(((v + 1.0) * 0.5 * face_size).astype(np.int64), 0, face_size - 1)
+    return face, row, col
+
+
+def sample_cube_bilinear(cube: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """Bilinear lookup of a cube map (6, N, N, C) at directions (..., 3) → (..., C).
+
+    Filtering stays within a face (texel coordinates clamped at the face edge), as with seamless filtering off.
+    """
+    n = cube.shape[1]
+    face, u, v = direction_to_cube_face_uv(directions)
+    x = np.clip((u + 1.0) * 0.5 * n - 0.5, 0.0, n - 1.0)
+    y = np.clip((v + 1.0) * 0.5 * n - 0.5, 0.0, n - 1.0)
+    x0 = np.minimum(np.floor(x).astype(np.int64), n - 1)
+    y0 = np.minimum(np.floor(y).astype(np.int64), n - 1)
+    x1 = np.minimum(x0 + 1, n - 1)
+    y1 = np.minimum(y0 + 1, n - 1)
+    fx = (x - x0)[..., None]
+    fy = (y - y0)[..., None]
+    top = cube[face, y0, x0] * (1 - fx) + cube[face, y0, x1] * fx
+    bottom = cube[face, y1, x0] * (1 - fx) + cube[face, y1, x1] * fx
+    return top * (1 - fy) + bottom * fy

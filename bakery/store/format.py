@@ -1,0 +1,177 @@
+"""Writing and reading bakery probe stores (HDF5), format ``bakery.probe-store`` 1.0.0 (``schemas/store-v1.md``).
+
+Writers write only the newest version; readers accept any 1.x (a newer *minor* may add groups/attributes a reader
+ignores) and refuse a newer major with a message that says what to do. Writes are atomic: the file is written
+next to the target under a temporary name, flushed, fsync'ed and renamed over the target, so a crash at any point
+leaves the previous store intact. Datasets are written without HDF5 timestamps (``track_times=False``) so the same
+inputs give the same bytes.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+from bakery.errors import StoreFormatError
+
+FORMAT_NAME = "bakery.probe-store"
+FORMAT_VERSION = "1.0.0"
+
+_STR = h5py.string_dtype("utf-8")
+
+
+@dataclass
+class StoreContents:
+    """Everything a store holds, as plain data.
+
+    Attributes:
+        attributes: root attributes (format, versions, conventions, settings, settings hash, …).
+        probe_names: (P,) unique probe identities (prim paths, or ``/environment``).
+        probe_kinds: (P,) comma-separated kinds (``irradiance``, ``reflection``).
+        probe_positions: (P, 3) float64 bake-frame positions in metres.
+        encodings: {name: {"attributes": {...}, "fields": {field: (P, ...)}, "shared": {table: array}}}.
+        diagnostics: {path: array} under ``/diagnostics`` (e.g. ``negative_fraction/zh3``).
+    """
+
+    attributes: dict[str, Any]
+    probe_names: list[str]
+    probe_kinds: list[str]
+    probe_positions: np.ndarray
+    encodings: dict[str, dict[str, Any]] = field(default_factory=dict)
+    diagnostics: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+def _write_attributes(node: h5py.HLObject, attributes: dict[str, Any]) -> None:
+    for key, value in sorted(attributes.items()):
+        if isinstance(value, (dict, list, tuple)) and not isinstance(value, np.ndarray):
+            value = json.dumps(value, sort_keys=True)
+        node.attrs[key] = value
+
+
+def _dataset(group: h5py.Group, name: str, data: np.ndarray, **kwargs: Any) -> h5py.Dataset:
+    data = np.asarray(data)
+    options: dict[str, Any] = {"track_times": False}
+    if data.dtype.kind in "fiub" and data.size >= 4096:
+        options.update(compression="gzip", compression_opts=4, shuffle=True, chunks=True)
+    return group.create_dataset(name, data=data, **options, **kwargs)
+
+
+def write_store(path: str | os.PathLike[str], contents: StoreContents) -> Path:
+    """Write ``contents`` to ``path`` atomically (temp file + fsync + rename). Returns the path."""
+    path = Path(path)
+    if path.exists() and path.is_dir():
+        raise StoreFormatError(f"{path}: is a directory; give a file name for the store")
+    directory = path.parent if str(path.parent) else Path(".")
+    if not directory.is_dir():
+        raise StoreFormatError(f"{path}: output directory {directory} does not exist")
+    tmp = directory / f".{path.name}.tmp-{os.getpid()}"
+    try:
+        with h5py.File(tmp, "w", track_order=True, libver=("earliest", "v110")) as f:
+            _write_attributes(f, {**contents.attributes, "format": FORMAT_NAME, "format_version": FORMAT_VERSION})
+            probes = f.create_group("probes")
+            probes.attrs["count"] = len(contents.probe_names)
+            probes.create_dataset("name", data=np.array(contents.probe_names, dtype=object), dtype=_STR,
+                                  track_times=False)
+            probes.create_dataset("kinds", data=np.array(contents.probe_kinds, dtype=object), dtype=_STR,
+                                  track_times=False)
+            _dataset(probes, "position", np.asarray(contents.probe_positions, dtype=np.float64).reshape(-1, 3))
+            encodings = f.create_group("encodings")
+            for name in sorted(contents.encodings):
+                entry = contents.encodings[name]
+                group = encodings.create_group(name)
+                _write_attributes(group, entry["attributes"])
+                for field_name, array in entry["fields"].items():
+                    ds = _dataset(group, field_name, array)
+                    description = entry.get("descriptions", {}).get(field_name)
+                    if description:
+                        ds.attrs["description"] = description
+                if entry.get("shared"):
+                    shared = group.create_group("shared")
+                    for table, array in sorted(entry["shared"].items()):
+                        _dataset(shared, table, array)
+            diagnostics = f.create_group("diagnostics")
+            for key in sorted(contents.diagnostics):
+                parent, _, leaf = key.rpartition("/")
+                target = diagnostics.require_group(parent) if parent else diagnostics
+                _dataset(target, leaf, contents.diagnostics[key])
+            f.flush()
+        with open(tmp, "rb+") as handle:
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except OSError as error:
+        raise StoreFormatError(f"{path}: cannot write the store: {error.strerror or error}") from error
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+def _major(version: str) -> int:
+    try:
+        return int(str(version).split(".")[0])
+    except ValueError:
+        raise StoreFormatError(f"unreadable format version {version!r}") from None
+
+
+def _read_attributes(node: h5py.HLObject) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in node.attrs.items():
+        if isinstance(value, bytes):
+            value = value.decode()
+        elif isinstance(value, np.generic):
+            value = value.item()
+        out[key] = value
+    return out
+
+
+def read_store(path: str | os.PathLike[str], load_fields: bool = True) -> StoreContents:
+    """Read a store. Raises :class:`StoreFormatError` for a missing, corrupt, foreign or newer-major file."""
+    path = Path(path)
+    if not path.is_file():
+        raise StoreFormatError(f"{path}: store not found")
+    try:
+        f = h5py.File(path, "r")
+    except OSError as error:
+        raise StoreFormatError(f"{path}: not a readable HDF5 file (truncated or corrupt?): {error}") from error
+    with f:
+        attributes = _read_attributes(f)
+        if attributes.get("format") != FORMAT_NAME:
+            raise StoreFormatError(f"{path}: not a bakery probe store (format attribute {attributes.get('format')!r})")
+        version = str(attributes.get("format_version", ""))
+        if _major(version) > _major(FORMAT_VERSION):
+            raise StoreFormatError(
+                f"{path}: store format {version} is newer than this bakery reads ({FORMAT_VERSION}); "
+                f"upgrade bakery to read it"
+            )
+        try:
+            names = [n.decode() if isinstance(n, bytes) else str(n) for n in f["probes/name"][()]]
+            kinds = [k.decode() if isinstance(k, bytes) else str(k) for k in f["probes/kinds"][()]]
+            positions = f["probes/position"][()]
+            encodings: dict[str, dict[str, Any]] = {}
+            for name, group in f["encodings"].items():
+                entry: dict[str, Any] = {"attributes": _read_attributes(group), "fields": {}, "shared": {},
+                                         "descriptions": {}}
+                for key, item in group.items():
+                    if isinstance(item, h5py.Dataset):
+                        entry["fields"][key] = item[()] if load_fields else None
+                        if "description" in item.attrs:
+                            entry["descriptions"][key] = str(item.attrs["description"])
+                if "shared" in group:
+                    entry["shared"] = {k: v[()] for k, v in group["shared"].items()}
+                encodings[name] = entry
+            diagnostics: dict[str, np.ndarray] = {}
+            if "diagnostics" in f:
+                def visit(name: str, item: Any) -> None:
+                    if isinstance(item, h5py.Dataset):
+                        diagnostics[name] = item[()]
+
+                f["diagnostics"].visititems(visit)
+        except (KeyError, OSError) as error:
+            raise StoreFormatError(f"{path}: store is missing required data or is corrupt: {error}") from error
+    return StoreContents(attributes, names, kinds, np.asarray(positions), encodings, diagnostics)
