@@ -18,8 +18,8 @@ from rich.table import Table
 from bakery.errors import BakeryError, BakeryWarning
 
 SCENE_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
-console = Console(stderr=True)
-out = Console()
+console = Console(stderr=True, soft_wrap=True)
+out = Console(soft_wrap=True)
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None):  # noqa: ANN001

@@ -6,7 +6,8 @@ Filter (energy preserving)
     Each source texel is split into s × s sub-texels; each carries radiance L and weight w = dΩ/dA · ΔA (its solid
     angle). Sub-texels are splatted into the cube texel containing their centre, and the cube texel's radiance is
     Σ w·L / Σ w: an area-weighted box filter. Σ w over a cube texel approximates its exact solid angle, so the flux
-    ∫ L dΩ is preserved up to the sub-texel quantisation of texel borders. s is chosen so that every cube texel
+    ∫ L dΩ is preserved up to the sub-texel quantisation of texel borders; a final per-channel scale makes the
+    total flux over the cube (exact texel solid angles) equal the source's exactly. s is chosen so that every cube texel
     receives at least ~4 sub-texels (s = ⌈2·√(cube texels / source texels)⌉, 1 ≤ s ≤ 16); cube texels that still
     receive nothing (only possible at extreme up-sampling) take a bilinear-like nearest sub-texel value.
 """
@@ -95,7 +96,12 @@ def resample_to_cube(image: EnvironmentImage, face_size: int) -> np.ndarray:
     cube[filled] = flux[filled] / weight[filled, None]
     if not filled.all():
         cube = _fill_empty_texels(cube, filled, face_size)
-    return cube.reshape(6, face_size, face_size, 3).astype(np.float32)
+    # Global renormalisation: Σ_j L_j Ω_j (exact cube solid angles) = Σ_i L_i Ω_i (source), per channel. A constant
+    # environment is left unchanged (both sides are c·4π); the box filter's local weights only redistribute.
+    source_flux = environment_samples(image).flux()
+    cube_flux = cube_texel_solid_angles(face_size).reshape(-1) @ cube
+    scale = np.where(cube_flux > 0, source_flux / np.where(cube_flux > 0, cube_flux, 1.0), 1.0)
+    return (cube * scale).reshape(6, face_size, face_size, 3).astype(np.float32)
 
 
 def _fill_empty_texels(cube: np.ndarray, filled: np.ndarray, face_size: int) -> np.ndarray:

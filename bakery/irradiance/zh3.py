@@ -180,23 +180,51 @@ def solve_zh3_axis(
         t = target[start : start + batch_size]
         p, _, ch = t.shape
         weight = 1.0 / np.maximum(np.sum(t**2, axis=(1, 2)), 1e-300)
-        f_start = t[:, 1:4].copy()
 
         def objective(flat: np.ndarray, t=t, weight=weight, p=p, ch=ch) -> tuple[float, np.ndarray]:
             e, g = _axis_error_and_gradient(flat.reshape(p, 3, ch), t)
             return float(np.sum(e * weight)), (g * weight[:, None, None]).reshape(-1)
 
-        result = minimize(
-            objective, f_start.reshape(-1), jac=True, method="L-BFGS-B", options={"maxiter": max_iterations}
-        )
-        iterations = max(iterations, int(result.nit))
-        f_solved = result.x.reshape(p, 3, ch)
-        better = axis_error(f_solved, t) < axis_error(f_start, t)
-        improved += int(better.sum())
-        f_final = np.where(better[:, None, None], f_solved, f_start)
+        # Two starts: the target's linear band (the luminance-axis ZH3), and the same band with its luminance
+        # vector turned onto the dominant axis of the L2 band (the direction "most favoured by the L2 band",
+        # [ZH3] Sec. 3.3) — the first can sit on a saddle of Eq. 11 where the gradient vanishes by symmetry.
+        f_start = t[:, 1:4].copy()
+        candidates = [f_start]
+        for f_init in (f_start, _l2_favoured_start(t)):
+            result = minimize(
+                objective, f_init.reshape(-1), jac=True, method="L-BFGS-B", options={"maxiter": max_iterations}
+            )
+            iterations = max(iterations, int(result.nit))
+            candidates.append(result.x.reshape(p, 3, ch))
+        errors = np.stack([axis_error(c, t) for c in candidates])  # (starts, P)
+        best = np.argmin(errors, axis=0)
+        f_final = np.stack(candidates)[best, np.arange(p)]
+        improved += int(np.sum(errors[best, np.arange(p)] < errors[0]))
         linear_out[start : start + p, 1:4] = f_final / a[1]
     axis = luminance_axis(linear_out)
     return linear_out, solve_zonal_l2(radiance_sh[:, 4:9], axis), {"improved": improved, "iterations": iterations}
+
+
+def _l2_favoured_start(target_irr: np.ndarray) -> np.ndarray:
+    """Linear band (P, 3, C) whose luminance vector has the same length but points along the eigenvector of the
+    luminance L2 quadratic form with the largest |eigenvalue| (sign kept towards the original vector)."""
+    from bakery.irradiance.sh_irradiance import irradiance_quadratic_form
+
+    luminance_l2 = np.zeros((target_irr.shape[0], 9, 1))
+    luminance_l2[:, 4:9, 0] = target_irr[:, 4:9] @ LUMINANCE_WEIGHTS
+    _, _, m = irradiance_quadratic_form(luminance_l2)
+    lam, vectors = np.linalg.eigh(m[:, 0])
+    pick = np.argmax(np.abs(lam), axis=-1)
+    e = vectors[np.arange(len(pick)), :, pick]  # (P, 3) Cartesian
+    ell = target_irr[:, 1:4] @ LUMINANCE_WEIGHTS  # (P, 3) m order
+    u = np.stack([-ell[:, 2], -ell[:, 0], ell[:, 1]], axis=-1)
+    sign = np.where(np.sum(u * e, axis=-1) < 0, -1.0, 1.0)
+    length = np.maximum(np.linalg.norm(u, axis=-1), 1e-3 * np.abs(target_irr[:, 0] @ LUMINANCE_WEIGHTS))
+    u_new = e * (sign * length)[:, None]
+    delta_u = u_new - u
+    delta_ell = np.stack([-delta_u[:, 1], delta_u[:, 2], -delta_u[:, 0]], axis=-1)  # back to m order
+    # Shifting every channel by the same δ moves the luminance vector by δ (weights sum to 1).
+    return target_irr[:, 1:4] + delta_ell[:, :, None]
 
 
 # -----------------------------------------------------------------------------------------------------------------

@@ -169,6 +169,24 @@ def _reference_prefilter_level(cube: np.ndarray, alpha: float, out_size: int, sa
     return out.reshape(6, out_size, out_size, -1)
 
 
+def _exact_prefilter_level(cube: np.ndarray, alpha: float, out_size: int) -> np.ndarray:
+    """Dense quadrature of the normalised kernel over every texel of ``cube`` (exact solid angles): the
+    ground truth both formulations are measured against. (6, N, N, C) → (6, out, out, C) float64."""
+    if alpha <= 0.0:
+        return resize_cube(cube.astype(np.float64), out_size)
+    n = cube.shape[1]
+    src = cube_texel_directions(n).reshape(-1, 3)
+    omega = cube_texel_solid_angles(n).reshape(-1)
+    radiance = cube.reshape(-1, cube.shape[-1]).astype(np.float64)
+    normals = cube_texel_directions(out_size).reshape(-1, 3)
+    out = np.empty((normals.shape[0], radiance.shape[1]))
+    chunk = max(1, 4_000_000 // src.shape[0])
+    for s in range(0, normals.shape[0], chunk):
+        k = _kernel_profile(normals[s : s + chunk] @ src.T, alpha) * omega
+        out[s : s + chunk] = (k @ radiance) / k.sum(axis=1)[:, None]
+    return out.reshape(6, out_size, out_size, -1)
+
+
 def _prefilter_fis(mips: list[np.ndarray], alpha: float, out_size: int, samples: int) -> np.ndarray:
     """Filtered importance sampling ([KC08] Eq. 13): each sample reads the mip whose texel matches its solid angle.
 

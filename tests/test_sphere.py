@@ -1,0 +1,79 @@
+"""Spherical grids: closed forms for solid angles and mapping round trips."""
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from bakery.environment.layouts import (
+    direction_to_equirect,
+    equirect_directions,
+    equirect_texel_solid_angles,
+)
+from bakery.sphere.cubemap import (
+    cube_face_uv_to_direction,
+    cube_texel_directions,
+    cube_texel_solid_angles,
+    direction_to_cube_face_uv,
+)
+from bakery.sphere.fibonacci import fibonacci_directions
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 64])
+def test_cube_texel_solid_angles_sum_to_4pi(n):
+    assert cube_texel_solid_angles(n).sum() == pytest.approx(4 * np.pi, rel=1e-12)
+
+
+def test_cube_texel_solid_angle_matches_numerical_integral():
+    # Independent: integrate dΩ = (1+u²+v²)^(-3/2) du dv over the corner texel of a 4×4 face with a fine grid.
+    n, fine = 4, 2000
+    t = (np.arange(fine) + 0.5) / fine * (2.0 / n) - 1.0
+    u, v = np.meshgrid(t, t)
+    numeric = np.sum((1 + u * u + v * v) ** -1.5) * (2.0 / n / fine) ** 2
+    assert cube_texel_solid_angles(n)[0, 0, 0] == pytest.approx(numeric, rel=1e-6)
+
+
+@pytest.mark.parametrize("h,w", [(4, 8), (256, 512)])
+def test_equirect_solid_angles_sum_to_4pi(h, w):
+    assert equirect_texel_solid_angles(h, w).sum() == pytest.approx(4 * np.pi, rel=1e-12)
+
+
+def test_cube_face_order_and_orientation_follow_the_convention_table():
+    d = cube_texel_directions(1)[:, 0, 0]
+    np.testing.assert_allclose(d, [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], atol=1e-12)
+    # +Z face: u grows towards +x, v (rows, downwards) towards -y.
+    np.testing.assert_allclose(cube_face_uv_to_direction(np.array(4), np.array(1.0), np.array(0.0)),
+                               np.array([1, 0, 1]) / np.sqrt(2))
+    np.testing.assert_allclose(cube_face_uv_to_direction(np.array(4), np.array(0.0), np.array(1.0)),
+                               np.array([0, -1, 1]) / np.sqrt(2))
+
+
+unit_vectors = st.tuples(*[st.floats(-1, 1, allow_nan=False)] * 3).filter(lambda v: np.linalg.norm(v) > 1e-3)
+
+
+@given(unit_vectors)
+def test_cube_mapping_round_trip(v):
+    d = np.array(v) / np.linalg.norm(v)
+    face, u, w = direction_to_cube_face_uv(d[None])
+    np.testing.assert_allclose(cube_face_uv_to_direction(face, u, w)[0], d, atol=1e-12)
+
+
+@given(unit_vectors)
+def test_equirect_mapping_round_trip(v):
+    d = np.array(v) / np.linalg.norm(v)
+    rows, cols = direction_to_equirect(d[None], 64, 128)
+    np.testing.assert_allclose(equirect_directions(rows, cols, 64, 128)[0], d, atol=1e-9)
+
+
+def test_equirect_orientation_matches_openexr():
+    # OpenEXR LatLongMap: row 0 is +Y, the image centre looks down +Z, column 0 is longitude +π (so left of
+    # centre is +X).
+    np.testing.assert_allclose(equirect_directions(np.array(0.0), np.array(32.0), 32, 64), [0, 1, 0], atol=1e-12)
+    np.testing.assert_allclose(equirect_directions(np.array(16.0), np.array(32.0), 32, 64), [0, 0, 1], atol=1e-12)
+    np.testing.assert_allclose(equirect_directions(np.array(16.0), np.array(16.0), 32, 64), [1, 0, 0], atol=1e-12)
+
+
+def test_fibonacci_directions_are_unit_and_balanced():
+    d = fibonacci_directions(4096)
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0)
+    assert np.abs(d.mean(axis=0)).max() < 1e-3

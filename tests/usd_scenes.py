@@ -1,0 +1,84 @@
+"""Small real USD scenes for the USD and capture tests (written as .usda text into tmp_path; no mocks)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def write(path: Path, text: str) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    return path
+
+
+def header(up_axis: str = "Y", meters_per_unit: float = 1.0, extra: str = "") -> str:
+    return f'#usda 1.0\n(\n    upAxis = "{up_axis}"\n    metersPerUnit = {meters_per_unit}\n{extra})\n\n'
+
+
+def material(name: str, diffuse=(0.18, 0.18, 0.18), emissive=(0.0, 0.0, 0.0), extra: str = "") -> str:
+    return f"""
+def Material "{name}"
+{{
+    token outputs:surface.connect = </{name}/Surface.outputs:surface>
+    def Shader "Surface"
+    {{
+        uniform token info:id = "UsdPreviewSurface"
+        color3f inputs:diffuseColor = ({diffuse[0]}, {diffuse[1]}, {diffuse[2]})
+        color3f inputs:emissiveColor = ({emissive[0]}, {emissive[1]}, {emissive[2]})
+        token outputs:surface
+    }}
+    {extra}
+}}
+"""
+
+
+def box_mesh(name: str, half: float, material_path: str, centre=(0.0, 0.0, 0.0)) -> str:
+    """A closed axis-aligned box Mesh with shared vertices (watertight for ray tracing)."""
+    cx, cy, cz = centre
+    pts = ", ".join(
+        f"({cx + sx * half}, {cy + sy * half}, {cz + sz * half})"
+        for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)
+    )
+    return f"""
+def Mesh "{name}" (
+    prepend apiSchemas = ["MaterialBindingAPI"]
+)
+{{
+    int[] faceVertexCounts = [4, 4, 4, 4, 4, 4]
+    int[] faceVertexIndices = [0, 1, 3, 2,  4, 6, 7, 5,  0, 4, 5, 1,  2, 3, 7, 6,  0, 2, 6, 4,  1, 5, 7, 3]
+    point3f[] points = [{pts}]
+    rel material:binding = <{material_path}>
+}}
+"""
+
+
+def plane_mesh(name: str, half: float, material_path: str, up_axis: str = "Y", height: float = 0.0) -> str:
+    """A square ground plane of half-size ``half`` at ``height`` along the up axis."""
+    if up_axis == "Y":
+        pts = [(-half, height, -half), (half, height, -half), (half, height, half), (-half, height, half)]
+    else:
+        pts = [(-half, -half, height), (half, -half, height), (half, half, height), (-half, half, height)]
+    text = ", ".join(f"({x}, {y}, {z})" for x, y, z in pts)
+    return f"""
+def Mesh "{name}" (
+    prepend apiSchemas = ["MaterialBindingAPI"]
+)
+{{
+    int[] faceVertexCounts = [4]
+    int[] faceVertexIndices = [0, 1, 2, 3]
+    point3f[] points = [{text}]
+    rel material:binding = <{material_path}>
+}}
+"""
+
+
+def probe(name: str, translate=(0.0, 0.0, 0.0), type_name: str = "BakeryIrradianceProbe", body: str = "") -> str:
+    x, y, z = translate
+    return f"""
+def {type_name} "{name}"
+{{
+    double3 xformOp:translate = ({x}, {y}, {z})
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+    {body}
+}}
+"""
