@@ -94,11 +94,12 @@ def select_encodings(settings: BakeSettings, kinds: set[str]) -> dict[str, Encod
 
 
 def irradiance_diagnostics(
-    batch: ProbeBatch, rows: np.ndarray, encoded: dict[str, dict[str, np.ndarray]], encodings: dict[str, Encoding],
+    batch: ProbeBatch, encoded: dict[str, dict[str, np.ndarray]], encodings: dict[str, Encoding],
     settings: BakeSettings,
 ) -> dict[str, np.ndarray]:
     """Per-probe share of directions with negative irradiance (any channel) and, with ``reference_errors``, the
-    relative RMSE against the exact irradiance, for every irradiance encoding; plus ``hallucination_hurts``."""
+    relative RMSE against the exact irradiance, for every irradiance encoding; plus ``hallucination_hurts``.
+    Arrays are (P,) over the probes of ``batch``."""
     normals = fibonacci_directions(settings.quality_directions)
     out: dict[str, np.ndarray] = {}
     reference = None
@@ -118,29 +119,48 @@ def irradiance_diagnostics(
             errors[name] = np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0).astype(np.float32)
             out[f"reference_error/{name}"] = errors[name]
     if "zh3_hallucinated" in errors and "sh2" in errors:
-        out["hallucination_hurts"] = (errors["zh3_hallucinated"] > errors["sh2"]).astype(np.uint8)
+        out["hallucination_hurts"] = (errors["zh3_hallucinated"] > errors["sh2"]).astype(np.float32)
     return out
 
 
-def bake_probes(
-    probes: list[Probe],
-    batch: ProbeBatch,
-    settings: BakeSettings,
-    output: str | os.PathLike[str],
-    attributes: dict[str, Any] | None = None,
+@dataclass
+class EncodedBatch:
+    """Encoded results of a set of probes (the unit workers return and the writer merges).
+
+    Attributes:
+        probes: the probes, in row order.
+        encoded: {encoding: {field: (P_k, ...)}} for the probes having that encoding's kind.
+        rows: {encoding: (P_k,) indices into ``probes``}.
+        diagnostics: {path: (P, ...)} aligned with ``probes``; float arrays hold NaN where not applicable.
+        timings: seconds per step; warnings: messages of BakeryWarnings raised while encoding.
+    """
+
+    probes: list[Probe]
+    encoded: dict[str, dict[str, np.ndarray]]
+    rows: dict[str, np.ndarray]
+    diagnostics: dict[str, np.ndarray]
+    timings: dict[str, float] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+
+
+def _full_length(values: np.ndarray, rows: np.ndarray, count: int) -> np.ndarray:
+    out = np.full((count, *values.shape[1:]), np.nan, dtype=np.float32)
+    out[rows] = values
+    return out
+
+
+def encode_batch(
+    probes: list[Probe], batch: ProbeBatch, settings: BakeSettings, encodings: dict[str, Encoding] | None = None,
     diagnostics: dict[str, np.ndarray] | None = None,
-) -> BakeResult:
-    """Encode ``batch`` (one capture per probe, same order) and write the store atomically to ``output``."""
+) -> EncodedBatch:
+    """Encode ``batch`` (one capture per probe, same order) with every selected encoding. No I/O."""
     if len(probes) != batch.count:
         raise ConfigError(f"{len(probes)} probes but {batch.count} captures")
-    if len({p.name for p in probes}) != len(probes):
-        raise ConfigError("probe names must be unique")
     timings: dict[str, float] = {}
-    caught: list[str] = []
-    kinds = {k for p in probes for k in p.kinds}
-    encodings = select_encodings(settings, kinds)
+    if encodings is None:
+        encodings = select_encodings(settings, {k for p in probes for k in p.kinds})
     encoded: dict[str, dict[str, np.ndarray]] = {}
-    probe_index: dict[str, np.ndarray] = {}
+    rows_of: dict[str, np.ndarray] = {}
     all_diagnostics = dict(diagnostics or {})
     with warnings.catch_warnings(record=True) as recorded:
         warnings.simplefilter("always", BakeryWarning)
@@ -161,17 +181,66 @@ def bake_probes(
                     if array.shape != (rows.size, *spec.shape) or array.dtype != np.dtype(spec.dtype):
                         raise AssertionError(f"{name}.{spec.name}: got {array.shape} {array.dtype}, declared "
                                              f"{(rows.size, *spec.shape)} {spec.dtype}")
-                encoded[name] = fields
-                probe_index[name] = rows
+                encoded[name] = {spec.name: fields[spec.name] for spec in encoding.field_specs()}
+                rows_of[name] = rows
             if kind == "irradiance":
                 start = time.perf_counter()
-                diag = irradiance_diagnostics(sub, rows, encoded, chosen, settings)
-                all_diagnostics.update(diag)
+                for key, values in irradiance_diagnostics(sub, encoded, chosen, settings).items():
+                    all_diagnostics[key] = _full_length(values, rows, len(probes))
                 timings["diagnostics/irradiance"] = time.perf_counter() - start
-        caught = [str(w.message) for w in recorded if issubclass(w.category, BakeryWarning)]
-    for message in caught:
-        warnings.warn(message, BakeryWarning, stacklevel=2)
-    contents = StoreContents(
+    caught = [str(w.message) for w in recorded if issubclass(w.category, BakeryWarning)]
+    return EncodedBatch(list(probes), encoded, rows_of, all_diagnostics, timings, caught)
+
+
+def merge_batches(batches: list[EncodedBatch], order: list[str] | None = None) -> EncodedBatch:
+    """Concatenate batches and reorder their probes to ``order`` (names; default: concatenation order)."""
+    probes = [p for b in batches for p in b.probes]
+    offsets = np.cumsum([0] + [len(b.probes) for b in batches])
+    names = [p.name for p in probes]
+    if len(set(names)) != len(names):
+        raise ConfigError("probe names must be unique")
+    position = {n: i for i, n in enumerate(order if order is not None else names)}
+    if set(position) != set(names):
+        raise ConfigError("merge order does not name the same probes as the batches")
+    permutation = np.array([position[n] for n in names])  # concatenated row -> final row
+    final_probes: list[Probe] = [None] * len(probes)  # type: ignore[list-item]
+    for i, p in enumerate(probes):
+        final_probes[permutation[i]] = p
+    encoded: dict[str, dict[str, np.ndarray]] = {}
+    rows: dict[str, np.ndarray] = {}
+    for name in sorted({n for b in batches for n in b.encoded}):
+        parts = [(b, off) for b, off in zip(batches, offsets[:-1]) if name in b.encoded]
+        final_rows = np.concatenate([permutation[b.rows[name] + off] for b, off in parts])
+        sort = np.argsort(final_rows, kind="stable")
+        rows[name] = final_rows[sort]
+        encoded[name] = {f: np.concatenate([b.encoded[name][f] for b, _ in parts])[sort]
+                         for f in parts[0][0].encoded[name]}
+    diagnostics: dict[str, np.ndarray] = {}
+    for key in sorted({k for b in batches for k in b.diagnostics}):
+        parts = []
+        for b in batches:
+            if key in b.diagnostics:
+                parts.append(np.asarray(b.diagnostics[key]))
+            else:
+                template = next(bb.diagnostics[key] for bb in batches if key in bb.diagnostics)
+                parts.append(np.full((len(b.probes), *np.shape(template)[1:]), np.nan, dtype=np.float32))
+        values = np.concatenate([np.asarray(p, dtype=np.result_type(*parts)) for p in parts])
+        out = np.empty_like(values)
+        out[permutation] = values
+        diagnostics[key] = out
+    timings: dict[str, float] = {}
+    for b in batches:
+        for k, v in b.timings.items():
+            timings[k] = timings.get(k, 0.0) + v
+    return EncodedBatch(final_probes, encoded, rows, diagnostics, timings, [w for b in batches for w in b.warnings])
+
+
+def store_contents(
+    merged: EncodedBatch, settings: BakeSettings, encodings: dict[str, Encoding],
+    attributes: dict[str, Any] | None = None,
+) -> StoreContents:
+    """The store for merged results (probes in ``merged.probes`` order)."""
+    return StoreContents(
         attributes={
             **convention_attributes(),
             "bakery_version": bakery.__version__,
@@ -179,12 +248,12 @@ def bake_probes(
             "settings_hash": settings.hash(),
             "bake_time_utc": _bake_time(),
             "bake_face_size": settings.face_size,
-            "warnings": json.dumps(caught),
+            "warnings": json.dumps(merged.warnings),
             **(attributes or {}),
         },
-        probe_names=[p.name for p in probes],
-        probe_kinds=[",".join(p.kinds) for p in probes],
-        probe_positions=np.array([p.position for p in probes], dtype=np.float64).reshape(-1, 3),
+        probe_names=[p.name for p in merged.probes],
+        probe_kinds=[",".join(p.kinds) for p in merged.probes],
+        probe_positions=np.array([p.position for p in merged.probes], dtype=np.float64).reshape(-1, 3),
         encodings={
             name: {
                 "attributes": {
@@ -195,19 +264,37 @@ def bake_probes(
                     "settings": encodings[name].settings_json(),
                     "bytes_per_probe": encodings[name].bytes_per_probe(),
                 },
-                "fields": {"probe_index": probe_index[name].astype(np.int32), **encoded[name]},
+                "fields": {"probe_index": merged.rows[name].astype(np.int32), **merged.encoded[name]},
                 "descriptions": {"probe_index": "row -> index into /probes",
                                  **{s.name: s.description for s in encodings[name].field_specs()}},
                 "shared": encodings[name].shared_tables(),
             }
-            for name in encoded
+            for name in merged.encoded
         },
-        diagnostics=all_diagnostics,
+        diagnostics=merged.diagnostics,
     )
+
+
+def bake_probes(
+    probes: list[Probe],
+    batch: ProbeBatch,
+    settings: BakeSettings,
+    output: str | os.PathLike[str],
+    attributes: dict[str, Any] | None = None,
+    diagnostics: dict[str, np.ndarray] | None = None,
+) -> BakeResult:
+    """Encode ``batch`` (one capture per probe, same order) and write the store atomically to ``output``."""
+    if len({p.name for p in probes}) != len(probes):
+        raise ConfigError("probe names must be unique")
+    encodings = select_encodings(settings, {k for p in probes for k in p.kinds})
+    result = encode_batch(probes, batch, settings, encodings, diagnostics)
+    for message in result.warnings:
+        warnings.warn(message, BakeryWarning, stacklevel=2)
     start = time.perf_counter()
-    path = write_store(output, contents)
-    timings["write"] = time.perf_counter() - start
-    return BakeResult(path, settings.hash(), probes, encoded, probe_index, encodings, all_diagnostics, timings, caught)
+    path = write_store(output, store_contents(result, settings, encodings, attributes))
+    result.timings["write"] = time.perf_counter() - start
+    return BakeResult(path, settings.hash(), list(probes), result.encoded, result.rows, encodings,
+                      result.diagnostics, result.timings, result.warnings)
 
 
 def sanitize_diagnostics(reports: list[SanitizeReport]) -> dict[str, np.ndarray]:

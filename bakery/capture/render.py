@@ -144,7 +144,8 @@ class ProbeRenderer:
             normals = self.tracer.normals[prim]
             flip = np.einsum("ij,ij->i", normals, directions) > 0
             normals = np.where(flip[:, None], -normals, normals)
-            points = origins + t[:, None] * directions + self.tracer.epsilon * normals
+            hits = origins + t[:, None] * directions
+            points = hits + self.tracer.offset(hits)[:, None] * normals
             direct = self._direct(points, normals, rng)
             out_add += throughput * albedo / np.pi * direct
             np.add.at(out, ray_index, out_add)

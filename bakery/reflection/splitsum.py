@@ -51,9 +51,9 @@ class SplitSumSettings:
     face_size: int = 128
     n_levels: int = 6
     min_face_size: int = 32
-    fis_samples: int = 128
-    max_sh_band: int = 24
-    sh_tolerance: float = 1e-4
+    fis_samples: int = 256
+    max_sh_band: int = 32
+    sh_tolerance: float = 1e-3
 
     def level_alphas(self) -> np.ndarray:
         """GGX α_i = (i / (n_levels − 1))² of every level."""

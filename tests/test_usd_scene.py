@@ -1,0 +1,230 @@
+"""Reading USD scenes: frames and units, dome orientation, lights (incl. legacy attributes), materials, instancing,
+probe volumes and captured images — with real .usda files, checked against closed forms and the OpenEXR
+latlong convention written out here."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+from usd_scenes import box_mesh, header, material, plane_mesh, probe, write
+
+from bakery.capture import capture_probes
+from bakery.sphere.cubemap import cube_texel_directions
+from bakery.usd.scene import read_scene
+
+DOME = "usd/openusd_DomeLightOrientation"
+
+
+def _dome_root(tmp_path, shared_data, up_axis):
+    """The OpenUSD dome scene (Y-up or Z-up, unedited) with one probe placed by a sublayer, 3 units in front of
+    the sphere along bake +Z: stage (0, 0, 3) when Y-up, (0, -3, 0) when Z-up ((x, y, z) ↦ (x, z, −y))."""
+    scene = shared_data / DOME / f"domeLight{up_axis}up.usda"
+    position = (0, 0, 3) if up_axis == "Y" else (0, -3, 0)
+    probes = write(tmp_path / f"probes{up_axis}.usda", f'#usda 1.0\n(\n    upAxis = "{up_axis}"\n)\n'
+                   + probe("Probe", position))
+    return write(tmp_path / f"root{up_axis}.usda",
+                 f'#usda 1.0\n(\n    upAxis = "{up_axis}"\n    subLayers = [@{probes}@, @{scene}@]\n)\n')
+
+
+def test_dome_y_up_and_z_up_scenes_capture_the_same(tmp_path, shared_data):
+    """OpenUSD's domeLightYup/Zup scenes: Z-up adds rotateX 90 on the dome; with the stage's Z-up → bake Y-up
+    rotation both bake to the same cube, and misses see the texture per the OpenEXR latlong convention."""
+    n = 16
+    cubes = {}
+    for up in ("Y", "Z"):
+        reading = read_scene(_dome_root(tmp_path, shared_data, up))
+        assert not reading.errors, reading.errors
+        assert reading.up_axis == up
+        cube, _ = capture_probes(reading.scene, n, samples=2, bounces=1)
+        cubes[up] = cube[0].astype(np.float64)
+    scale = cubes["Y"].mean()
+    assert np.abs(cubes["Y"] - cubes["Z"]).mean() < 1e-4 * scale
+    assert np.abs(cubes["Y"] - cubes["Z"]).max() < 1e-2 * scale
+
+    # Independent reference: the PNG read here, sRGB-decoded, looked up with OpenEXR's convention
+    # (row 0 = +Y, column 0 = longitude +π, longitude = atan2(x, z)) at face-centre directions.
+    buf = oiio.ImageBuf(str(shared_data / DOME / "testImage.png"))
+    image = buf.get_pixels(oiio.FLOAT)[..., :3].astype(np.float64)
+    image = np.where(image <= 0.04045, image / 12.92, ((image + 0.055) / 1.055) ** 2.4)
+    h, w = image.shape[:2]
+    faces = {0: (1, 0, 0), 1: (-1, 0, 0), 2: (0, 1, 0), 3: (0, -1, 0), 4: (0, 0, 1)}  # -Z looks at the sphere
+    for face, (x, y, z) in faces.items():
+        lon, lat = math.atan2(x, z), math.asin(y)
+        row = min(h - 1, int((0.5 - lat / math.pi) * h))
+        col = int((0.5 - lon / (2 * math.pi)) * w) % w
+        window = image[max(0, row - 8) : row + 9, np.arange(col - 8, col + 9) % w]
+        assert np.ptp(window, axis=(0, 1)).max() < 1e-6, f"reference window not constant on face {face}"
+        seen = cubes["Y"][face, n // 2 - 1 : n // 2 + 1, n // 2 - 1 : n // 2 + 1].mean(axis=(0, 1))
+        np.testing.assert_allclose(seen, image[row, col], atol=1e-6, err_msg=f"face {face}")
+
+
+def _lit_scene(unit_scale, up_axis="Y"):
+    """Ground, an occluding box, a sphere light and a sun, authored in units of 1/unit_scale metres."""
+    s = unit_scale
+    text = header(up_axis="Y", meters_per_unit=1.0 / s)
+    text += material("Ground", diffuse=(0.5, 0.45, 0.4)) + material("BlockMat", diffuse=(0.2, 0.6, 0.3))
+    text += plane_mesh("Plane", 50 * s, "/Ground") + box_mesh("Block", 0.5 * s, "/BlockMat", centre=(1.5 * s, 0.5 * s, 0))
+    text += f"""
+def SphereLight "Lamp"
+{{
+    float inputs:radius = {0.25 * s}
+    float inputs:intensity = 20
+    double3 xformOp:translate = ({-1 * s}, {2.5 * s}, {0.5 * s})
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+}}
+def DistantLight "Sun"
+{{
+    float inputs:intensity = 2
+    bool inputs:normalize = 1
+    float xformOp:rotateX = -50
+    float xformOp:rotateY = 30
+    uniform token[] xformOpOrder = ["xformOp:rotateY", "xformOp:rotateX"]
+}}
+""" + probe("P", (0.3 * s, 1.0 * s, 0.2 * s))
+    return text
+
+
+def test_units_centimetres_and_metres_capture_the_same(tmp_path):
+    n = 16
+    got = []
+    for scale in (1.0, 100.0):
+        reading = read_scene(write(tmp_path / f"units{int(scale)}.usda", _lit_scene(scale)))
+        assert not reading.errors
+        np.testing.assert_allclose(reading.scene.probes[0].position, (0.3, 1.0, 0.2), rtol=1e-12)
+        cube, _ = capture_probes(reading.scene, n, samples=2, bounces=1)
+        got.append(cube[0].astype(np.float64))
+    scale = got[0].mean()
+    assert np.abs(got[0] - got[1]).mean() < 1e-3 * scale
+
+
+def test_z_up_stage_positions_probes_in_the_y_up_bake_frame(tmp_path):
+    text = header(up_axis="Z", meters_per_unit=0.01) + probe("P", (100.0, 200.0, 300.0))
+    reading = read_scene(write(tmp_path / "zup.usda", text))
+    np.testing.assert_allclose(reading.scene.probes[0].position, (1.0, 3.0, -2.0), atol=1e-12)
+
+
+def test_probe_volume_grid_positions(tmp_path):
+    body = "float3 bakery:volume:extent = (2, 1, 3)\n    int3 bakery:volume:counts = (3, 2, 1)"
+    text = header() + probe("Vol", (10.0, 0.0, 0.0), type_name="BakeryIrradianceProbeVolume", body=body)
+    probes = read_scene(write(tmp_path / "vol.usda", text)).scene.probes
+    assert [p.name for p in probes] == [f"/Vol[{i},{j},0]" for j in range(2) for i in range(3)]
+    expected = [(10.0 + x, y, 0.0) for y in (-1.0, 1.0) for x in (-2.0, 0.0, 2.0)]  # counts 1 → mid-plane
+    np.testing.assert_allclose([p.position for p in probes], expected, atol=1e-12)
+    assert all(p.volume == "/Vol" and p.kind == "irradiance" for p in probes)
+
+
+def test_legacy_and_namespaced_light_attributes_and_normalize(tmp_path):
+    text = header() + """
+def SphereLight "Legacy"
+{
+    float intensity = 3
+    float exposure = 1
+    color3f color = (1, 0.5, 0.25)
+    float radius = 0.5
+}
+def RectLight "Panel"
+{
+    float inputs:intensity = 4
+    float inputs:width = 2
+    float inputs:height = 0.5
+    bool inputs:normalize = 1
+}
+""" + probe("P")
+    lights = {light.name: light for light in read_scene(write(tmp_path / "legacy.usda", text)).scene.lights}
+    np.testing.assert_allclose(lights["/Legacy"].radiance, (6.0, 3.0, 1.5))
+    assert lights["/Legacy"].size[0] == pytest.approx(0.5)
+    np.testing.assert_allclose(lights["/Panel"].radiance, (4.0,) * 3)  # 4 / (2 · 0.5 m²)
+
+
+def test_preview_surface_textures_are_averaged_in_linear(tmp_path):
+    pixels = np.zeros((4, 4, 3), dtype=np.uint8)
+    pixels[:2] = 255  # half white, half black, sRGB-encoded 8 bit → linear mean 0.5
+    out = oiio.ImageOutput.create(str(tmp_path / "half.png"))
+    assert out.open(str(tmp_path / "half.png"), oiio.ImageSpec(4, 4, 3, oiio.UINT8))
+    out.write_image(pixels)
+    out.close()
+    tex = """
+    def Shader "Tex"
+    {
+        uniform token info:id = "UsdUVTexture"
+        asset inputs:file = @./half.png@
+        float4 inputs:scale = (0.8, 0.8, 0.8, 1)
+        float3 outputs:rgb
+    }
+"""
+    text = header() + material("M", extra=tex).replace(
+        "color3f inputs:diffuseColor = (0.18, 0.18, 0.18)",
+        "color3f inputs:diffuseColor.connect = </M/Tex.outputs:rgb>",
+    ) + box_mesh("Box", 1.0, "/M") + probe("P", (0, 5, 0))
+    reading = read_scene(write(tmp_path / "tex.usda", text))
+    assert not reading.issues
+    np.testing.assert_allclose(reading.scene.meshes[0].material.diffuse, (0.4, 0.4, 0.4), rtol=1e-6)
+
+
+def test_instances_and_payloads_are_resolved(tmp_path):
+    write(tmp_path / "asset.usda", '#usda 1.0\n(\n    defaultPrim = "Asset"\n)\n'
+          'def Xform "Asset"\n{\n' + box_mesh("Box", 0.5, "/Asset/NoMat").replace("\n", "\n    ") + "\n}\n")
+    text = header() + f"""
+def Xform "A" (
+    instanceable = true
+    references = @./asset.usda@
+)
+{{
+    double3 xformOp:translate = (5, 0, 0)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+}}
+def Xform "B" (
+    instanceable = true
+    payload = @./asset.usda@
+)
+{{
+    double3 xformOp:translate = (-5, 0, 0)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+}}
+def PointInstancer "Scatter"
+{{
+    rel prototypes = </Scatter/Protos/Box>
+    int[] protoIndices = [0, 0, 0]
+    point3f[] positions = [(0, 0, 10), (0, 0, 20), (0, 0, 30)]
+    def Scope "Protos"
+    {{
+        {box_mesh("Box", 0.5, "/NoMat")}
+    }}
+}}
+""" + probe("P", (0, 5, 0))
+    reading = read_scene(write(tmp_path / "inst.usda", text))
+    centres = sorted(tuple(np.round(m.triangles.reshape(-1, 3).mean(axis=0), 6)) for m in reading.scene.meshes)
+    expected = sorted([(5.0, 0.0, 0.0), (-5.0, 0.0, 0.0), (0.0, 0.0, 10.0), (0.0, 0.0, 20.0), (0.0, 0.0, 30.0)])
+    np.testing.assert_allclose(centres, expected, atol=1e-6)
+
+
+def test_captured_image_probe_is_oriented_by_its_transform(tmp_path):
+    """A captured latlong turned by the probe's rotateY 90: bake direction ω reads the image at Rᵀω."""
+    h, w = 32, 64
+    cols = (np.arange(w) + 0.5) / w
+    pixels = np.zeros((h, w, 3), dtype=np.float32)
+    pixels[..., 0] = np.cos(2 * np.pi * cols)[None, :] + 1.0  # smooth in longitude
+    pixels[..., 1] = np.linspace(0.0, 1.0, h)[:, None]
+    pixels[..., 2] = 0.5
+    out = oiio.ImageOutput.create(str(tmp_path / "cap.exr"))
+    assert out.open(str(tmp_path / "cap.exr"), oiio.ImageSpec(w, h, 3, oiio.FLOAT))
+    out.write_image(pixels)
+    out.close()
+    body = 'asset bakery:capture:image = @./cap.exr@\n    float xformOp:rotateY = 90\n'
+    text = header() + probe("P", body=body, type_name="BakeryReflectionProbe").replace(
+        '["xformOp:translate"]', '["xformOp:translate", "xformOp:rotateY"]')
+    reading = read_scene(write(tmp_path / "cap.usda", text))
+    n = 16
+    cube, report = capture_probes(reading.scene, n)
+    assert report.loaded == 1 and report.rendered == 0
+    d = cube_texel_directions(n).reshape(-1, 3)
+    # rotateY(+90°): local (x, y, z) ↦ world (z, y, −x), so local = (−ω_z, ω_y, ω_x)
+    local = np.stack([-d[:, 2], d[:, 1], d[:, 0]], axis=-1)
+    lon = np.arctan2(local[:, 0], local[:, 2])
+    expected_r = np.cos(2 * np.pi * (0.5 - lon / (2 * np.pi))) + 1.0
+    away_from_poles = np.abs(d[:, 1]) < 0.7
+    err = np.abs(cube[0].reshape(-1, 3)[away_from_poles, 0] - expected_r[away_from_poles])
+    assert err.mean() < 0.03 and err.max() < 0.15
