@@ -232,14 +232,25 @@ def merge_batches(batches: list[EncodedBatch], order: list[str] | None = None) -
     for b in batches:
         for k, v in b.timings.items():
             timings[k] = timings.get(k, 0.0) + v
-    return EncodedBatch(final_probes, encoded, rows, diagnostics, timings, [w for b in batches for w in b.warnings])
+    # Warnings sorted and de-duplicated: their arrival order depends on scheduling, the store must not.
+    return EncodedBatch(final_probes, encoded, rows, diagnostics, timings, sorted({w for b in batches for w in b.warnings}))
 
 
 def store_contents(
     merged: EncodedBatch, settings: BakeSettings, encodings: dict[str, Encoding],
-    attributes: dict[str, Any] | None = None,
+    attributes: dict[str, Any] | None = None, probe_hashes: list[str] | None = None,
+    history: list[dict[str, str]] | None = None, bake_ids: np.ndarray | None = None, layers: str = "",
 ) -> StoreContents:
-    """The store for merged results (probes in ``merged.probes`` order)."""
+    """The store for merged results (probes in ``merged.probes`` order).
+
+    ``history`` lists earlier bakes still referenced by ``bake_ids``; this bake is appended as the last entry and
+    probes without a bake id (default: all) are attributed to it.
+    """
+    this_bake = {"time_utc": _bake_time(), "bakery_version": bakery.__version__, "settings_hash": settings.hash(),
+                 "layers": layers}
+    history = list(history or []) + [this_bake]
+    if bake_ids is None:
+        bake_ids = np.full(len(merged.probes), len(history) - 1, dtype=np.int32)
     return StoreContents(
         attributes={
             **convention_attributes(),
@@ -272,6 +283,9 @@ def store_contents(
             for name in merged.encoded
         },
         diagnostics=merged.diagnostics,
+        probe_hashes=probe_hashes,
+        probe_bake_ids=np.asarray(bake_ids, dtype=np.int32),
+        history=history,
     )
 
 

@@ -15,7 +15,7 @@ import click
 from rich.console import Console
 from rich.table import Table
 
-from bakery.errors import BakeryError, BakeryWarning
+from bakery.errors import BakeryError, BakeryWarning, ImageError
 
 SCENE_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
 console = Console(stderr=True, soft_wrap=True)
@@ -43,45 +43,175 @@ def main() -> None:
     """bakery: bake irradiance and reflection light probes from environments and USD scenes."""
 
 
+def _settings_from(recipe_name: str | None, encodings: tuple[str, ...], face_size: int | None, no_reference: bool,
+                   default_face_size: int):
+    """BakeSettings and pipeline options from a recipe plus command-line overrides (flags win)."""
+    from bakery.bake import BakeSettings
+    from bakery.pipeline.recipe import load_recipe
+
+    recipe = load_recipe(recipe_name) if recipe_name else None
+    bake_options = dict(recipe.bake) if recipe else {}
+    settings = BakeSettings(
+        face_size=face_size or bake_options.get("face_size", default_face_size),
+        encodings=encodings or (recipe.encodings if recipe else ()),
+        encoding_settings=recipe.encoding_settings if recipe else {},
+        quality_directions=bake_options.get("quality_directions", 1024),
+        reference_errors=(not no_reference) and bake_options.get("reference_errors", True),
+    )
+    return settings, (recipe.pipeline if recipe else {})
+
+
+class _Progress:
+    """A rich progress bar (probes/s, ETA) on a terminal; silent elsewhere."""
+
+    def __init__(self, enabled: bool) -> None:
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+        self.progress = Progress(TextColumn("baking"), BarColumn(), MofNCompleteColumn(),
+                                 TextColumn("{task.fields[rate]}"), TimeRemainingColumn(), console=console,
+                                 disable=not enabled)
+        self.task = None
+        self.start = None
+
+    def __enter__(self):
+        import time
+
+        self.progress.__enter__()
+        self.start = time.perf_counter()
+        return self
+
+    def __exit__(self, *exc):
+        self.progress.__exit__(*exc)
+
+    def __call__(self, done: int, total: int) -> None:
+        import time
+
+        if self.task is None:
+            self.task = self.progress.add_task("bake", total=total, rate="")
+        rate = done / max(time.perf_counter() - self.start, 1e-9)
+        self.progress.update(self.task, completed=done, total=total, rate=f"{rate:.1f} probes/s")
+
+
 @main.command()
-@click.argument("source", type=click.Path(path_type=Path))
+@click.argument("sources", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option("-o", "--output", type=click.Path(path_type=Path), help="Store (.h5). Default: SOURCE with .h5.")
-@click.option("--encodings", "-e", multiple=True, help="Encodings to bake (repeatable). Default: all for the probes.")
-@click.option("--face-size", type=int, default=None, help="Bake-grid cube face size (default 64 for images).")
+@click.option("--recipe", "-r", help="Recipe preset (mobile, console, pc-high, reference) or TOML path.")
+@click.option("--encodings", "-e", multiple=True, help="Encodings to bake (repeatable); overrides the recipe.")
+@click.option("--face-size", type=int, default=None, help="Bake-grid cube face size (default 64 images, 32 scenes).")
 @click.option("--layout", type=click.Choice(["equirect", "cube", "angular"]), help="Force the image layout.")
 @click.option("--layer", type=click.Path(path_type=Path), help="USD layer to write (scenes; default STORE.usda).")
+@click.option("--jobs", "-j", type=int, default=None, help="Worker processes (default: number of cores).")
+@click.option("--scheduler", help="Dask scheduler address (tcp://host:port) to bake on a farm.")
+@click.option("--dask-local", is_flag=True, help="Use a local Dask cluster of --jobs workers.")
+@click.option("--dry-run", is_flag=True, help="Print the plan (probes, reuse, batches) and exit.")
+@click.option("--no-resume", is_flag=True, help="Ignore checkpoints of an interrupted bake.")
 @click.option("--no-reference", is_flag=True, help="Skip error-vs-reference diagnostics.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
-def bake(source: Path, output: Path | None, encodings: tuple[str, ...], face_size: int | None, layout: str | None,
-         layer: Path | None, no_reference: bool, as_json: bool) -> None:
-    """Bake SOURCE: an environment image (one distant probe) or a USD scene (its probes)."""
-    from bakery.bake import BakeSettings
+def bake(sources: tuple[Path, ...], output: Path | None, recipe: str | None, encodings: tuple[str, ...],
+         face_size: int | None, layout: str | None, layer: Path | None, jobs: int | None, scheduler: str | None,
+         dask_local: bool, dry_run: bool, no_resume: bool, no_reference: bool, as_json: bool) -> None:
+    """Bake SOURCES: environment images (one distant probe each) or one USD scene (its probes).
 
-    output = output or source.with_suffix(".h5")
-    if source.suffix.lower() in SCENE_SUFFIXES:
-        from bakery.scene_bake import bake_scene
+    Exit codes: 0 all probes baked; 6 the store was written but some probes failed (listed); 2/3 bad input or
+    settings (nothing written).
+    """
+    from bakery.pipeline.executors import make_executor
+    from bakery.pipeline.run import execute_plan, load_previous, plan_environment_bake
 
-        summary = bake_scene(source, output, layer, face_size=face_size or 32, encodings=list(encodings) or None)
-        if as_json:
-            out.print_json(json.dumps(summary, default=str))
-        else:
-            console.print(f"baked {summary.get('probes', '?')} probes → {output}")
-        return
-    from bakery.bake import bake_environment
+    output = output or sources[0].with_suffix(".h5")
+    is_scene = sources[0].suffix.lower() in SCENE_SUFFIXES
+    if is_scene and len(sources) > 1:
+        raise click.UsageError("bake one USD scene at a time")
+    settings, pipeline = _settings_from(recipe, encodings, face_size, no_reference, 32 if is_scene else 64)
+    previous = None if no_resume else load_previous(output)
+    if is_scene:
+        from bakery.scene_bake import plan_scene_bake
 
-    settings = BakeSettings(face_size=face_size or 64, encodings=encodings, reference_errors=not no_reference)
-    result = bake_environment(source, output, settings, layout=layout)
-    summary = {
-        "store": str(result.store_path), "probes": len(result.probes), "settings_hash": result.settings_hash,
-        "encodings": {n: e.bytes_per_probe() for n, e in result.encodings.items()},
-        "timings_s": result.timings, "warnings": result.warnings,
-        "reference_error": {k.split("/", 1)[1]: float(v[0]) for k, v in result.diagnostics.items()
-                            if k.startswith("reference_error/")},
-    }
-    if as_json:
-        out.print_json(json.dumps(summary))
+        plan, scene_context = plan_scene_bake(sources[0], settings, previous, pipeline.get("batch_size", 64))
     else:
-        console.print(f"baked {source} → {result.store_path} ({len(result.encodings)} encodings)")
+        from bakery.environment.io import read_environment
+
+        missing = [s for s in sources if not s.is_file()]
+        if missing:
+            raise ImageError(f"{missing[0]}: environment image not found")
+        for source in sources:  # validate headers/layouts up front: bad input fails before any work
+            read_environment(source, layout=layout) if dry_run else None
+        plan = plan_environment_bake(list(sources), settings, previous, layout, pipeline.get("batch_size", 16))
+        scene_context = None
+    if dry_run:
+        info = {"store": str(output), "probes": len(plan.tasks), "reused": len(plan.reused),
+                "to_bake": sum(len(b.probes) for b in plan.batches), "batches": len(plan.batches),
+                "skipped": plan.skipped, "settings_hash": settings.hash(),
+                "encodings": sorted({e for t in plan.tasks for e in t.encodings})}
+        if as_json:
+            out.print_json(json.dumps(info))
+        else:
+            out.print(f"plan for {output}: {info['probes']} probes, {info['reused']} unchanged (reused), "
+                      f"{info['to_bake']} to bake in {info['batches']} batches; encodings: "
+                      + ", ".join(info["encodings"]))
+            for skip in plan.skipped:
+                out.print(f"  skipped {skip['probe']}: {skip['reason']}")
+        return
+    executor = make_executor(jobs, scheduler, dask_local)
+    try:
+        with _Progress(console.is_terminal and not as_json) as progress:
+            extra = {"sources": json.dumps([str(s) for s in sources])}
+            if scene_context is not None:
+                summary = scene_context.execute(plan, settings, output, executor, previous, not no_resume,
+                                                progress, layer)
+            else:
+                summary = execute_plan(plan, settings, output, executor, previous, resume=not no_resume,
+                                       progress=progress, attributes=extra)
+    finally:
+        executor.close()
+    if as_json:
+        out.print_json(json.dumps(summary.as_dict(), default=str))
+    else:
+        console.print(f"{output}: {summary.baked} probes baked, {summary.reused} unchanged, "
+                      f"{len(summary.failed)} failed in {summary.seconds:.1f} s "
+                      f"({summary.probes_per_second:.1f} probes/s, {summary.workers} {summary.executor} workers)")
+        for name, message in summary.failed.items():
+            console.print(f"[red]failed[/red] {name}: {message}")
+    if summary.failed:
+        sys.exit(6)
+
+
+@main.command()
+@click.argument("a", type=click.Path(path_type=Path))
+@click.argument("b", type=click.Path(path_type=Path))
+@click.option("--json", "as_json", is_flag=True)
+def diff(a: Path, b: Path, as_json: bool) -> None:
+    """Which probes differ between stores A and B, and by how much (per encoding, relative L2 of stored values)."""
+    from bakery.store.diff import diff_stores
+
+    report = diff_stores(a, b)
+    if as_json:
+        out.print_json(json.dumps(report, default=str))
+        return
+    out.print(f"added {len(report['added'])}, removed {len(report['removed'])}, changed {len(report['changed'])}, "
+              f"unchanged {report['unchanged']}")
+    for name in report["added"]:
+        out.print(f"+ {name}")
+    for name in report["removed"]:
+        out.print(f"- {name}")
+    for name, change in report["changed"].items():
+        worst = max(change.values()) if change else 0.0
+        out.print(f"~ {name}: max relative change {worst:.3g} " + ", ".join(f"{k}={v:.3g}" for k, v in change.items()))
+
+
+@main.command()
+@click.argument("store", type=click.Path(path_type=Path))
+@click.option("-o", "--output", type=click.Path(path_type=Path), help="Write the upgraded store here (default: in place).")
+@click.option("--dry-run", is_flag=True, help="Say what would change.")
+def migrate(store: Path, output: Path | None, dry_run: bool) -> None:
+    """Upgrade STORE to the current store format version."""
+    from bakery.store.format import FORMAT_VERSION, migrate_store
+
+    steps = migrate_store(store, output, dry_run=dry_run)
+    if not steps:
+        out.print(f"{store} is already format {FORMAT_VERSION}")
+    for step in steps:
+        out.print(("would migrate: " if dry_run else "migrated: ") + step)
 
 
 @main.command()

@@ -40,9 +40,12 @@ def test_dome_y_up_and_z_up_scenes_capture_the_same(tmp_path, shared_data):
         assert reading.up_axis == up
         cube, _ = capture_probes(reading.scene, n, samples=2, bounces=1)
         cubes[up] = cube[0].astype(np.float64)
-    scale = cubes["Y"].mean()
-    assert np.abs(cubes["Y"] - cubes["Z"]).mean() < 1e-4 * scale
-    assert np.abs(cubes["Y"] - cubes["Z"]).max() < 1e-2 * scale
+    # Everything but the -Z face (which sees the sphere) is the dome alone: identical.
+    np.testing.assert_allclose(cubes["Y"][:5], cubes["Z"][:5], atol=1e-6)
+    # The sphere gprim is tessellated in its local frame (poles on local Y), so its silhouette texels differ
+    # slightly between the two stages; the face agrees on average.
+    scale = cubes["Y"][5].mean()
+    assert np.abs(cubes["Y"][5] - cubes["Z"][5]).mean() < 0.03 * scale
 
     # Independent reference: the PNG read here, sRGB-decoded, looked up with OpenEXR's convention
     # (row 0 = +Y, column 0 = longitude +π, longitude = atan2(x, z)) at face-centre directions.
@@ -66,7 +69,8 @@ def _lit_scene(unit_scale, up_axis="Y"):
     s = unit_scale
     text = header(up_axis="Y", meters_per_unit=1.0 / s)
     text += material("Ground", diffuse=(0.5, 0.45, 0.4)) + material("BlockMat", diffuse=(0.2, 0.6, 0.3))
-    text += plane_mesh("Plane", 50 * s, "/Ground") + box_mesh("Block", 0.5 * s, "/BlockMat", centre=(1.5 * s, 0.5 * s, 0))
+    text += plane_mesh("Plane", 50 * s, "/Ground")
+    text += box_mesh("Block", 0.5 * s, "/BlockMat", centre=(1.5 * s, 0.5 * s, 0))
     text += f"""
 def SphereLight "Lamp"
 {{
@@ -228,3 +232,31 @@ def test_captured_image_probe_is_oriented_by_its_transform(tmp_path):
     away_from_poles = np.abs(d[:, 1]) < 0.7
     err = np.abs(cube[0].reshape(-1, 3)[away_from_poles, 0] - expected_r[away_from_poles])
     assert err.mean() < 0.03 and err.max() < 0.15
+
+
+@pytest.mark.parametrize("scene", ["root.usda", "root_with_instances.usda"])
+def test_openusd_light_list_scene_legacy_lights_payloads_and_instances(shared_data, scene):
+    """OpenUSD's LightListAPI scene: torches arrive by payload (and as instances), their SphereLights use legacy
+    attributes (radius 0.1, exposure 5 → radiance 2⁵ = 32)."""
+    reading = read_scene(shared_data / "usd" / "openusd_LightListAPI" / scene)
+    spheres = [light for light in reading.scene.lights if light.kind == "sphere"]
+    assert len(spheres) == 2
+    for light in spheres:
+        np.testing.assert_allclose(light.radiance, (32.0, 32.0, 32.0))
+        assert light.size[0] == pytest.approx(0.1 * reading.meters_per_unit)
+    names = {m.name.split("/")[-1] for m in reading.scene.meshes}
+    assert len(reading.scene.meshes) == 3 and "mesh_0" in names  # teapot + two torches (time-sampled points)
+
+
+@pytest.mark.parametrize(("pole", "up"), [("Y", "Z"), ("Z", "Z"), ("scene", "Z"), ("scene", "Y")])
+def test_dome_light_1_pole_axis(tmp_path, pole, up):
+    """DomeLight_1: the texture's pole is local +Y for poleAxis "Y", local +Z for "Z" or "scene" on a Z-up stage."""
+    text = header(up_axis=up) + f'def DomeLight_1 "Sky"\n{{\n    uniform token poleAxis = "{pole}"\n}}\n' + probe("P")
+    dome = read_scene(write(tmp_path / "dome1.usda", text)).scene.dome
+    rotation = np.asarray(dome.rotation)  # columns: dome-local axes in the bake frame
+    pole_on_z = pole == "Z" or (pole == "scene" and up == "Z")
+    pole_stage = np.array([0.0, 0.0, 1.0]) if pole_on_z else np.array([0.0, 1.0, 0.0])
+    # stage → bake: identity for Y-up, (x, y, z) ↦ (x, z, −y) for Z-up
+    to_bake = np.eye(3) if up == "Y" else np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])
+    # the texture's pole (dome-local +Y before the pole alignment) lands on the pole axis
+    np.testing.assert_allclose(rotation @ np.array([0.0, 1.0, 0.0]), to_bake @ pole_stage, atol=1e-12)

@@ -110,7 +110,7 @@ class ProbeRenderer:
         prim, t = self.tracer.intersect(origins, directions)
         t_light, l_light = intersect_light_shapes(self.area_lights, origins, directions)
         result = np.zeros((m, 3))
-        sees_light = t_light < t
+        sees_light = (t_light < FAR) & (t_light < t)
         result[sees_light] = l_light[sees_light]
         miss = (prim < 0) & ~sees_light
         if miss.any():
@@ -148,7 +148,7 @@ class ProbeRenderer:
             points = hits + self.tracer.offset(hits)[:, None] * normals
             direct = self._direct(points, normals, rng)
             out_add += throughput * albedo / np.pi * direct
-            np.add.at(out, ray_index, out_add)
+            out[ray_index] += out_add  # ray_index holds each surviving path once
             if depth == self.bounces:
                 break
             new_dirs = self._cosine_sample(normals, rng.random((ray_index.size, 2)))

@@ -84,7 +84,7 @@ class SceneTracer:
             )
             hit = out["primID"] >= 0
             prim[start:stop] = out["primID"]
-            t[start:stop] = np.where(hit, out["tfar"], FAR)
+            t[start:stop] = np.where(hit, out["tfar"].astype(np.float64), FAR)
         return prim, t
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray) -> np.ndarray:

@@ -26,6 +26,9 @@ from bakery.sphere.grid import SphericalSamples
 
 #: Elements (rows × samples) per chunk; bounds the temporary memory at ~100 MB in float32.
 _CHUNK_ELEMENTS = 4_000_000
+#: Tile of the float32 path (rows × texels = 256k elements, 1 MB per temporary).
+_TILE_ROWS = 32
+_TILE_TEXELS = 8192
 
 
 def _prepare_rows(view: np.ndarray, normal: np.ndarray, alpha: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -73,6 +76,61 @@ def fdv_cosine_weights(
     return w
 
 
+def _weights_float32(
+    l_t: np.ndarray, omega: np.ndarray, v: np.ndarray, n: np.ndarray, a: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Lean float32 version of :func:`fdv_cosine_weights` with ``tail=True`` (same formulas, in-place
+    operations; the hot loop of the reference). l_t (3, T) float32; v, n (m, 3); a (m,) → (m, T) twice.
+
+    With c = n·l, e = v·l, a2 = α²: (n·h)² = (n·v + c)² / (2 (1 + e)), D = a2 / (π ((n·h)²(a2 − 1) + 1)²),
+    V = ½ / (c √((n·v)²(1−a2)+a2) + (n·v) √(c²(1−a2)+a2)), w = D V c Ω (c > 0), tail = (1 − √((1+e)/2))⁵.
+    """
+    f32 = np.float32
+    nl = n.astype(f32) @ l_t
+    vl = v.astype(f32) @ l_t
+    nv = np.sum(n * v, axis=1).astype(f32)[:, None]
+    a2 = (a * a).astype(f32)[:, None]
+    np.maximum(nl, 0.0, out=nl)
+    # (n·h)²
+    nh2 = nv + nl
+    nh2 *= nh2
+    one_e = vl + f32(1.0)
+    np.maximum(one_e, f32(1e-12), out=one_e)
+    nh2 /= one_e
+    nh2 *= f32(0.5)
+    # D denominator: π ((n·h)²(a2−1)+1)²
+    nh2 *= a2 - f32(1.0)
+    nh2 += f32(1.0)
+    nh2 *= nh2
+    nh2 *= f32(np.pi)
+    # V denominator: c √(nv²(1−a2)+a2) + nv √(c²(1−a2)+a2)
+    gv = np.sqrt(nv * nv * (f32(1.0) - a2) + a2)
+    gl = nl * nl
+    gl *= f32(1.0) - a2
+    gl += a2
+    np.sqrt(gl, out=gl)
+    gl *= np.maximum(nv, f32(0.0))
+    gl += nl * gv
+    # w = D V c Ω = a2 · ½ c Ω / (π(...)² · (V-denominator))
+    gl *= nh2
+    np.maximum(gl, f32(1e-30), out=gl)
+    w = nl * (f32(0.5) * omega.astype(f32))
+    w *= a2
+    w /= gl
+    if np.any(nv <= 0):
+        w *= (nv > 0).astype(f32)
+    # Fresnel tail (1 − v·h)⁵, v·h = √((1 + e)/2)
+    one_e *= f32(0.5)
+    np.sqrt(one_e, out=one_e)
+    np.subtract(f32(1.0), one_e, out=one_e)
+    np.maximum(one_e, f32(0.0), out=one_e)
+    t2 = one_e * one_e
+    t2 *= t2
+    t2 *= one_e
+    t2 *= w
+    return w, t2
+
+
 def integrate_reflection(
     samples: SphericalSamples,
     view: np.ndarray,
@@ -91,12 +149,26 @@ def integrate_reflection(
     radiance = np.asarray(samples.radiance, dtype=dtype)
     e0 = np.empty((m_total, radiance.shape[1]))
     e1 = np.empty_like(e0)
-    chunk = max(1, _CHUNK_ELEMENTS // max(t, 1))
-    for start in range(0, m_total, chunk):
-        s = slice(start, start + chunk)
-        w0, w1 = fdv_cosine_weights(samples.directions, samples.solid_angles, v[s], n[s], a[s], tail=True, dtype=dtype)
-        e0[s] = w0 @ radiance
-        e1[s] = w1 @ radiance
+    if dtype != np.float32:
+        chunk = max(1, _CHUNK_ELEMENTS // max(t, 1))
+        for start in range(0, m_total, chunk):
+            s = slice(start, start + chunk)
+            w0, w1 = fdv_cosine_weights(samples.directions, samples.solid_angles, v[s], n[s], a[s], tail=True)
+            e0[s] = w0 @ radiance
+            e1[s] = w1 @ radiance
+        return e0, e1
+    # float32 hot path: tiles of (rows × texels) small enough to stay in cache.
+    l_t = np.ascontiguousarray(np.asarray(samples.directions, dtype=np.float32).T)
+    omega = np.asarray(samples.solid_angles, dtype=np.float32)
+    e0[:] = 0.0
+    e1[:] = 0.0
+    for t0 in range(0, t, _TILE_TEXELS):
+        tt = slice(t0, t0 + _TILE_TEXELS)
+        for start in range(0, m_total, _TILE_ROWS):
+            s = slice(start, start + _TILE_ROWS)
+            w0, w1 = _weights_float32(l_t[:, tt], omega[tt], v[s], n[s], a[s])
+            e0[s] += w0 @ radiance[tt]
+            e1[s] += w1 @ radiance[tt]
     return e0, e1
 
 

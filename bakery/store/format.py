@@ -21,7 +21,9 @@ import numpy as np
 from bakery.errors import StoreFormatError
 
 FORMAT_NAME = "bakery.probe-store"
-FORMAT_VERSION = "1.0.0"
+FORMAT_VERSION = "1.1.0"
+#: Versions this reader reads (writers write only FORMAT_VERSION; ``bakery migrate`` upgrades older files).
+READABLE_VERSIONS = ("1.0.0", "1.1.0")
 
 _STR = h5py.string_dtype("utf-8")
 
@@ -30,7 +32,7 @@ _STR = h5py.string_dtype("utf-8")
 class StoreContents:
     """Everything a store holds, as plain data.
 
-    Attributes:
+    Attributes (the first five are in every version; the last three from 1.1.0):
         attributes: root attributes (format, versions, conventions, settings, settings hash, …).
         probe_names: (P,) unique probe identities (prim paths, or ``/environment``).
         probe_kinds: (P,) comma-separated kinds (``irradiance``, ``reflection``).
@@ -45,6 +47,12 @@ class StoreContents:
     probe_positions: np.ndarray
     encodings: dict[str, dict[str, Any]] = field(default_factory=dict)
     diagnostics: dict[str, np.ndarray] = field(default_factory=dict)
+    #: (P,) content hash per probe (1.1.0; "" when unknown, e.g. migrated from 1.0.0).
+    probe_hashes: list[str] | None = None
+    #: (P,) index into ``history`` of the bake that produced each probe (1.1.0).
+    probe_bake_ids: np.ndarray | None = None
+    #: bakes that produced the probes: {"time_utc", "bakery_version", "settings_hash", "layers"} (1.1.0).
+    history: list[dict[str, str]] = field(default_factory=list)
 
 
 def _write_attributes(node: h5py.HLObject, attributes: dict[str, Any]) -> None:
@@ -81,6 +89,15 @@ def write_store(path: str | os.PathLike[str], contents: StoreContents) -> Path:
             probes.create_dataset("kinds", data=np.array(contents.probe_kinds, dtype=object), dtype=_STR,
                                   track_times=False)
             _dataset(probes, "position", np.asarray(contents.probe_positions, dtype=np.float64).reshape(-1, 3))
+            count = len(contents.probe_names)
+            hashes = contents.probe_hashes if contents.probe_hashes is not None else [""] * count
+            probes.create_dataset("content_hash", data=np.array(hashes, dtype=object), dtype=_STR, track_times=False)
+            bake_ids = contents.probe_bake_ids if contents.probe_bake_ids is not None else np.zeros(count)
+            _dataset(probes, "bake_id", np.asarray(bake_ids, dtype=np.int32))
+            history = f.create_group("history")
+            for key in ("time_utc", "bakery_version", "settings_hash", "layers"):
+                history.create_dataset(key, data=np.array([str(h.get(key, "")) for h in contents.history],
+                                                          dtype=object), dtype=_STR, track_times=False)
             encodings = f.create_group("encodings")
             for name in sorted(contents.encodings):
                 entry = contents.encodings[name]
@@ -165,6 +182,21 @@ def read_store(path: str | os.PathLike[str], load_fields: bool = True) -> StoreC
                 if "shared" in group:
                     entry["shared"] = {k: v[()] for k, v in group["shared"].items()}
                 encodings[name] = entry
+            count = len(names)
+            if "content_hash" in f["probes"]:
+                hashes = [h.decode() if isinstance(h, bytes) else str(h) for h in f["probes/content_hash"][()]]
+                bake_ids = f["probes/bake_id"][()]
+            else:
+                hashes, bake_ids = [""] * count, np.zeros(count, dtype=np.int32)
+            history: list[dict[str, str]] = []
+            if "history" in f:
+                columns = {k: [v.decode() if isinstance(v, bytes) else str(v) for v in f["history"][k][()]]
+                           for k in f["history"]}
+                history = [{k: columns[k][i] for k in columns} for i in range(len(next(iter(columns.values()), [])))]
+            elif "bake_time_utc" in attributes:
+                history = [{"time_utc": str(attributes["bake_time_utc"]),
+                            "bakery_version": str(attributes.get("bakery_version", "")),
+                            "settings_hash": str(attributes.get("settings_hash", "")), "layers": ""}]
             diagnostics: dict[str, np.ndarray] = {}
             if "diagnostics" in f:
                 def visit(name: str, item: Any) -> None:
@@ -174,4 +206,22 @@ def read_store(path: str | os.PathLike[str], load_fields: bool = True) -> StoreC
                 f["diagnostics"].visititems(visit)
         except (KeyError, OSError) as error:
             raise StoreFormatError(f"{path}: store is missing required data or is corrupt: {error}") from error
-    return StoreContents(attributes, names, kinds, np.asarray(positions), encodings, diagnostics)
+    return StoreContents(attributes, names, kinds, np.asarray(positions), encodings, diagnostics, hashes,
+                         np.asarray(bake_ids, dtype=np.int32), history)
+
+
+def migrate_store(source: str | os.PathLike[str], target: str | os.PathLike[str] | None = None,
+                  dry_run: bool = False) -> list[str]:
+    """Upgrade a store to :data:`FORMAT_VERSION` (atomically, in place unless ``target``). Returns the steps taken.
+
+    1.0.0 → 1.1.0: adds ``/probes/content_hash`` (empty: the probes will be re-baked on the next incremental bake),
+    ``/probes/bake_id`` (0) and ``/history`` with one entry from the root attributes.
+    """
+    contents = read_store(source)
+    version = str(contents.attributes.get("format_version"))
+    if version == FORMAT_VERSION:
+        return []
+    steps = [f"{version} -> {FORMAT_VERSION}: add /probes/content_hash, /probes/bake_id, /history"]
+    if not dry_run:
+        write_store(target or source, contents)
+    return steps

@@ -7,8 +7,8 @@ Outcomes
                      color temperature, unsupported gprims or lights, unauthored metersPerUnit, ...).
 
 Checks are those of the scene reader (:mod:`bakery.usd.scene`) — the same code the bake runs, so ``check`` and
-``bake`` never disagree — plus the stage's composition errors (unresolvable references, payloads, sublayers) and
-per-probe encoding names that are not registered.
+``bake`` never disagree — plus the stage's composition errors (unresolvable references, payloads, sublayers) as
+warnings.
 """
 
 from __future__ import annotations
@@ -33,27 +33,8 @@ def check_scene(path: str | Path) -> list[Issue]:
         issues.append(Issue("warning", "/", f"composition: {text}"))
     reading = SceneReader(stage, load_textures=True).read()
     issues.extend(reading.issues)
-    issues.extend(_encoding_issues(reading))
     order = {"error": 0, "warning": 1}
     return sorted(dict.fromkeys(issues), key=lambda i: (order.get(i.severity, 2), i.prim))
-
-
-def _encoding_issues(reading) -> list[Issue]:
-    from bakery.encodings import ENCODINGS, get_encoding
-
-    issues = []
-    for probe in reading.scene.probes:
-        for name in probe.encodings:
-            try:
-                cls = get_encoding(name)
-            except KeyError:
-                issues.append(Issue("error", probe.volume or probe.name,
-                                    f"unknown encoding {name!r} in bakery:encodings; known: {', '.join(ENCODINGS)}"))
-                continue
-            if cls.kind != probe.kind:
-                issues.append(Issue("warning", probe.volume or probe.name,
-                                    f"encoding {name!r} is a {cls.kind} encoding on a {probe.kind} probe"))
-    return issues
 
 
 def check_exit_code(issues: list[Issue]) -> int:

@@ -23,7 +23,12 @@ from bakery.capture.scene import Material
 _T = Usd.TimeCode.EarliestTime()
 
 #: UsdPreviewSurface fallbacks of the inputs bakery reads.
-PREVIEW_FALLBACKS = {"diffuseColor": (0.18, 0.18, 0.18), "emissiveColor": (0.0, 0.0, 0.0), "roughness": 0.5, "metallic": 0.0}
+PREVIEW_FALLBACKS = {
+    "diffuseColor": (0.18, 0.18, 0.18),
+    "emissiveColor": (0.0, 0.0, 0.0),
+    "roughness": 0.5,
+    "metallic": 0.0,
+}
 
 
 @dataclass

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
 
-from bakery.capture.scene import CaptureScene, Dome, Light, Material, Mesh, ProbeSpec
+from bakery.capture.scene import CaptureScene, Dome, Light, Mesh, ProbeSpec
 from bakery.environment.io import read_environment
 from bakery.errors import ImageError, SceneError
 from bakery.usd.materials import MaterialReader, is_8bit_image, srgb_to_linear
@@ -181,6 +181,7 @@ class SceneReader:
                     self.issue("warning", prim, f"{type_name} gprims are not supported by the capture; skipped")
             except SceneError as exc:
                 self.issue("error", prim, str(exc))
+        self._check_encodings()
         for severity, path, message in self.materials.issues:
             self.issue(severity, path, message)
         if not self.probes:
@@ -209,6 +210,26 @@ class SceneReader:
             up_axis=self.frame.up,
             layers=tuple(sorted({layer.realPath for layer in self.stage.GetUsedLayers() if layer.realPath})),
         )
+
+    def _check_encodings(self) -> None:
+        """Per-probe ``bakery:encodings`` must name registered encodings (of the probe's kind, else a warning)."""
+        from bakery.encodings import ENCODINGS, get_encoding
+
+        seen: set[tuple[str, str]] = set()
+        for spec in self.probes:
+            prim = spec.volume or spec.name
+            for name in spec.encodings:
+                if (prim, name) in seen:
+                    continue
+                seen.add((prim, name))
+                try:
+                    cls = get_encoding(name)
+                except KeyError:
+                    self.issue("error", prim, f"unknown encoding {name!r} in bakery:encodings; known: "
+                               f"{', '.join(ENCODINGS)}")
+                    continue
+                if cls.kind != spec.kind:
+                    self.issue("warning", prim, f"encoding {name!r} is a {cls.kind} encoding on a {spec.kind} probe")
 
     # ------------------------------------------------------------------------------------------------------------
     # Probes

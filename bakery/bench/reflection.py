@@ -1,0 +1,278 @@
+"""Glossy-reflection quality and speed bench (seed 000, Fig. 4–7 protocol): ``bakery bench reflection DIR``.
+
+Protocol
+    For every environment image in ``env_dir``: resample to the bake cube grid (``face_size``), encode with SH
+    exponentials (``shexp``) and split-sum (``splitsum``) through the registered encodings (what a store holds,
+    float16 chain included), and render orthographic spheres — chrome (F0 = 1) and glass (F0 = 0.04) — at
+    α = r², r ∈ linspace(0.5, 1, 6) (α ∈ [0.25, 1], perceptually spaced [Bur12]) from two views (front, +Z;
+    elevated, looking down 40°). The reference is the brute-force integral of Eq. 1 over the full-resolution image
+    (:func:`bakery.reflection.reference.integrate_reflection`, exact texel solid angles). One case = (environment,
+    material, view, α); MSE over the sphere's pixels and RGB; ratio = MSE(shexp) / MSE(splitsum) (< 1: SH-exp
+    wins). Memory: bytes per probe of each encoding's stored fields (shared tables excluded).
+
+Speed (``speed=True``): single process, captures 6×N² (N = ``face_size``), batches of 32 probes.
+    SH-exp fit: dense W and fast (truncated SH + sparse bright texels) paths, ms/probe and probes/s, and the
+    fast path's error vs the dense one on every environment (sun-dominated ones included).
+    Split-sum chain: fast formulation (SH per-band scaling for rough levels, filtered importance sampling for
+    sharp ones) vs the plain 1024-sample GGX importance sampling, ms/probe, and each one's error per level vs an
+    exact dense quadrature of the same kernel at 512 texel directions.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from bakery.encodings.reflection import SHExp, SplitSum
+from bakery.environment import environment_samples, resample_to_cube
+from bakery.environment.io import read_environment
+from bakery.probe import ProbeBatch
+from bakery.reflection import splitsum as ss
+from bakery.reflection.reference import integrate_reflection, reflected_radiance
+from bakery.reflection.shexp import SHExpSettings, build_operators, evaluate_e0, fit_shexp
+from bakery.sphere.fibonacci import fibonacci_directions
+
+IMAGE_SUFFIXES = (".hdr", ".exr")
+PERCEPTUAL = np.linspace(0.5, 1.0, 6)
+ALPHAS = PERCEPTUAL**2
+MATERIALS = {"chrome": 1.0, "glass": 0.04}
+VIEWS = {"front": np.array([0.0, 0.0, 1.0]), "elevated": np.array([0.0, np.sin(np.radians(40)), np.cos(np.radians(40))])}
+
+
+def find_environments(folder: Path) -> list[Path]:
+    return sorted(p for p in Path(folder).rglob("*") if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file())
+
+
+def sphere_normals(view: np.ndarray, resolution: int) -> np.ndarray:
+    """Normals (K, 3) of the visible pixels of an orthographic unit sphere seen from ``view`` (towards the viewer),
+    pixel centres of a resolution² image over [-1, 1]²."""
+    up = np.array([0.0, 1.0, 0.0])
+    right = np.cross(up, view)
+    right /= np.linalg.norm(right)
+    up = np.cross(view, right)
+    c = (np.arange(resolution) + 0.5) / resolution * 2.0 - 1.0
+    y, x = np.meshgrid(-c, c, indexing="ij")
+    inside = x * x + y * y < 1.0
+    z = np.sqrt(1.0 - x[inside] ** 2 - y[inside] ** 2)
+    return x[inside, None] * right + y[inside, None] * up + z[:, None] * view
+
+
+def _rows(resolution: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple[str, float, slice]]]:
+    views, normals, alphas, cases = [], [], [], []
+    start = 0
+    for view_name, view in VIEWS.items():
+        n = sphere_normals(view, resolution)
+        for alpha in ALPHAS:
+            views.append(np.broadcast_to(view, n.shape))
+            normals.append(n)
+            alphas.append(np.full(len(n), alpha))
+            cases.append((view_name, float(alpha), slice(start, start + len(n))))
+            start += len(n)
+    return np.concatenate(views), np.concatenate(normals), np.concatenate(alphas), cases
+
+
+def run_reflection_bench(
+    env_dir: Path, out_dir: Path, speed: bool = False, face_size: int = 128, sphere_resolution: int = 20
+) -> dict:
+    """Run the quality protocol (and with ``speed`` the speed protocol); write ``reflection.json`` and
+    ``reflection.md`` to ``out_dir``; return the result dict."""
+    paths = find_environments(Path(env_dir))
+    if not paths:
+        raise FileNotFoundError(f"no .hdr/.exr environment images under {env_dir}")
+    images = [read_environment(p)[0] for p in paths]
+    names = [p.stem for p in paths]
+    cubes = np.stack([resample_to_cube(img, face_size) for img in images])
+    batch = ProbeBatch(cubes)
+    shexp, split = SHExp(fit="dense"), SplitSum(face_size=face_size)
+    t0 = time.perf_counter()
+    fields_shexp = shexp.encode(batch)
+    t1 = time.perf_counter()
+    fields_split = split.encode(batch)
+    t2 = time.perf_counter()
+    view, normal, alpha, cases = _rows(sphere_resolution)
+    rows = []
+    for i, (name, image) in enumerate(zip(names, images, strict=True)):
+        e0, e1 = integrate_reflection(environment_samples(image), view, normal, alpha)
+        one = lambda fields: {k: v[i : i + 1] for k, v in fields.items()}  # noqa: E731
+        for material, f0 in MATERIALS.items():
+            f0s = np.full(len(alpha), f0)
+            reference = reflected_radiance(e0, e1, f0s)
+            est_shexp = shexp.evaluate_reflection(one(fields_shexp), shexp.shared_tables(), view, normal, alpha, f0s)[0]
+            est_split = split.evaluate_reflection(one(fields_split), split.shared_tables(), view, normal, alpha, f0s)[0]
+            for view_name, a, sl in cases:
+                ref = reference[sl]
+                mse_shexp = float(np.mean((est_shexp[sl] - ref) ** 2))
+                mse_split = float(np.mean((est_split[sl] - ref) ** 2))
+                power = float(np.mean(ref**2))
+                rows.append({
+                    "environment": name, "material": material, "view": view_name, "alpha": a,
+                    "mse_shexp": mse_shexp, "mse_splitsum": mse_split,
+                    "rel_mse_shexp": mse_shexp / power if power > 0 else 0.0,
+                    "rel_mse_splitsum": mse_split / power if power > 0 else 0.0,
+                    "ratio": mse_shexp / mse_split if mse_split > 0 else float("inf"),
+                })
+    ratios = np.array([r["ratio"] for r in rows])
+    losses = [r for r in rows if r["ratio"] >= 1.0]
+    result = {
+        "protocol": {
+            "face_size": face_size, "sphere_resolution": sphere_resolution, "alphas": [float(a) for a in ALPHAS],
+            "materials": MATERIALS, "views": {k: v.tolist() for k, v in VIEWS.items()},
+            "shexp_settings": shexp.settings, "splitsum_settings": split.settings,
+            "reference": "brute-force Eq. 1 over the full-resolution image (exact texel solid angles)",
+        },
+        "rows": rows,
+        "summary": {
+            "cases": len(rows),
+            "shexp_wins": int(np.sum(ratios < 1.0)),
+            "shexp_win_share": float(np.mean(ratios < 1.0)),
+            "median_ratio": float(np.median(ratios)),
+            "geometric_mean_ratio": float(np.exp(np.mean(np.log(np.maximum(ratios, 1e-30))))),
+            "bytes_per_probe": {"shexp": shexp.bytes_per_probe(), "splitsum": split.bytes_per_probe()},
+            "memory_ratio": split.bytes_per_probe() / shexp.bytes_per_probe(),
+            "losses_by_environment": _count(losses, "environment"),
+            "losses_by_alpha": _count(losses, "alpha"),
+            "losses_by_material": _count(losses, "material"),
+            "encode_ms_per_probe": {"shexp_dense": 1e3 * (t1 - t0) / len(names),
+                                    "splitsum_fast": 1e3 * (t2 - t1) / len(names)},
+        },
+    }
+    if speed:
+        result["speed"] = run_speed(cubes, names)
+    write_results(result, Path(out_dir))
+    return result
+
+
+def _count(rows: list[dict], key: str) -> dict:
+    out: dict[str, int] = {}
+    for r in rows:
+        k = str(round(r[key], 4)) if isinstance(r[key], float) else r[key]
+        out[k] = out.get(k, 0) + 1
+    return out
+
+
+def _time(fn, repeat: int = 3) -> float:
+    best = float("inf")
+    for _ in range(repeat):
+        start = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - start)
+    return best
+
+
+def run_speed(cubes: np.ndarray, names: list[str], batch_size: int = 32, plain_probes: int = 2) -> dict:
+    """Speed protocol of the module doc on captures ``cubes`` (P, 6, N, N, 3)."""
+    settings = SHExpSettings()
+    start = time.perf_counter()
+    build_operators(settings)
+    build_seconds = time.perf_counter() - start
+    big = cubes[np.arange(batch_size) % len(cubes)]
+    dense_s = _time(lambda: fit_shexp(big, settings, fast=False))
+    fast_s = _time(lambda: fit_shexp(big, settings, fast=True))
+    # fast vs dense on every environment: relative RMS of E0 on a Fibonacci set of (v = n) and grazing rows.
+    normals = fibonacci_directions(512)
+    views = np.roll(normals, 7, axis=0) + normals
+    views /= np.linalg.norm(views, axis=1, keepdims=True)
+    rows_v = np.concatenate([normals, views] * 3)
+    rows_n = np.concatenate([normals, normals] * 3)
+    rows_a = np.repeat([0.25, 0.5, 1.0], 1024)
+    dense = evaluate_e0(fit_shexp(cubes, settings, fast=False), rows_v, rows_n, rows_a, settings)
+    fast = evaluate_e0(fit_shexp(cubes, settings, fast=True), rows_v, rows_n, rows_a, settings)
+    fast_error = {
+        name: float(np.sqrt(np.mean((fast[i] - dense[i]) ** 2)) / max(float(np.mean(dense[i])), 1e-30))
+        for i, name in enumerate(names)
+    }
+    chain = ss.SplitSumSettings(face_size=cubes.shape[2])
+    chain_fast_s = _time(lambda: ss.prefilter_chain(cubes[0], chain), repeat=2)
+    pick = [names.index(n) for n in ("park", "city") if n in names][:plain_probes] or list(range(min(plain_probes, len(names))))
+    level_errors = []
+    plain_s = []
+    rng = np.random.default_rng(0)
+    for i in pick:
+        start = time.perf_counter()
+        plain = ss._reference_prefilter_chain(cubes[i], chain, 1024)
+        plain_s.append(time.perf_counter() - start)
+        fast_chain = ss.prefilter_chain(cubes[i], chain)
+        for level, (a, size) in enumerate(zip(chain.level_alphas(), chain.level_sizes(), strict=True)):
+            if a == 0:
+                continue
+            texels = rng.choice(6 * size * size, 512, replace=False)
+            exact = _exact_at(cubes[i], float(a), size, texels)
+            err = lambda x: float(np.sqrt(np.mean((x.reshape(-1, 3)[texels] - exact) ** 2)) / max(float(exact.mean()), 1e-30))  # noqa: E731
+            level_errors.append({
+                "environment": names[i], "level": level, "alpha": float(a), "size": size,
+                "formulation": ss.level_formulation(chain, float(a)),
+                "rel_rms_fast_vs_exact": err(fast_chain[level]), "rel_rms_plain_vs_exact": err(plain[level]),
+                "rel_rms_fast_vs_plain": float(np.sqrt(np.mean((fast_chain[level] - plain[level]) ** 2))
+                                               / max(float(plain[level].mean()), 1e-30)),
+            })
+    return {
+        "batch_size": batch_size, "face_size": int(cubes.shape[2]),
+        "shexp_operator_build_s": build_seconds,
+        "shexp_dense_ms_per_probe": 1e3 * dense_s / batch_size, "shexp_fast_ms_per_probe": 1e3 * fast_s / batch_size,
+        "shexp_dense_probes_per_s": batch_size / dense_s, "shexp_fast_probes_per_s": batch_size / fast_s,
+        "shexp_fast_vs_dense_rel_rms": fast_error,
+        "splitsum_fast_ms_per_probe": 1e3 * chain_fast_s, "splitsum_plain_ms_per_probe": 1e3 * float(np.mean(plain_s)),
+        "splitsum_level_errors": level_errors,
+    }
+
+
+def _exact_at(cube: np.ndarray, alpha: float, size: int, texels: np.ndarray) -> np.ndarray:
+    """Exact kernel quadrature (:func:`bakery.reflection.splitsum._exact_prefilter_level`) at selected texels."""
+    from bakery.sphere.cubemap import cube_texel_directions, cube_texel_solid_angles
+
+    n = cube.shape[1]
+    src = cube_texel_directions(n).reshape(-1, 3)
+    omega = cube_texel_solid_angles(n).reshape(-1)
+    out_dirs = cube_texel_directions(size).reshape(-1, 3)[texels]
+    k = ss._kernel_profile(out_dirs @ src.T, alpha) * omega
+    return (k @ cube.reshape(-1, 3).astype(np.float64)) / k.sum(axis=1)[:, None]
+
+
+def format_table(result: dict) -> str:
+    """Markdown summary: per (environment, α) mean ratio, then totals (and speed)."""
+    s = result["summary"]
+    lines = [
+        f"# Reflection bench ({s['cases']} cases)", "",
+        f"SH-exp lower MSE in {s['shexp_wins']}/{s['cases']} cases ({100 * s['shexp_win_share']:.1f}%); "
+        f"median ratio {s['median_ratio']:.3g}, geometric mean {s['geometric_mean_ratio']:.3g}.",
+        f"Bytes per probe: shexp {s['bytes_per_probe']['shexp']}, splitsum {s['bytes_per_probe']['splitsum']} "
+        f"(ratio {s['memory_ratio']:.0f}×).", "",
+        "| environment | " + " | ".join(f"α={a:.3g}" for a in ALPHAS) + " |",
+        "|---|" + "---|" * len(ALPHAS),
+    ]
+    envs = sorted({r["environment"] for r in result["rows"]})
+    for env in envs:
+        cells = []
+        for a in ALPHAS:
+            rr = [r["ratio"] for r in result["rows"] if r["environment"] == env and abs(r["alpha"] - a) < 1e-9]
+            wins = sum(x < 1 for x in rr)
+            cells.append(f"{np.exp(np.mean(np.log(np.maximum(rr, 1e-30)))):.3g} ({wins}/{len(rr)})")
+        lines.append(f"| {env} | " + " | ".join(cells) + " |")
+    lines += ["", "Cells: geometric-mean MSE ratio shexp/splitsum over materials × views (wins/cases).", ""]
+    if "speed" in result:
+        sp = result["speed"]
+        lines += [
+            "## Speed (single process)", "",
+            f"- SH-exp fit, dense W: {sp['shexp_dense_ms_per_probe']:.2f} ms/probe "
+            f"({sp['shexp_dense_probes_per_s']:.0f} probes/s)",
+            f"- SH-exp fit, fast: {sp['shexp_fast_ms_per_probe']:.2f} ms/probe ({sp['shexp_fast_probes_per_s']:.0f} "
+            f"probes/s); max rel. RMS vs dense {max(sp['shexp_fast_vs_dense_rel_rms'].values()):.3g}",
+            f"- split-sum chain: fast {sp['splitsum_fast_ms_per_probe']:.0f} ms/probe, plain 1024-sample IS "
+            f"{sp['splitsum_plain_ms_per_probe']:.0f} ms/probe", "",
+            "| env | level | α | formulation | fast vs exact | plain vs exact |", "|---|---|---|---|---|---|",
+        ]
+        for e in sp["splitsum_level_errors"]:
+            lines.append(f"| {e['environment']} | {e['level']} | {e['alpha']:.3g} | {e['formulation']} | "
+                         f"{e['rel_rms_fast_vs_exact']:.3g} | {e['rel_rms_plain_vs_exact']:.3g} |")
+    return "\n".join(lines) + "\n"
+
+
+def write_results(result: dict, out_dir: Path, stem: str = "reflection") -> tuple[Path, Path]:
+    out_dir.mkdir(parents=True, exist_ok=True)
+    json_path, text_path = out_dir / f"{stem}.json", out_dir / f"{stem}.md"
+    json_path.write_text(json.dumps(result, indent=2))
+    text_path.write_text(format_table(result))
+    return json_path, text_path

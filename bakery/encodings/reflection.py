@@ -1,0 +1,149 @@
+"""Reflection encodings (seed 000): split-sum prefiltered chain and SH exponentials. Declared once here and picked
+up by store, API and the conformance tests; layouts in ``schemas/store-reflection.md``.
+
+Both reconstruct E(v, n, α, F0) = specular radiance for GGX + height-correlated Smith + Schlick Fresnel
+(:mod:`bakery.brdf`), v towards the viewer, α GGX (not perceptual).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from bakery.encodings.registry import Encoding, FieldSpec, register
+from bakery.probe import ProbeBatch
+from bakery.reflection.shexp import SHExpSettings, evaluate_shexp, fit_shexp
+from bakery.reflection.splitsum import SplitSumSettings, evaluate_split_sum, prefilter_batch, resize_cube
+from bakery.reflection.tables import compute_dfg_tables
+from bakery.sphere.cubemap import cube_texel_directions, sample_cube_bilinear
+
+#: Shared-table resolution (Nα = Nv) and quadrature samples per axis.
+TABLE_SIZE = 64
+TABLE_SAMPLES = 64
+
+
+class ReflectionEncoding(Encoding):
+    kind = "reflection"
+
+
+def _cubes_at(batch: ProbeBatch, face_size: int) -> np.ndarray:
+    """The batch's captures at ``face_size``: as is, area-downsampled (power-of-two ratio) or bilinearly
+    upsampled (P, 6, F, F, 3) float32."""
+    cubes = batch.cubes
+    n = batch.face_size
+    if n == face_size:
+        return cubes
+    if n > face_size and n % face_size == 0 and ((n // face_size) & (n // face_size - 1)) == 0:
+        return np.stack([resize_cube(c, face_size) for c in cubes]).astype(np.float32)
+    dirs = cube_texel_directions(face_size)
+    return np.stack([sample_cube_bilinear(c, dirs) for c in cubes]).astype(np.float32)
+
+
+@register
+class SplitSum(ReflectionEncoding):
+    """Split-sum ([Kar13]): ``n_levels`` prefiltered cube maps (float16) + the shared DFG table."""
+
+    name = "splitsum"
+    version = "1.0.0"
+    description = "split-sum GGX prefiltered cube-map chain (v = n), float16 RGB, + DFG scale/bias table"
+
+    def __init__(self, **settings: Any) -> None:
+        defaults = {"face_size": 64, "n_levels": 6, "min_face_size": 32}
+        super().__init__(**{**defaults, **settings})
+        self.chain = SplitSumSettings(
+            face_size=int(self.settings["face_size"]),
+            n_levels=int(self.settings["n_levels"]),
+            min_face_size=int(self.settings["min_face_size"]),
+        )
+        self.settings["level_alphas"] = [float(a) for a in self.chain.level_alphas()]
+        self.settings["roughness_to_level"] = "level = sqrt(alpha) * (n_levels - 1), linear between levels"
+
+    @classmethod
+    def from_settings(cls, settings: dict[str, Any]) -> Encoding:
+        keep = {k: settings[k] for k in ("face_size", "n_levels", "min_face_size") if k in settings}
+        return cls(**keep)
+
+    def field_specs(self) -> tuple[FieldSpec, ...]:
+        return tuple(
+            FieldSpec(
+                f"level{i}", (6, s, s, 3), "float16",
+                f"prefiltered radiance, GGX alpha = {a:.6g} (perceptual {np.sqrt(a):.4g}), cube faces "
+                "+X,-X,+Y,-Y,+Z,-Z, rows top-down, RGB last",
+            )
+            for i, (a, s) in enumerate(zip(self.chain.level_alphas(), self.chain.level_sizes(), strict=True))
+        )
+
+    def shared_tables(self) -> dict[str, np.ndarray]:
+        return {"dfg": compute_dfg_tables(TABLE_SIZE, TABLE_SAMPLES).dfg}
+
+    def encode(self, batch: ProbeBatch) -> dict[str, np.ndarray]:
+        levels = prefilter_batch(_cubes_at(batch, self.chain.face_size), self.chain)
+        return {f"level{i}": np.asarray(level, dtype=np.float16) for i, level in enumerate(levels)}
+
+    def evaluate_reflection(self, fields, shared, view, normal, alpha, f0):
+        levels = [np.asarray(fields[f"level{i}"], dtype=np.float32) for i in range(self.chain.n_levels)]
+        dfg = shared.get("dfg") if shared else None
+        if dfg is None:
+            dfg = self.shared_tables()["dfg"]
+        return evaluate_split_sum(levels, self.chain, dfg, view, normal, alpha, f0)
+
+
+@register
+class SHExp(ReflectionEncoding):
+    """SH exponentials ([SHExp] Sec. 4): p (bands 0..p_band) and q (bands 1..q_band) float32 + Fresnel tail."""
+
+    name = "shexp"
+    version = "1.0.0"
+    description = "SH exponentials E0 = exp(<vMF(1/a).Y(r), p>) exp(<vMF(1/a).Y(h_r), q>), + Fresnel-tail table"
+
+    _KEYS = ("p_band", "q_band", "n_normals", "n_views", "n_alphas", "alpha_min", "alpha_max", "fit_face_size",
+             "fit")
+
+    def __init__(self, **settings: Any) -> None:
+        defaults = {"p_band": 4, "q_band": 2, "n_normals": 64, "n_views": 64, "n_alphas": 4, "alpha_min": 0.2,
+                    "alpha_max": 1.0, "fit_face_size": 32, "fit": "fast"}
+        merged = {**defaults, **{k: v for k, v in settings.items() if k in self._KEYS}}
+        if merged["fit"] not in ("fast", "dense"):
+            raise ValueError(f"shexp fit must be 'fast' or 'dense', got {merged['fit']!r}")
+        super().__init__(**merged)
+        self.model = SHExpSettings(
+            p_band=int(merged["p_band"]), q_band=int(merged["q_band"]), n_normals=int(merged["n_normals"]),
+            n_views=int(merged["n_views"]), n_alphas=int(merged["n_alphas"]), alpha_min=float(merged["alpha_min"]),
+            alpha_max=float(merged["alpha_max"]), fit_face_size=int(merged["fit_face_size"]),
+        )
+
+    def field_specs(self) -> tuple[FieldSpec, ...]:
+        return (
+            FieldSpec("p", (self.model.p_count, 3), "float32",
+                      "log-space SH of P(r), bands 0..p_band, index l*(l+1)+m, RGB last"),
+            FieldSpec("q", (self.model.q_count, 3), "float32",
+                      "log-space SH of Q(h_r), bands 1..q_band (no DC), index l*(l+1)+m-1, RGB last"),
+        )
+
+    def shared_tables(self) -> dict[str, np.ndarray]:
+        return {"fresnel_tail": compute_dfg_tables(TABLE_SIZE, TABLE_SAMPLES).fresnel_tail}
+
+    def _fit_settings(self, face_size: int) -> SHExpSettings:
+        f = self.model.fit_face_size
+        while f > 1 and (face_size % f):
+            f //= 2
+        f = min(f, face_size)
+        if f == self.model.fit_face_size:
+            return self.model
+        from dataclasses import replace
+
+        return replace(self.model, fit_face_size=f)
+
+    def encode(self, batch: ProbeBatch) -> dict[str, np.ndarray]:
+        model = self._fit_settings(batch.face_size)
+        coeffs = fit_shexp(batch.cubes, model, fast=self.settings["fit"] == "fast")
+        k = self.model.p_count
+        return {"p": np.ascontiguousarray(coeffs[:, :k]), "q": np.ascontiguousarray(coeffs[:, k:])}
+
+    def evaluate_reflection(self, fields, shared, view, normal, alpha, f0):
+        coeffs = np.concatenate([np.asarray(fields["p"]), np.asarray(fields["q"])], axis=1)
+        tail = shared.get("fresnel_tail") if shared else None
+        if tail is None:
+            tail = self.shared_tables()["fresnel_tail"]
+        return evaluate_shexp(coeffs, tail, view, normal, alpha, f0, self.model)

@@ -1,0 +1,81 @@
+"""Bake recipes: declarative TOML (``pipelines/*.toml``) validated against ``schemas/recipe.schema.json``.
+
+A recipe names the encodings to bake per probe kind (``[targets]``), the bake settings (``[bake]``), per-encoding
+parameters (``[encoding_settings.<name>]``) and pipeline options (``[pipeline]``). Unknown keys and unknown
+encoding names are errors that say where they are.
+"""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import jsonschema
+
+from bakery.encodings import ENCODINGS
+from bakery.errors import ConfigError
+
+REPOSITORY = Path(__file__).resolve().parents[2]
+SCHEMA_PATHS = (REPOSITORY / "schemas" / "recipe.schema.json", Path(__file__).with_name("recipe.schema.json"))
+RECIPE_DIRS = (REPOSITORY / "pipelines", Path(__file__).parent / "recipes")
+
+
+@dataclass(frozen=True)
+class Recipe:
+    name: str
+    description: str
+    targets: dict[str, tuple[str, ...]]
+    bake: dict[str, Any] = field(default_factory=dict)
+    encoding_settings: dict[str, dict[str, Any]] = field(default_factory=dict)
+    pipeline: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def encodings(self) -> tuple[str, ...]:
+        return tuple(name for names in self.targets.values() for name in names)
+
+
+def _schema() -> dict:
+    for path in SCHEMA_PATHS:
+        if path.is_file():
+            return json.loads(path.read_text())
+    raise ConfigError("recipe JSON Schema not found (schemas/recipe.schema.json)")
+
+
+def validate_recipe(data: dict, source: str) -> Recipe:
+    """Validate parsed recipe data; raise :class:`ConfigError` naming the file and the offending key."""
+    validator = jsonschema.Draft202012Validator(_schema())
+    errors = sorted(validator.iter_errors(data), key=lambda e: list(e.absolute_path))
+    if errors:
+        messages = [f"{'.'.join(map(str, e.absolute_path)) or '<root>'}: {e.message}" for e in errors]
+        raise ConfigError(f"{source}: invalid recipe:\n  " + "\n  ".join(messages))
+    targets = {kind: tuple(names) for kind, names in data.get("targets", {}).items()}
+    for kind, names in targets.items():
+        for name in names:
+            if name not in ENCODINGS:
+                raise ConfigError(f"{source}: targets.{kind}: unknown encoding {name!r}; known: {', '.join(ENCODINGS)}")
+            if ENCODINGS[name].kind != kind:
+                raise ConfigError(f"{source}: targets.{kind}: {name!r} is a {ENCODINGS[name].kind} encoding")
+    for name in data.get("encoding_settings", {}):
+        if name not in ENCODINGS:
+            raise ConfigError(f"{source}: encoding_settings.{name}: unknown encoding")
+    return Recipe(data["name"], data.get("description", ""), targets, data.get("bake", {}),
+                  data.get("encoding_settings", {}), data.get("pipeline", {}))
+
+
+def load_recipe(name_or_path: str) -> Recipe:
+    """A recipe by file path or by preset name (``mobile``, ``console``, ``pc-high``, ``reference``)."""
+    path = Path(name_or_path)
+    if not path.is_file():
+        candidates = [d / f"{name_or_path}.toml" for d in RECIPE_DIRS]
+        path = next((c for c in candidates if c.is_file()), path)
+    if not path.is_file():
+        presets = sorted({p.stem for d in RECIPE_DIRS if d.is_dir() for p in d.glob("*.toml")})
+        raise ConfigError(f"recipe {name_or_path!r} not found; presets: {', '.join(presets)}")
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as error:
+        raise ConfigError(f"{path}: not valid TOML: {error}") from None
+    return validate_recipe(data, str(path))

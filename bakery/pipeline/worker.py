@@ -1,0 +1,65 @@
+"""Worker side: capture and encode one batch. Runs in a worker process (or in-process for ``--jobs 1``)."""
+
+from __future__ import annotations
+
+import json
+import time
+import traceback
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bakery.bake import BakeSettings, EncodedBatch, encode_batch, sanitize_diagnostics, select_encodings
+from bakery.environment.sanitize import SanitizeReport
+from bakery.errors import BakeryError
+from bakery.pipeline.capture import CAPTURES
+from bakery.pipeline.plan import BatchTask
+from bakery.probe import ProbeBatch
+
+
+@dataclass
+class BatchOutcome:
+    """What a worker returns: the encoded probes that succeeded and an error message per failed probe."""
+
+    key: str
+    result: EncodedBatch | None
+    failures: dict[str, str] = field(default_factory=dict)
+    seconds: float = 0.0
+
+
+def _settings(task: BatchTask) -> BakeSettings:
+    data = json.loads(task.settings_json)
+    data["encodings"] = tuple(data.get("encodings", ()))
+    return BakeSettings(**data)
+
+
+def run_batch(task: BatchTask) -> BatchOutcome:
+    """Capture every probe of ``task`` and encode them together. A probe whose capture raises is reported in
+    ``failures`` and left out; the others are encoded."""
+    start = time.perf_counter()
+    settings = _settings(task)
+    cubes, references, reports, probes, failures = [], [], [], [], {}
+    for probe_task in task.probes:
+        try:
+            capture = CAPTURES[probe_task.capture.kind]
+            cube, reference, report = capture(probe_task.capture, settings.face_size, probe_task.probe)
+            if not np.all(np.isfinite(cube)):
+                raise BakeryError(f"{probe_task.probe.name}: capture produced non-finite radiance")
+        except Exception as error:  # noqa: BLE001 - one failing probe must not lose the batch
+            detail = str(error) if isinstance(error, BakeryError) else traceback.format_exc(limit=3)
+            failures[probe_task.probe.name] = detail
+            continue
+        cubes.append(cube)
+        references.append(reference)
+        reports.append(report or SanitizeReport(0, 0, 0, 0, 0, 0.0, 0.0))
+        probes.append(probe_task.probe)
+    if not probes:
+        return BatchOutcome(task.key, None, failures, time.perf_counter() - start)
+    reference = references if all(r is not None for r in references) else None
+    batch = ProbeBatch(np.stack(cubes), reference)
+    encodings = select_encodings(
+        BakeSettings(**{**json.loads(task.settings_json), "encodings": task.probes[0].encodings}),
+        {k for p in probes for k in p.kinds},
+    )
+    result = encode_batch(probes, batch, settings, encodings, sanitize_diagnostics(reports))
+    return BatchOutcome(task.key, result, failures, time.perf_counter() - start)

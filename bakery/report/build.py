@@ -1,0 +1,179 @@
+"""Assemble the report of a probe store: compute memory and quality figures (public API only), render the page
+and the JSON, and write both atomically.
+
+``write_report(store, out_dir)`` is what ``bakery report STORE -o DIR`` calls. It computes everything before it
+touches ``out_dir``; files are written under temporary names and renamed into place, so a failure (unreadable
+store, unwritable directory) leaves an existing report untouched.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import bakery
+from bakery.api import open_store
+from bakery.errors import InputError
+from bakery.report import quality, render, svg
+from bakery.report.memory import memory_summary
+from bakery.report.page import render_page
+
+#: Preview material roughness (GGX α) of the chrome and glass spheres.
+PREVIEW_ALPHAS = (0.25, 0.6)
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _jsonable(x.tolist())
+    if isinstance(x, (np.floating, float)):
+        return float(x) if math.isfinite(float(x)) else None
+    if isinstance(x, np.integer):
+        return int(x)
+    return x
+
+
+def build_report(store_path: str | os.PathLike[str], environment: str | os.PathLike[str] | None = None,
+                 previews: bool = True, sphere_size: int = 48) -> tuple[dict[str, Any], str]:
+    """(report data, HTML page) of the store at ``store_path``; ``environment`` overrides the capture source."""
+    start = time.perf_counter()
+    store = open_store(store_path)
+    references = quality.load_reference_samples(store, environment)
+    memory = memory_summary(store)
+    errors = quality.irradiance_errors(store, references)
+    for name in quality.encodings_of_kind(store, "reflection"):
+        stored = quality._per_probe(store, f"reference_error/{name}", name)
+        if stored is not None:
+            errors[name] = stored
+    negatives = quality.negative_shares(store)
+    quantization = quality.quantization_errors(store)
+    curves = quality.reflection_alpha_curves(store, references)
+    data: dict[str, Any] = {
+        "store": str(store_path), "format_version": store.format_version,
+        "bakery_version": bakery.__version__, "store_bakery_version": store.attributes.get("bakery_version"),
+        "settings_hash": store.attributes.get("settings_hash"),
+        "probes": len(store.probe_names), "reference_available": references is not None,
+        "memory": memory,
+        "errors": {n: {"metric": "relative RMSE vs exact irradiance" if store.encodings[n].kind == "irradiance"
+                       else "stored reference error", "summary": quality.summarise(v), "per_probe": v}
+                   for n, v in errors.items()},
+        "worst_probes": quality.worst_probes(store, errors),
+        "negative_share": {n: {"summary": quality.summarise(v), "per_probe": v} for n, v in negatives.items()},
+        "quantization": {n: {"source": q["source"], "summary": quality.summarise(q["relative_rmse"]),
+                             "per_probe": q["relative_rmse"]} for n, q in quantization.items()},
+        "reflection_alpha_curves": curves,
+        "sanitized_texels": (np.asarray(store.diagnostics["input/sanitized_texels"]).sum(axis=0).tolist()
+                             if "input/sanitized_texels" in store.diagnostics else None),
+        "warnings": json.loads(store.attributes.get("warnings", "[]") or "[]"),
+    }
+    plots: dict[str, str] = {}
+    points = []
+    for name, v in errors.items():
+        s = quality.summarise(v)
+        if s["count"]:
+            points.append({"label": name, "x": float(store.encodings[name].bytes_per_probe), "y": s["median"],
+                           "y_lo": s["min"], "y_hi": s["max"]})
+    if points:
+        plots["error-vs-memory"] = svg.scatter_plot(
+            "error-vs-memory", "Error vs memory (median, whiskers min–max over probes)", points,
+            "bytes per probe", "relative error vs reference")
+        plots["error-distribution"] = svg.strip_plot(
+            "error-distribution", "Per-probe error distribution", {n: list(map(float, v)) for n, v in errors.items()},
+            "relative error vs reference")
+    plots["memory"] = svg.bar_plot(
+        "memory", "Bytes per probe (log scale)",
+        [(n, float(e["bytes_per_probe"])) for n, e in memory["encodings"].items()]
+        + [(k, float(c["bytes_per_probe"])) for k, c in memory["comparisons"].items()], "bytes per probe")
+    if negatives:
+        plots["negative-share"] = svg.bar_plot(
+            "negative-share", "Mean share of normals with negative irradiance",
+            [(n, float(np.mean(v))) for n, v in negatives.items()], "share of directions", log=False)
+    if curves:
+        for material in quality.MATERIALS:
+            series = {n: [(a, float(np.mean(np.asarray(c[material])[:, j]))) for j, a in enumerate(curves["alphas"])]
+                      for n, c in curves["encodings"].items()}
+            plots[f"alpha-{material}"] = svg.line_plot(
+                f"alpha-{material}", f"Reflection error per α ({material}, F0 = {quality.MATERIALS[material]})",
+                series, "GGX α", "relative MSE vs reference")
+    previews_out: dict[str, Any] = {}
+    if previews:
+        previews_out = _previews(store, errors, references, sphere_size)
+    data["previews"] = {kind: {role: {"probe": p["probe"]} for role, p in v.items()} for kind, v in previews_out.items()}
+    data["seconds"] = time.perf_counter() - start
+    data = _jsonable(data)
+    return data, render_page(data, plots, previews_out)
+
+
+def _roles(picked: dict[str, int]) -> dict[str, int]:
+    """Merge roles that name the same probe ("worst = median" for a one-probe store)."""
+    merged: dict[int, list[str]] = {}
+    for role, i in picked.items():
+        merged.setdefault(i, []).append(role)
+    return {" = ".join(roles): i for i, roles in merged.items()}
+
+
+def _previews(store: Any, errors: dict[str, np.ndarray], references: list[Any] | None, size: int) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    irr = quality.encodings_of_kind(store, "irradiance")
+    if irr:
+        out["irradiance"] = {}
+        for role, i in _roles(quality.pick_probes(store, errors, "irradiance")).items():
+            probe = store.probe_names[i]
+            usable = [n for n in irr if i in set(quality.probe_rows(store, n).tolist())]
+            ref = references[i] if references is not None else None
+            out["irradiance"][role] = {"probe": probe, "rows": {
+                "diffuse": render.irradiance_previews(store, probe, usable, ref, size)}}
+    refl = quality.encodings_of_kind(store, "reflection")
+    if refl:
+        out["reflection"] = {}
+        for role, i in _roles(quality.pick_probes(store, errors, "reflection")).items():
+            probe = store.probe_names[i]
+            usable = [n for n in refl if i in set(quality.probe_rows(store, n).tolist())]
+            ref = references[i] if references is not None else None
+            rows = {}
+            for material, f0 in quality.MATERIALS.items():
+                for alpha in PREVIEW_ALPHAS:
+                    rows[f"{material} α={alpha}"] = render.reflection_previews(
+                        store, probe, usable, ref, alpha, f0, size=max(32, size * 3 // 4))
+            out["reflection"][role] = {"probe": probe, "rows": rows}
+    return out
+
+
+def write_report(store: str | os.PathLike[str], out_dir: str | os.PathLike[str],
+                 environment: str | os.PathLike[str] | None = None, previews: bool = True) -> dict[str, Any]:
+    """Write ``report.html`` and ``report.json`` for ``store`` into ``out_dir`` (created if missing).
+
+    Returns {"html": path, "json": path, "data": report data}. Raises :class:`bakery.errors.StoreFormatError` for
+    an unreadable store and :class:`bakery.errors.InputError` when ``out_dir`` cannot be written; in both cases
+    nothing in ``out_dir`` is changed.
+    """
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: report output exists and is not a directory")
+    data, page = build_report(store, environment=environment, previews=previews)
+    html_path, json_path = out / "report.html", out / "report.json"
+    staged: list[tuple[Path, Path]] = []
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        for path, text in ((json_path, json.dumps(data, indent=1, allow_nan=False)), (html_path, page)):
+            tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+            staged.append((tmp, path))
+            tmp.write_text(text, encoding="utf-8")
+        for tmp, path in staged:  # both written before either replaces an existing file
+            os.replace(tmp, path)
+    except OSError as error:
+        raise InputError(f"{out}: cannot write the report: {error.strerror or error}") from error
+    finally:
+        for tmp, _ in staged:
+            if tmp.exists():
+                tmp.unlink()
+    return {"html": html_path, "json": json_path, "data": data}

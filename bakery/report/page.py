@@ -1,0 +1,143 @@
+"""The report's HTML page: one file, inline CSS, inline SVG, PNG data URIs, no scripts and no external requests."""
+
+from __future__ import annotations
+
+from html import escape
+from typing import Any
+
+_CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:24px auto;max-width:1200px;color:#222;
+background:#fafafa;padding:0 16px}
+h1{font-size:22px}h2{font-size:18px;border-bottom:1px solid #ccc;padding-bottom:4px;margin-top:32px}
+h3{font-size:15px}
+table{border-collapse:collapse;margin:8px 0;font-size:13px;background:#fff}
+th,td{border:1px solid #ccc;padding:3px 8px;text-align:right}th{background:#eee}
+td.l,th.l{text-align:left}
+.plots{display:flex;flex-wrap:wrap;gap:12px}.plots svg{border:1px solid #ddd;background:#fff}
+.row{display:flex;flex-wrap:wrap;gap:8px;align-items:flex-start;margin:4px 0 12px}
+figure{margin:0;text-align:center;font-size:11px}figure img{image-rendering:pixelated;width:128px;height:128px;
+display:block;border:1px solid #ccc}
+.note{color:#666;font-size:13px}
+code{background:#eee;padding:0 3px}
+"""
+
+
+def _fmt(v: Any, digits: int = 4) -> str:
+    if v is None:
+        return "–"
+    if isinstance(v, float):
+        return f"{v:.{digits}g}"
+    if isinstance(v, int):
+        return f"{v:,}"
+    return escape(str(v))
+
+
+def _table(header: list[str], rows: list[list[Any]], left: int = 1) -> str:
+    th = "".join(f'<th class="{"l" if i < left else ""}">{escape(h)}</th>' for i, h in enumerate(header))
+    body = "".join("<tr>" + "".join(f'<td class="{"l" if i < left else ""}">{_fmt(c)}</td>' for i, c in enumerate(r))
+                   + "</tr>" for r in rows)
+    return f"<table><thead><tr>{th}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def _memory_section(m: dict[str, Any]) -> str:
+    chains = [k for k in m["comparisons"] if k.startswith("split_sum_")]
+    rows = [[n, e["kind"], e["bytes_per_probe"], e["probes"], e["total_bytes"],
+             m["ratios"][n]["vs_sh3_float"], *[m["ratios"][n][f"vs_{k}"] for k in chains]]
+            for n, e in m["encodings"].items()]
+    out = [_table(["encoding", "kind", "bytes/probe", "probes", "total bytes", "× SH3 float",
+                   *[f"× {k.removeprefix('split_sum_')}" for k in chains]], rows, left=2)]
+    out.append(_table(["probe kind", "probes", "total bytes (stored encodings)"],
+                      [[k, m["probes_of_kind"].get(k, 0), m["total_bytes_per_kind"].get(k, 0)]
+                       for k in ("irradiance", "reflection")]))
+    c = m["split_sum_chain"]
+    out.append(_table(["alternative", "bytes/probe", "total for the same probes"],
+                      [[k, v["bytes_per_probe"], v.get("total_bytes_irradiance_probes",
+                                                       v.get("total_bytes_reflection_probes"))]
+                       for k, v in m["comparisons"].items()]))
+    out.append(f'<p class="note">Split-sum chains: {c["n_levels"]} levels, cube faces {c["cube_sizes"]}, octahedral '
+               f'sides {c["octahedral_sizes"]}; RGBA16F = 8 B/texel, BC6H = 1 B/texel (computed). SH3 float = 108 B. '
+               f'Totals for split-sum count the store\'s reflection probes, SH3 its irradiance probes.</p>')
+    return "\n".join(out)
+
+
+def _preview_section(title: str, previews: dict[str, Any]) -> str:
+    out = [f"<h3>{escape(title)}</h3>"]
+    for role, p in previews.items():
+        out.append(f'<p><b>{escape(role)} probe</b>: <code>{escape(p["probe"])}</code></p>')
+        for row_label, images in p["rows"].items():
+            figs = "".join(f'<figure><img alt="{escape(label)}" src="{uri}"><figcaption>{escape(label)}'
+                           f'</figcaption></figure>' for label, uri in images.items())
+            out.append(f'<div class="row" data-preview="{escape(row_label)}"><div style="width:110px;font-size:12px">'
+                       f'{escape(row_label)}</div>{figs}</div>')
+    return "\n".join(out)
+
+
+def render_page(data: dict[str, Any], plots: dict[str, str], previews: dict[str, Any]) -> str:
+    """The HTML page for report ``data`` with ready SVG ``plots`` and preview image rows."""
+    parts = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
+             '<meta name="viewport" content="width=device-width, initial-scale=1">',
+             '<link rel="icon" href="data:,">',
+             f"<title>bakery report: {escape(str(data['store']))}</title><style>{_CSS}</style></head><body>",
+             f"<h1>bakery report — <code>{escape(str(data['store']))}</code></h1>",
+             f'<p class="note">{data["probes"]} probes; store format {escape(str(data["format_version"]))}, '
+             f'baked by bakery {escape(str(data["store_bakery_version"]))}; report by bakery '
+             f'{escape(str(data["bakery_version"]))}; settings hash <code>{escape(str(data["settings_hash"])[:16])}'
+             f'</code>. Reference capture available: {"yes" if data["reference_available"] else "no"}.</p>']
+    parts.append("<h2>Memory</h2>")
+    parts.append(_memory_section(data["memory"]))
+    parts.append('<div class="plots">' + plots.get("memory", "") + "</div>")
+    parts.append("<h2>Quality</h2>")
+    if data["errors"]:
+        rows = [[n, data["memory"]["encodings"][n]["bytes_per_probe"], e["summary"].get("count", 0),
+                 e["summary"].get("mean"), e["summary"].get("median"), e["summary"].get("p90"), e["summary"].get("max")]
+                for n, e in data["errors"].items()]
+        parts.append(_table(["encoding", "bytes/probe", "probes", "mean", "median", "p90", "max"], rows))
+        parts.append('<p class="note">Irradiance: relative RMSE √Σ(E−E<sub>ref</sub>)²/√ΣE<sub>ref</sub>² over 1024 '
+                     'Fibonacci normals and RGB against the brute-force irradiance of the full-resolution capture.</p>')
+        parts.append('<div class="plots">' + plots.get("error-vs-memory", "") + plots.get("error-distribution", "")
+                     + "</div>")
+        parts.append("<h3>Worst probes</h3>")
+        worst = [[n, w["probe"], w["error"], ", ".join(f"{x:.3g}" for x in w["position"])]
+                 for n, ws in data["worst_probes"].items() for w in ws[:3]]
+        parts.append(_table(["encoding", "probe (prim path)", "error", "position"], worst, left=2))
+    else:
+        parts.append('<p class="note">No reference errors: the store has no <code>reference_error/*</code> '
+                     "diagnostics and no capture to compute them from.</p>")
+    if data["negative_share"]:
+        parts.append("<h3>Negative irradiance</h3>")
+        rows = [[n, s["summary"].get("mean"), s["summary"].get("max")] for n, s in data["negative_share"].items()]
+        parts.append(_table(["encoding", "mean share", "max share"], rows))
+        parts.append('<p class="note">Share of 1024 Fibonacci normals where any channel of the reconstructed '
+                     "irradiance is negative (compare an encoding with its <code>_deringed</code> variant: before "
+                     "and after deringing).</p>")
+        parts.append('<div class="plots">' + plots.get("negative-share", "") + "</div>")
+    if data["quantization"]:
+        parts.append("<h3>Quantization error</h3>")
+        rows = [[n, q["source"], q["summary"].get("mean"), q["summary"].get("max")]
+                for n, q in data["quantization"].items()]
+        parts.append(_table(["quantized", "float source", "mean rel. RMSE", "max rel. RMSE"], rows, left=2))
+    if data["reflection_alpha_curves"]:
+        parts.append("<h3>Reflection error per roughness</h3>")
+        parts.append('<div class="plots">' + "".join(v for k, v in plots.items() if k.startswith("alpha-"))
+                     + "</div>")
+    elif any(e["kind"] == "reflection" for e in data["memory"]["encodings"].values()):
+        parts.append('<p class="note">Per-α reflection curves need the probe capture, which this store does not '
+                     "reference.</p>")
+    else:
+        parts.append('<p class="note">No reflection encodings in this store: reflection sections skipped.</p>')
+    if previews:
+        parts.append("<h2>Previews</h2>")
+        parts.append('<p class="note">Orthographic spheres, shared exposure per row, tone map 1−e<sup>−kx</sup> + '
+                     "sRGB; magenta = negative radiance (ringing).</p>")
+        if "irradiance" in previews:
+            parts.append(_preview_section("Diffuse sphere (irradiance / π)", previews["irradiance"]))
+        if "reflection" in previews:
+            parts.append(_preview_section("Chrome (F0 = 1) and glass (F0 = 0.04) spheres", previews["reflection"]))
+    if data.get("warnings"):
+        parts.append("<h2>Bake warnings</h2><ul>" + "".join(f"<li>{escape(str(w))}</li>" for w in data["warnings"])
+                     + "</ul>")
+    if data.get("sanitized_texels"):
+        s = data["sanitized_texels"]
+        parts.append(f'<p class="note">Input texels replaced: NaN {s[0]}, +Inf {s[1]}, −Inf {s[2]}, negative {s[3]}.</p>')
+    parts.append("</body></html>")
+    return "\n".join(parts)

@@ -1,0 +1,221 @@
+"""Quality figures of a probe store: per-probe error against the reference, negative-irradiance share, quantization
+error, per-α reflection error, and the worst/median probes. Everything is read through :mod:`bakery.api`.
+
+Notation
+    E_ref(n)    exact irradiance: brute-force cosine convolution of the probe's full-resolution capture
+    relative RMSE  √Σ(E − E_ref)² / √ΣE_ref² over a 1024-point Fibonacci set of normals and RGB (the store's metric)
+    relative MSE (reflection)  Σ(E − E_ref)² / ΣE_ref² over the (v, n) rows of one α and one F0 (seed 000 Fig. 4–7
+                uses MSE; normalising by ΣE_ref² makes probes of different brightness comparable)
+
+Reference availability
+    A store baked from an environment image records its ``source``; the capture is then re-read (and sanitised the
+    same way as in the bake) to compute references the store does not hold. Scene stores do not keep captures:
+    their reference errors come only from the stored diagnostics and preview renders are shown without reference.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bakery.sphere.fibonacci import fibonacci_directions
+
+#: Normals of the quality metrics (same size as the bake's default diagnostics).
+QUALITY_DIRECTIONS = 1024
+#: Perceptually spaced GGX α of the per-α curves: α = r², r ∈ [0.5, 1] (seed 000: α ∈ [0.25, 1]).
+CURVE_ALPHAS = tuple(float(r * r) for r in np.linspace(0.5, 1.0, 6))
+#: F0 of the chrome and glass spheres (seed 000 Fig. 4).
+MATERIALS = {"chrome": 1.0, "glass": 0.04}
+
+
+def encodings_of_kind(store: Any, kind: str) -> list[str]:
+    return [name for name, info in store.encodings.items() if info.kind == kind]
+
+
+def probe_rows(store: Any, encoding: str) -> np.ndarray:
+    """Indices into ``store.probe_names`` of the rows of ``encoding``."""
+    return np.asarray(store.fields(encoding)["probe_index"], dtype=np.int64)
+
+
+def _per_probe(store: Any, key: str, encoding: str) -> np.ndarray | None:
+    """A per-probe diagnostic as (P_k,) aligned with the encoding's rows (diagnostics may be (P,) or (P_k,))."""
+    if key not in store.diagnostics:
+        return None
+    values = np.asarray(store.diagnostics[key], dtype=np.float64).reshape(len(store.diagnostics[key]), -1)[:, 0]
+    rows = probe_rows(store, encoding)
+    if values.shape[0] == len(store.probe_names):
+        return values[rows]
+    if values.shape[0] == rows.shape[0]:
+        return values
+    return None
+
+
+def load_reference_samples(store: Any, environment: str | Path | None = None) -> list[Any] | None:
+    """Per-probe full-resolution quadratures, or None when no capture is available (module doc)."""
+    source = environment or store.attributes.get("source")
+    if source is None or str(store.attributes.get("source_kind", "image")) == "usd" and environment is None:
+        return None
+    path = Path(str(source))
+    if not path.is_file() or len(store.probe_names) != 1:
+        return None
+    from bakery.environment.io import read_environment
+    from bakery.environment.resample import environment_samples
+
+    layout = store.attributes.get("source_layout")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        image, _ = read_environment(path, layout=str(layout) if layout else None)
+    return [environment_samples(image)]
+
+
+def reference_irradiance_for(samples: Any, normals: np.ndarray) -> np.ndarray:
+    from bakery.irradiance.reference import reference_irradiance
+
+    return reference_irradiance(samples, normals, dtype=np.float32)
+
+
+def _relative_rmse(values: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """(P,) relative RMSE of (P, N, C) against (P, N, C); 0 where the reference is 0."""
+    num = np.sqrt(np.sum((values - reference) ** 2, axis=(1, 2)))
+    den = np.sqrt(np.sum(reference**2, axis=(1, 2)))
+    return np.where(den > 0, num / np.where(den > 0, den, 1.0), np.where(num > 0, np.inf, 0.0))
+
+
+def irradiance_errors(store: Any, references: list[Any] | None) -> dict[str, np.ndarray]:
+    """{encoding: (P_k,) relative RMSE vs E_ref}: stored diagnostics, else computed from the capture."""
+    out: dict[str, np.ndarray] = {}
+    normals = fibonacci_directions(QUALITY_DIRECTIONS)
+    cache: dict[int, np.ndarray] = {}
+    for name in encodings_of_kind(store, "irradiance"):
+        stored = _per_probe(store, f"reference_error/{name}", name)
+        if stored is not None and np.all(np.isfinite(stored)):
+            out[name] = stored
+            continue
+        if references is None:
+            continue
+        rows = probe_rows(store, name)
+        ref = np.stack([cache.setdefault(int(i), reference_irradiance_for(references[i], normals)) for i in rows])
+        out[name] = _relative_rmse(store.evaluate_irradiance(name, normals), ref)
+    return out
+
+
+def negative_shares(store: Any) -> dict[str, np.ndarray]:
+    """{encoding: (P_k,) share of normals where any channel's irradiance < 0} (stored, else computed)."""
+    normals = fibonacci_directions(QUALITY_DIRECTIONS)
+    out = {}
+    for name in encodings_of_kind(store, "irradiance"):
+        stored = _per_probe(store, f"negative_fraction/{name}", name)
+        if stored is None:
+            stored = np.mean(np.any(store.evaluate_irradiance(name, normals) < 0, axis=-1), axis=1)
+        out[name] = np.asarray(stored, dtype=np.float64)
+    return out
+
+
+def quantization_source(store: Any, name: str) -> str | None:
+    """The float encoding a quantized one was built from: ``<base>_quantized`` → ``<base>_deringed`` when its
+    settings say ``dering``, else ``<base>``; None if that encoding is not stored."""
+    if not name.endswith("_quantized"):
+        return None
+    base = name[: -len("_quantized")]
+    candidates = ([f"{base}_deringed"] if store.encodings[name].settings.get("dering") else []) + [base]
+    return next((c for c in candidates if c in store.encodings), None)
+
+
+def quantization_errors(store: Any) -> dict[str, dict[str, Any]]:
+    """{quantized: {"source", "relative_rmse": (P_k,)}} of quantized irradiance vs its float source."""
+    normals = fibonacci_directions(QUALITY_DIRECTIONS)
+    out = {}
+    for name in encodings_of_kind(store, "irradiance"):
+        source = quantization_source(store, name)
+        if source is None:
+            continue
+        rows = probe_rows(store, name)
+        names = [store.probe_names[i] for i in rows]
+        quantized = store.evaluate_irradiance(name, normals, probes=names)
+        reference = store.evaluate_irradiance(source, normals, probes=names)
+        out[name] = {"source": source, "relative_rmse": _relative_rmse(quantized, reference)}
+    return out
+
+
+def curve_rows(count: int = 128, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Deterministic (v, n) pairs: Fibonacci normals, views uniform on each normal's hemisphere (n·v ≥ 0.05)."""
+    n = fibonacci_directions(count)
+    rng = np.random.default_rng(seed)
+    v = rng.normal(size=(count, 3))
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    v = np.where(np.sum(v * n, axis=1, keepdims=True) < 0, -v, v)
+    v = v + n * np.maximum(0.05 - np.sum(v * n, axis=1, keepdims=True), 0.0)
+    return v / np.linalg.norm(v, axis=1, keepdims=True), n
+
+
+def reflection_alpha_curves(store: Any, references: list[Any] | None, rows_per_alpha: int = 128) -> dict[str, Any]:
+    """Per reflection encoding, material and α: relative MSE vs the brute-force reference (needs the capture)."""
+    names = encodings_of_kind(store, "reflection")
+    if not names or references is None:
+        return {}
+    from bakery.reflection.reference import integrate_reflection, reflected_radiance
+
+    v, n = curve_rows(rows_per_alpha)
+    out: dict[str, Any] = {"alphas": list(CURVE_ALPHAS), "rows_per_alpha": rows_per_alpha, "encodings": {}}
+    for name in names:
+        rows = probe_rows(store, name)
+        per_material = {m: np.zeros((len(rows), len(CURVE_ALPHAS))) for m in MATERIALS}
+        for j, alpha in enumerate(CURVE_ALPHAS):
+            a = np.full(len(v), alpha)
+            for r, i in enumerate(rows):
+                e0, e1 = integrate_reflection(references[i], v, n, a)
+                for material, f0 in MATERIALS.items():
+                    ref = reflected_radiance(e0, e1, np.full(len(v), f0))
+                    est = store.evaluate_reflection(name, v, n, a, np.full(len(v), f0),
+                                                    probes=[store.probe_names[i]])[0]
+                    den = float(np.sum(ref**2))
+                    per_material[material][r, j] = float(np.sum((est - ref) ** 2)) / den if den > 0 else 0.0
+        out["encodings"][name] = {m: per_material[m].tolist() for m in MATERIALS}
+    return out
+
+
+def pick_probes(store: Any, errors: dict[str, np.ndarray], kind: str) -> dict[str, int]:
+    """{"worst": probe, "median": probe} by the median over ``kind``'s encodings of each probe's error."""
+    names = [n for n in encodings_of_kind(store, kind) if n in errors]
+    if not names:
+        rows = [i for i, k in enumerate(store.probe_kinds) if kind in k.split(",")]
+        return {"worst": rows[0], "median": rows[0]} if rows else {}
+    score = np.full(len(store.probe_names), np.nan)
+    stacks: dict[int, list[float]] = {}
+    for name in names:
+        for i, e in zip(probe_rows(store, name), errors[name], strict=True):
+            stacks.setdefault(int(i), []).append(float(e))
+    for i, values in stacks.items():
+        score[i] = float(np.median(values))
+    valid = np.flatnonzero(np.isfinite(score))
+    if valid.size == 0:
+        return {}
+    order = valid[np.argsort(score[valid], kind="stable")]
+    return {"worst": int(order[-1]), "median": int(order[(len(order) - 1) // 2])}
+
+
+def worst_probes(store: Any, errors: dict[str, np.ndarray], count: int = 5) -> dict[str, list[dict[str, Any]]]:
+    out = {}
+    for name, values in errors.items():
+        rows = probe_rows(store, name)
+        order = np.argsort(-np.nan_to_num(values, nan=-1.0), kind="stable")[:count]
+        out[name] = [{"probe": store.probe_names[rows[k]], "error": float(values[k]),
+                      "position": [float(x) for x in store.probe_positions[rows[k]]]} for k in order]
+    return out
+
+
+def summarise(values: np.ndarray) -> dict[str, float]:
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return {"count": 0}
+    return {"count": int(v.size), "mean": float(v.mean()), "median": float(np.median(v)),
+            "p90": float(np.percentile(v, 90)), "max": float(v.max()), "min": float(v.min())}
+
+
+def finite_or_none(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None

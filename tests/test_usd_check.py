@@ -1,0 +1,117 @@
+"""Broken inputs give clear per-prim errors or warnings, ``bake_scene`` refuses untrustworthy scenes, and
+``bakery check`` exits non-zero on errors. Fixtures: one clean scene and one small bad scene per problem."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+from usd_scenes import box_mesh, header, material, probe, write
+
+from bakery.errors import SceneError
+from bakery.scene_bake import bake_scene
+from bakery.usd.check import check_exit_code, check_scene
+
+CLEAN = header() + material("M", diffuse=(0.5, 0.5, 0.5)) + box_mesh("Box", 1.0, "/M") + probe("P", (0, 3, 0))
+
+BAD = {
+    "missing_material_texture": (
+        header() + material("M", extra="""
+    def Shader "Tex"
+    {
+        uniform token info:id = "UsdUVTexture"
+        asset inputs:file = @./does_not_exist.png@
+        float3 outputs:rgb
+    }
+""").replace("color3f inputs:diffuseColor = (0.18, 0.18, 0.18)",
+             "color3f inputs:diffuseColor = (0.3, 0.3, 0.3)\n        color3f inputs:diffuseColor.connect = "
+             "</M/Tex.outputs:rgb>") + box_mesh("Box", 1.0, "/M") + probe("P", (0, 3, 0)),
+        "warning", "/M/Tex", "not found",
+    ),
+    "missing_dome_texture": (
+        header() + 'def DomeLight "Sky"\n{\n    asset inputs:texture:file = @./nowhere.hdr@\n}\n' + probe("P"),
+        "error", "/Sky", "not found",
+    ),
+    "unknown_probe_type": (
+        header() + probe("P") + 'def LightProbe "Mystery"\n{\n}\n',
+        "error", "/Mystery", "unknown probe type",
+    ),
+    "non_invertible_transform": (
+        header() + """
+def BakeryIrradianceProbe "Flat"
+{
+    float3 xformOp:scale = (1, 0, 1)
+    uniform token[] xformOpOrder = ["xformOp:scale"]
+}
+""" + probe("P"),
+        "error", "/Flat", "non-invertible",
+    ),
+    "materialx_only_material": (
+        header() + """
+def Material "Mx"
+{
+    token outputs:mtlx:surface.connect = </Mx/Surf.outputs:out>
+    def Shader "Surf"
+    {
+        uniform token info:id = "ND_standard_surface_surfaceshader"
+        color3f inputs:base_color = (0.8, 0.1, 0.1)
+        token outputs:out
+    }
+}
+""" + box_mesh("Box", 1.0, "/Mx") + probe("P", (0, 3, 0)),
+        "warning", "/Mx", "MaterialX-only",
+    ),
+    "empty_scene": (header(), "error", "/", "no probes"),
+    "unknown_encoding": (
+        header() + probe("P", body='uniform token[] bakery:encodings = ["sh99"]'),
+        "error", "/P", "unknown encoding",
+    ),
+    "bad_influence_shape": (
+        header() + probe("P", type_name="BakeryReflectionProbe",
+                         body='uniform token bakery:influence:shape = "cone"'),
+        "error", "/P", "influence:shape",
+    ),
+}
+
+
+def test_clean_scene_has_no_issues(tmp_path):
+    issues = check_scene(write(tmp_path / "clean.usda", CLEAN))
+    assert issues == []
+    assert check_exit_code(issues) == 0
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_bad_scene_reports_per_prim(tmp_path, case):
+    text, severity, prim, words = BAD[case]
+    issues = check_scene(write(tmp_path / f"{case}.usda", text))
+    matching = [i for i in issues if i.prim == prim and words in i.message]
+    assert matching, f"expected a {severity} on {prim} mentioning {words!r}, got {issues}"
+    assert matching[0].severity == severity
+    assert check_exit_code(issues) == (SceneError.exit_code if severity == "error" else 0)
+
+
+@pytest.mark.parametrize("case", [c for c in sorted(BAD) if BAD[c][1] == "error"])
+def test_bake_refuses_scenes_with_errors(tmp_path, case):
+    text, _, prim, _ = BAD[case]
+    path = write(tmp_path / f"{case}.usda", text)
+    with pytest.raises(SceneError, match=prim if prim != "/" else "no probes"):
+        bake_scene(path, tmp_path / "out.h5", face_size=8, samples=1)
+    assert not (tmp_path / "out.h5").exists()
+
+
+def test_unopenable_scene_is_one_error(tmp_path):
+    path = write(tmp_path / "broken.usda", "#usda 1.0\ndef Xform {{{ nonsense\n")
+    issues = check_scene(path)
+    assert len(issues) == 1 and issues[0].severity == "error" and issues[0].prim == "/"
+    assert check_scene(tmp_path / "missing.usda")[0].severity == "error"
+
+
+def test_cli_check_exit_codes(tmp_path):
+    clean = write(tmp_path / "clean.usda", CLEAN)
+    bad = write(tmp_path / "bad.usda", BAD["unknown_probe_type"][0])
+    ok = subprocess.run([sys.executable, "-m", "bakery.cli", "check", str(clean)], capture_output=True, text=True)
+    assert ok.returncode == 0, ok.stdout + ok.stderr
+    failed = subprocess.run([sys.executable, "-m", "bakery.cli", "check", str(bad)], capture_output=True, text=True)
+    assert failed.returncode != 0
+    assert "/Mystery" in failed.stdout

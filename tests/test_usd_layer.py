@@ -1,0 +1,128 @@
+"""The baked-results layer and the schema plugin: a scene baked end to end, the layer read back through a composed
+stage equals the store, the user's layers are untouched, and the packaged plugin matches its source."""
+
+from __future__ import annotations
+
+import filecmp
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pxr import Sdf, Usd
+from usd_scenes import box_mesh, header, material, probe, write
+
+from bakery.errors import SceneError
+from bakery.scene_bake import bake_scene
+from bakery.store.format import read_store
+from bakery.usd.layer import attribute_name, content_hash, read_baked_values
+from bakery.usd.plugin import FALLBACKS, PLUGIN_DIR, PROBE_TYPES, schemas_registered
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _scene(tmp_path):
+    body = "float3 bakery:volume:extent = (1, 0.5, 1)\n    int3 bakery:volume:counts = (2, 1, 2)"
+    probes = write(tmp_path / "probes.usda", header() + probe("Irr", (0, 2, 0))
+                   + probe("Refl", (1, 2, 0), type_name="BakeryReflectionProbe")
+                   + probe("Vol", (0, 2, 0), type_name="BakeryIrradianceProbeVolume", body=body))
+    shared = write(tmp_path / "shared.usda", header() + material("M", diffuse=(0.5, 0.4, 0.3))
+                   + box_mesh("Box", 0.5, "/M") + 'def DomeLight "Sky"\n{\n    float inputs:intensity = 2\n}\n')
+    return write(tmp_path / "scene.usda", header(extra=f"    subLayers = [@{probes.name}@, @{shared.name}@]\n"))
+
+
+@pytest.fixture(scope="module")
+def baked(tmp_path_factory):
+    tmp_path = tmp_path_factory.mktemp("bake")
+    scene = _scene(tmp_path)
+    before = {p.name: p.read_bytes() for p in tmp_path.glob("*.usda")}
+    summary = bake_scene(scene, tmp_path / "scene.h5", face_size=8, encodings=["sh3", "sh2"], samples=1)
+    return tmp_path, scene, before, summary
+
+
+def test_user_layers_are_untouched(baked):
+    tmp_path, _, before, summary = baked
+    for name, data in before.items():
+        assert (tmp_path / name).read_bytes() == data
+    assert Path(summary["layer"]).name == "scene.bake.usda"
+    assert summary["probes"] == 1 + 1 + 4 and summary["rays"] > 0 and summary["rays_per_second"] > 0
+
+
+def test_layer_round_trips_the_store_through_a_composed_stage(baked):
+    tmp_path, scene, _, summary = baked
+    session = Sdf.Layer.CreateAnonymous(".usda")
+    session.subLayerPaths = [summary["layer"], str(scene)]
+    stage = Usd.Stage.Open(session)
+    # the engine's view: typed probes carrying their coefficients
+    for path, type_name in [("/Irr", "BakeryIrradianceProbe"), ("/Vol", "BakeryIrradianceProbeVolume"),
+                            ("/Refl", "BakeryReflectionProbe")]:
+        prim = stage.GetPrimAtPath(path)
+        assert prim.GetTypeName() == type_name
+        assert "BakeryBakedProbeAPI" in prim.GetAppliedSchemas()
+    values = read_baked_values(stage)
+    store = read_store(summary["store"])
+    names = list(store.probe_names)
+    for encoding in ("sh2", "sh3"):
+        fields = store.encodings[encoding]["fields"]
+        rows = {names[int(r)]: k for k, r in enumerate(fields["probe_index"])}
+        stored = fields["radiance_sh"]
+        np.testing.assert_array_equal(values["/Irr"][attribute_name("irradiance", encoding, "radiance_sh")][0],
+                                      stored[rows["/Irr"]])
+        vol = values["/Vol"][attribute_name("irradiance", encoding, "radiance_sh")]
+        order = [f"/Vol[{i},0,{k}]" for k in range(2) for i in range(2)]  # i fastest
+        np.testing.assert_array_equal(vol, stored[[rows[n] for n in order]])
+    # bookkeeping attributes
+    irr = stage.GetPrimAtPath("/Irr")
+    assert irr.GetAttribute("bakery:baked:settingsHash").Get() == summary["settings_hash"]
+    assert irr.GetAttribute("bakery:baked:probeCount").Get() == 1
+    assert stage.GetPrimAtPath("/Vol").GetAttribute("bakery:baked:probeCount").Get() == 4
+    store_asset = irr.GetAttribute("bakery:baked:store").Get()
+    assert Path(store_asset.resolvedPath).resolve() == Path(summary["store"]).resolve()
+    assert irr.GetAttribute("bakery:baked:contentHash").Get() == content_hash(values["/Irr"])
+    assert json.loads(irr.GetAttribute("bakery:baked:conventions").Get())["frame"] == "right-handed, +Y up"
+
+
+def test_content_hash_is_sha256_of_names_shapes_and_bytes():
+    a = np.arange(6, dtype=np.float32).reshape(2, 3)
+    digest = hashlib.sha256()
+    digest.update(b"x")
+    digest.update(json.dumps([[2, 3], "<f4"]).encode())
+    digest.update(a.tobytes())
+    assert content_hash({"x": a}) == digest.hexdigest()
+    assert content_hash({"x": a}) != content_hash({"x": a + 1})
+
+
+def test_layer_may_not_overwrite_the_scene(tmp_path):
+    scene = _scene(tmp_path)
+    with pytest.raises(SceneError, match="refusing"):
+        bake_scene(scene, tmp_path / "out.h5", layer_path=scene, face_size=8, encodings=["sh2"], samples=1)
+    with pytest.raises(SceneError, match="refusing"):
+        bake_scene(scene, tmp_path / "out.h5", layer_path=tmp_path / "probes.usda", face_size=8,
+                   encodings=["sh2"], samples=1)
+
+
+def test_schema_plugin_is_registered_and_packaged_copy_matches_source():
+    assert schemas_registered()
+    for name in ("plugInfo.json", "generatedSchema.usda"):
+        assert filecmp.cmp(PLUGIN_DIR / name, REPO / "schemas" / "usd" / name, shallow=False), name
+    registry = Usd.SchemaRegistry()
+    for type_name in PROBE_TYPES:
+        definition = registry.FindConcretePrimDefinition(type_name)
+        assert definition is not None, type_name
+        names = definition.GetPropertyNames()
+        for attr, expected in FALLBACKS.items():
+            if attr not in names:
+                continue
+            fallback = definition.GetAttributeFallbackValue(attr)
+            if isinstance(expected, str):
+                assert fallback == expected, attr
+            else:
+                np.testing.assert_allclose(np.asarray(fallback, dtype=float), np.asarray(expected, dtype=float))
+        for attr in names:
+            if attr.startswith("bakery:"):
+                assert definition.GetPropertyDefinition(attr).GetDocumentation(), f"{type_name}.{attr} undocumented"
+    shape = registry.FindConcretePrimDefinition("BakeryReflectionProbe").GetPropertyDefinition(
+        "bakery:influence:shape")
+    assert list(shape.GetMetadata("allowedTokens")) == ["sphere", "box"]
+    assert registry.FindAppliedAPIPrimDefinition("BakeryBakedProbeAPI") is not None
