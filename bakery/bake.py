@@ -25,6 +25,7 @@ from bakery.environment.resample import environment_samples, resample_to_cube
 from bakery.environment.sanitize import SanitizeReport
 from bakery.errors import BakeryWarning, ConfigError, DegenerateInputWarning
 from bakery.irradiance.reference import reference_irradiance
+from bakery.pipeline.skip import irradiance_band_energy
 from bakery.probe import PROBE_KINDS, Probe, ProbeBatch
 from bakery.sphere.fibonacci import fibonacci_directions
 from bakery.store.format import StoreContents, write_store
@@ -187,6 +188,8 @@ def encode_batch(
                 start = time.perf_counter()
                 for key, values in irradiance_diagnostics(sub, encoded, chosen, settings).items():
                     all_diagnostics[key] = _full_length(values, rows, len(probes))
+                all_diagnostics["band_energy"] = _full_length(irradiance_band_energy(sub.radiance_sh(2)), rows,
+                                                              len(probes))
                 timings["diagnostics/irradiance"] = time.perf_counter() - start
     caught = [str(w.message) for w in recorded if issubclass(w.category, BakeryWarning)]
     return EncodedBatch(list(probes), encoded, rows_of, all_diagnostics, timings, caught)

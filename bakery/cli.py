@@ -161,7 +161,9 @@ def bake(sources: tuple[Path, ...], output: Path | None, recipe: str | None, enc
                                                 progress, layer)
             else:
                 summary = execute_plan(plan, settings, output, executor, previous, resume=not no_resume,
-                                       progress=progress, attributes=extra)
+                                       progress=progress, attributes=extra,
+                                       band_energy_tolerance=None if encodings
+                                       else pipeline.get("band_energy_tolerance", 1e-6))
     finally:
         executor.close()
     if as_json:

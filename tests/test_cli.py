@@ -36,7 +36,7 @@ def test_bake_and_inspect_the_shipped_example(tmp_path):
     result = run("bake", EXAMPLE, "-o", store, "--json", *IRRADIANCE)
     assert result.returncode == 0, result.stderr
     summary = json.loads(result.stdout)
-    assert summary["encodings"]["zh3_quantized"] == 16 and summary["encodings"]["sh3_quantized"] == 28
+    assert summary["bytes_per_probe"]["zh3_quantized"] == 16 and summary["bytes_per_probe"]["sh3_quantized"] == 28
     # ZH3 is closer to the exact irradiance than linear SH on this sky (paper: −44% on average).
     assert summary["reference_error"]["zh3"] < summary["reference_error"]["sh2"]
     inspected = run("inspect", store, "--json")

@@ -107,36 +107,43 @@ def test_diff_reports_changed_probes(tmp_path, environments):
     assert report["removed"] == ["/environment/env5"] and list(report["changed"]) == ["/environment/env0"]
 
 
+def _kill_when(process, partial, finished_batches, timeout=120):
+    """SIGKILL ``process`` as soon as the journal holds ``finished_batches`` checkpoints (or it exits)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and process.poll() is None:
+        if partial.is_dir() and len(list(partial.glob("*.pkl"))) >= finished_batches:
+            process.send_signal(signal.SIGKILL)
+            break
+        time.sleep(0.01)
+    process.wait()
+    return process.returncode == -signal.SIGKILL
+
+
 def test_resume_after_sigkill(tmp_path):
     folder = tmp_path / "envs"
     folder.mkdir()
     sources = []
     for i in range(8):
         path = folder / f"big{i}.hdr"
-        write_hdr(path, i, size=(512, 1024))
+        write_hdr(path, i, size=(128, 256))
         sources.append(path)
     r = tmp_path / "slow.toml"
-    r.write_text('name = "slow"\n[targets]\nirradiance = ["sh2", "zh3_solved"]\n[bake]\nface_size = 32\n'
-                 'reference_errors = true\nquality_directions = 4096\n[pipeline]\nbatch_size = 1\n')
+    r.write_text('name = "slow"\n[targets]\nirradiance = ["sh2", "zh3_solved"]\n[bake]\nface_size = 16\n'
+                 'reference_errors = true\nquality_directions = 1024\n[pipeline]\nbatch_size = 1\n')
     store = tmp_path / "r.h5"
     bakery_cli("bake", sources[0], "-o", store, "-e", "sh2", "--face-size", "8")  # a previous store
     previous = store.read_bytes()
     partial = tmp_path / "r.h5.partial"
     kills = 0
-    for delay in (1.5, 3.0):
+    for kill_after in (1, 3):  # kill after the first checkpoint, then again two checkpoints later
         process = subprocess.Popen([sys.executable, "-m", "bakery.cli", "bake", *map(str, sources), "-o", str(store),
                                     "--recipe", str(r), "-j", "1"], env=ENV, stdout=subprocess.DEVNULL,
                                    stderr=subprocess.DEVNULL)
-        time.sleep(delay)
-        if process.poll() is None:
-            process.send_signal(signal.SIGKILL)
-            kills += 1
-        process.wait()
-        if process.returncode == 0:
-            break
+        kills += _kill_when(process, partial, kill_after)
         assert store.read_bytes() == previous  # the killed bake never touched the previous store
-    assert kills >= 1
-    finished_before = len(list(partial.glob("*.pkl"))) if partial.is_dir() else 0
+    assert kills == 2
+    finished_before = len(list(partial.glob("*.pkl")))
+    assert 3 <= finished_before < 8
     summary = json.loads(bakery_cli("bake", *sources, "-o", store, "--recipe", r, "-j", "1", "--json").stdout)
     assert summary["resumed_batches"] == finished_before
     assert summary["baked"] == 8 and not partial.exists()

@@ -46,7 +46,9 @@ def test_user_layers_are_untouched(baked):
     for name, data in before.items():
         assert (tmp_path / name).read_bytes() == data
     assert Path(summary["layer"]).name == "scene.bake.usda"
-    assert summary["probes"] == 1 + 1 + 4 and summary["rays"] > 0 and summary["rays_per_second"] > 0
+    # irradiance encodings only were requested: the reflection probe is planned but skipped, and reported
+    assert summary["probes"] == 1 + 4 and summary["rays"] > 0 and summary["rays_per_second"] > 0
+    assert [s["probe"] for s in summary["skipped"]] == ["/Refl"]
 
 
 def test_layer_round_trips_the_store_through_a_composed_stage(baked):
@@ -55,11 +57,12 @@ def test_layer_round_trips_the_store_through_a_composed_stage(baked):
     session.subLayerPaths = [summary["layer"], str(scene)]
     stage = Usd.Stage.Open(session)
     # the engine's view: typed probes carrying their coefficients
-    for path, type_name in [("/Irr", "BakeryIrradianceProbe"), ("/Vol", "BakeryIrradianceProbeVolume"),
-                            ("/Refl", "BakeryReflectionProbe")]:
+    for path, type_name in [("/Irr", "BakeryIrradianceProbe"), ("/Vol", "BakeryIrradianceProbeVolume")]:
         prim = stage.GetPrimAtPath(path)
         assert prim.GetTypeName() == type_name
         assert "BakeryBakedProbeAPI" in prim.GetAppliedSchemas()
+    assert stage.GetPrimAtPath("/Refl").GetTypeName() == "BakeryReflectionProbe"
+    assert "BakeryBakedProbeAPI" not in stage.GetPrimAtPath("/Refl").GetAppliedSchemas()  # skipped: not baked
     values = read_baked_values(stage)
     store = read_store(summary["store"])
     names = list(store.probe_names)
@@ -126,3 +129,28 @@ def test_schema_plugin_is_registered_and_packaged_copy_matches_source():
         "bakery:influence:shape")
     assert list(shape.GetMetadata("allowedTokens")) == ["sphere", "box"]
     assert registry.FindAppliedAPIPrimDefinition("BakeryBakedProbeAPI") is not None
+
+
+def test_large_fields_stay_in_the_store_only():
+    from bakery.usd.layer import MAX_VALUES_PER_PROBE, BakedPrim
+
+    small = np.zeros((1, 9, 3), dtype=np.float32)
+    large = np.zeros((1, MAX_VALUES_PER_PROBE + 1), dtype=np.float32)
+    prim = BakedPrim("/P", 1, ("a", "b"), {"bakery:irradiance:a:x": small, "bakery:reflection:b:cube": large})
+    kept, store_only = prim.split_by_size()
+    assert list(kept) == ["bakery:irradiance:a:x"] and store_only == ["b:cube"]
+
+
+def test_per_probe_capture_resolution_and_constant_radiance_dc(tmp_path):
+    """A probe in a closed box of emission c, captured at resolution 16 and baked on an 8² grid: the stored
+    radiance SH DC is 2√π·c (closed form for constant radiance) and the higher bands vanish."""
+    from usd_scenes import box_mesh, header, material, probe
+
+    c = np.array([0.5, 1.0, 2.0])
+    text = header() + material("M", diffuse=(0.0, 0.0, 0.0), emissive=tuple(c)) + box_mesh("Box", 2.0, "/M")
+    text += probe("P", (0.2, 0.1, -0.3), body="int bakery:capture:resolution = 16")
+    summary = bake_scene(write(tmp_path / "box.usda", text), tmp_path / "box.h5", face_size=8, encodings=["sh3"],
+                         samples=1)
+    values = read_baked_values(summary["layer"])["/P"]["bakery:irradiance:sh3:radiance_sh"][0]
+    np.testing.assert_allclose(values[0], 2 * np.sqrt(np.pi) * c, rtol=1e-5)
+    np.testing.assert_allclose(values[1:], 0.0, atol=1e-5)

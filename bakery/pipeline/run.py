@@ -14,9 +14,14 @@ import numpy as np
 
 from bakery.bake import BakeSettings, EncodedBatch, merge_batches, store_contents
 from bakery.encodings import ENCODINGS, get_encoding
-from bakery.errors import StoreFormatError
+from bakery.errors import InputError, StoreFormatError
 from bakery.pipeline.journal import Journal
 from bakery.pipeline.plan import CaptureSpec, Plan, ProbeTask, make_batches, probe_content_hash
+from bakery.pipeline.skip import band_skip_decisions
+
+#: Default ε of band skipping: a band is dropped only where the bands above carry < 1e-6 of the irradiance energy
+#: (≈ 0.1% RMS irradiance), i.e. where they carry no visible energy.
+DEFAULT_BAND_TOLERANCE = 1e-6
 from bakery.probe import PROBE_KINDS, Probe
 from bakery.store.format import StoreContents, read_store, write_store
 
@@ -119,6 +124,8 @@ class BakeSummary:
     bytes_per_probe: dict[str, int]
     timings: dict[str, float] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    #: mean over probes of the relative RMSE against the exact irradiance, per irradiance encoding
+    reference_error: dict[str, float] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -128,15 +135,22 @@ def execute_plan(
     plan: Plan, settings: BakeSettings, output: str | Path, executor, previous: StoreContents | None = None,
     resume: bool = True, progress: Callable[[int, int], None] | None = None, attributes: dict | None = None,
     layers: str = "", on_written: Callable[[EncodedBatch, dict[str, Any]], None] | None = None,
+    band_energy_tolerance: float | None = DEFAULT_BAND_TOLERANCE,
 ) -> BakeSummary:
     """Run ``plan`` on ``executor``, checkpointing each finished batch, and write the store atomically.
 
     Probes whose capture failed are left out of the store and reported in ``failed`` (the caller's exit code says
-    so); everything else is written. ``on_written`` is called with the merged results after the store is written
+    so); everything else is written. If no probe could be baked, nothing is written and :class:`InputError` is
+    raised. ``band_energy_tolerance=None`` disables band skipping (explicitly requested encodings). ``on_written`` is called with the merged results after the store is written
     (the USD layer writer).
     """
     start = time.perf_counter()
     output = Path(output)
+    directory = output.parent if str(output.parent) else Path(".")
+    if not directory.is_dir():
+        raise StoreFormatError(f"{output}: output directory {directory} does not exist")
+    if output.is_dir():
+        raise StoreFormatError(f"{output}: is a directory; give a file name for the store")
     journal = Journal(output)
     keys = {b.key for b in plan.batches}
     done = journal.load(keys) if resume else {}
@@ -161,8 +175,31 @@ def execute_plan(
             batches.append(outcome.result)
     if plan.reused and previous is not None:
         batches.append(extract_probes(previous, plan.reused))
+    if failures and not batches and not plan.reused:
+        journal.remove()
+        first = next(iter(failures.values()))
+        raise InputError(f"no probe could be baked; nothing was written. First failure: {first}"
+                         if len(failures) > 1 else first)
     order = [n for n in plan.order if n not in failures]
     merged = merge_batches(batches, order) if batches else EncodedBatch([], {}, {}, {})
+    skipped = list(plan.skipped)
+    if "band_energy" in merged.diagnostics:
+        energy = np.asarray(merged.diagnostics["band_energy"], dtype=np.float64)
+        has = np.all(np.isfinite(energy), axis=1)
+        positions = np.array([p.position for p in merged.probes], dtype=np.float64).reshape(-1, 3)
+        required, skips = band_skip_decisions(energy[has], positions[has],
+                                              band_energy_tolerance or DEFAULT_BAND_TOLERANCE, list(merged.encoded))
+        if band_energy_tolerance is None:  # encodings were asked for explicitly: report, do not skip
+            skips = []
+        required_all = np.full(len(merged.probes), np.nan, dtype=np.float32)
+        required_all[has] = required
+        merged.diagnostics["required_band"] = required_all
+        for skip in skips:
+            merged.encoded.pop(skip["encoding"], None)
+            merged.rows.pop(skip["encoding"], None)
+            for key in [k for k in merged.diagnostics if k.endswith("/" + skip["encoding"])]:
+                del merged.diagnostics[key]
+        skipped += skips
     instances = {}
     for name in merged.encoded:
         instances[name] = get_encoding(name)(**settings.encoding_settings.get(name, {}))
@@ -180,7 +217,10 @@ def execute_plan(
                              for p in merged.probes], dtype=np.int32)
     contents = store_contents(
         merged, settings, instances,
-        {**(attributes or {}), "failed_probes": json.dumps(failures, sort_keys=True)},
+        {**(attributes or {}), "failed_probes": json.dumps(failures, sort_keys=True),
+         "skipped": json.dumps(skipped, sort_keys=True),
+         "band_energy_tolerance": band_energy_tolerance or DEFAULT_BAND_TOLERANCE,
+         "band_skipping": band_energy_tolerance is not None},
         probe_hashes=[hash_of[p.name] for p in merged.probes], history=history, bake_ids=bake_ids, layers=layers,
     )
     write_store(output, contents)
@@ -191,9 +231,11 @@ def execute_plan(
     baked = total - sum(1 for n in failures)
     return BakeSummary(
         store=str(output), planned=len(plan.tasks), baked=baked, reused=len(plan.reused),
-        resumed_batches=len(done), failed=failures, skipped=plan.skipped, batches=len(plan.batches),
+        resumed_batches=len(done), failed=failures, skipped=skipped, batches=len(plan.batches),
         workers=getattr(executor, "workers", 1), executor=getattr(executor, "name", "?"), seconds=seconds,
         probes_per_second=baked / seconds if seconds > 0 else 0.0, store_bytes=output.stat().st_size,
         bytes_per_probe={n: e.bytes_per_probe() for n, e in instances.items()}, timings=merged.timings,
         warnings=merged.warnings,
+        reference_error={k.split("/", 1)[1]: float(np.nanmean(v)) for k, v in merged.diagnostics.items()
+                         if k.startswith("reference_error/") and np.any(np.isfinite(v))},
     )

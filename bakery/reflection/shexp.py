@@ -53,7 +53,7 @@ from scipy import sparse
 
 from bakery.brdf.ggx import reflect
 from bakery.brdf.sampling import to_world
-from bakery.reflection.reference import fdv_cosine_weights
+from bakery.reflection.reference import _weights_float32
 from bakery.sh.basis import evaluate_sh_basis, sh_bands
 from bakery.sphere.cubemap import cube_texel_directions, cube_texel_solid_angles
 from bakery.sphere.fibonacci import fibonacci_directions
@@ -155,10 +155,12 @@ def build_operators(settings: SHExpSettings) -> SHExpOperators:
     f = settings.fit_face_size
     dirs = cube_texel_directions(f).reshape(-1, 3)
     omega = cube_texel_solid_angles(f).reshape(-1)
-    chunk = max(1, 8_000_000 // dirs.shape[0])
+    l_t = np.ascontiguousarray(dirs.T.astype(np.float32))
     weights = np.empty((v.shape[0], dirs.shape[0]), dtype=np.float32)
-    for s in range(0, v.shape[0], chunk):
-        weights[s : s + chunk] = fdv_cosine_weights(dirs, omega, v[s : s + chunk], n[s : s + chunk], a[s : s + chunk], dtype=np.float32)
+    rows = max(1, 1_000_000 // dirs.shape[0])
+    for s in range(0, v.shape[0], rows):
+        sl = slice(s, s + rows)
+        weights[sl] = _weights_float32(l_t, omega, v[sl], n[sl], a[sl])[0]  # W of [SHExp] Eq. 6 (f_DV⟨l,n⟩Ω)
     design = design_matrix(v, n, a, settings)
     pinv = np.linalg.pinv(design).astype(np.float32)  # A⁺ of [SHExp] Eq. 14
     basis = evaluate_sh_basis(dirs, settings.fast_band)  # (T, K_F)

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-from scipy.special import eval_legendre
+from scipy.special import eval_legendre, roots_legendre
 
 from bakery.brdf.ggx import ggx_distribution
 from bakery.brdf.sampling import sample_ggx_ndf, to_world
@@ -104,19 +104,30 @@ def _kernel_profile(t: np.ndarray, alpha: float) -> np.ndarray:
     return ggx_distribution(np.sqrt(np.clip(0.5 * (1.0 + t), 0.0, 1.0)), alpha) * np.maximum(t, 0.0)
 
 
+_BAND_CAP = 64
+
+
 @lru_cache(maxsize=64)
-def kernel_band_factors(alpha: float, max_band: int = 64) -> np.ndarray:
-    """λ_l = 2π ∫ K_α(t) P_l(t) dt, l = 0..max_band, normalised so λ_0 = 1 (Funk–Hecke; [Seed003] Eq. 5)."""
+def _band_factors_cached(alpha: float) -> np.ndarray:
     # Gauss–Legendre in the angle θ ∈ [0, π/2] resolves the peak at t = 1 for small α.
-    x, w = np.polynomial.legendre.leggauss(4000)
+    x, w = roots_legendre(2000)
     theta = 0.25 * np.pi * (x + 1.0)
     t = np.cos(theta)
     weight = w * 0.25 * np.pi * np.sin(theta) * _kernel_profile(t, alpha)
-    lam = np.array([np.sum(weight * eval_legendre(l, t)) for l in range(max_band + 1)])
-    return lam / lam[0]
+    lam = eval_legendre(np.arange(_BAND_CAP + 1)[:, None], t[None, :]) @ weight
+    lam = lam / lam[0]
+    lam.setflags(write=False)
+    return lam
 
 
-def sh_band_limit(alpha: float, tolerance: float, cap: int = 64) -> int:
+def kernel_band_factors(alpha: float, max_band: int = _BAND_CAP) -> np.ndarray:
+    """λ_l = 2π ∫ K_α(t) P_l(t) dt, l = 0..max_band (≤ 64), normalised so λ_0 = 1 (Funk–Hecke; [Seed003] Eq. 5)."""
+    if max_band > _BAND_CAP:
+        raise ValueError(f"max_band must be <= {_BAND_CAP}")
+    return _band_factors_cached(float(alpha))[: max_band + 1]
+
+
+def sh_band_limit(alpha: float, tolerance: float, cap: int = _BAND_CAP) -> int:
     """Smallest L with |λ_l| < tolerance for all l in (L, cap]; cap + 1 if none."""
     lam = np.abs(kernel_band_factors(float(alpha), cap))
     above = np.flatnonzero(lam >= tolerance)

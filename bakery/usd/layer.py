@@ -14,6 +14,8 @@ attribute                                   value
 ``bakery:baked:settingsHash``               the bake's settings hash
 ``bakery:baked:encodings``                  token[] of encodings written on this prim
 ``bakery:baked:probeCount``                 1, or the number of probes of a probe volume
+``bakery:baked:storeOnlyFields``            ``<encoding>:<field>`` of fields too large for the layer
+                                            (> :data:`MAX_VALUES_PER_PROBE` values per probe): store only
 ``bakery:baked:conventions``                JSON of :data:`bakery.conventions.CONVENTIONS`
 ==========================================  ====================================================================
 
@@ -39,6 +41,10 @@ from bakery.errors import SceneError
 from bakery.usd.plugin import BAKED_API
 
 
+#: Fields with more values per probe than this stay in the store only (e.g. prefiltered cube maps).
+MAX_VALUES_PER_PROBE = 16384
+
+
 @dataclass(frozen=True)
 class BakedPrim:
     """Baked values of one prim: ``fields`` maps attribute name → (probeCount, *shape) array."""
@@ -47,6 +53,17 @@ class BakedPrim:
     probe_count: int
     encodings: tuple[str, ...]
     fields: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def split_by_size(self) -> tuple[dict[str, np.ndarray], list[str]]:
+        """(fields small enough for the layer, ``<encoding>:<field>`` names of the others)."""
+        small, large = {}, []
+        for name, array in self.fields.items():
+            per_probe = int(np.prod(np.shape(array)[1:], dtype=np.int64))
+            if per_probe > MAX_VALUES_PER_PROBE:
+                large.append(name.split(":", 2)[2])
+            else:
+                small[name] = array
+        return small, sorted(large)
 
 
 def attribute_name(kind: str, encoding: str, field_name: str) -> str:
@@ -116,8 +133,9 @@ def write_bake_layer(
         spec.specifier = Sdf.SpecifierOver
         spec.SetInfo("apiSchemas", Sdf.TokenListOp.Create(prependedItems=[BAKED_API]))
         written: dict[str, np.ndarray] = {}
-        for name in sorted(baked.fields):
-            type_name, value, data = _usd_value(baked.fields[name])
+        small, store_only = baked.split_by_size()
+        for name in sorted(small):
+            type_name, value, data = _usd_value(small[name])
             attr = Sdf.AttributeSpec(spec, name, type_name, Sdf.VariabilityVarying)
             attr.default = value
             attr.customData = {"shape": Vt.IntArray(list(data.shape[1:])), "probeCount": baked.probe_count}
@@ -128,6 +146,7 @@ def write_bake_layer(
             "bakery:baked:settingsHash": (Sdf.ValueTypeNames.String, settings_hash),
             "bakery:baked:encodings": (Sdf.ValueTypeNames.TokenArray, Vt.TokenArray(list(baked.encodings))),
             "bakery:baked:probeCount": (Sdf.ValueTypeNames.Int, int(baked.probe_count)),
+            "bakery:baked:storeOnlyFields": (Sdf.ValueTypeNames.TokenArray, Vt.TokenArray(store_only)),
             "bakery:baked:conventions": (Sdf.ValueTypeNames.String, conventions),
         }
         for name, (type_name, value) in meta.items():

@@ -65,6 +65,7 @@ class SceneReading:
     meters_per_unit: float
     up_axis: str
     layers: tuple[str, ...] = ()
+    assets: tuple[str, ...] = ()
 
     @property
     def errors(self) -> tuple[Issue, ...]:
@@ -209,7 +210,15 @@ class SceneReader:
             meters_per_unit=self.frame.mpu,
             up_axis=self.frame.up,
             layers=tuple(sorted({layer.realPath for layer in self.stage.GetUsedLayers() if layer.realPath})),
+            assets=tuple(sorted(self._assets())),
         )
+
+    def _assets(self) -> set[str]:
+        """Files other than layers that the capture reads: dome texture, captured images, material textures."""
+        files = {d.source for d in self.domes if d.source}
+        files |= {p.image for p in self.probes if p.image}
+        files |= {key.split("|", 1)[0] for key in self.materials._textures}
+        return files
 
     def _check_encodings(self) -> None:
         """Per-probe ``bakery:encodings`` must name registered encodings (of the probe's kind, else a warning)."""
