@@ -47,6 +47,11 @@ class ProbeStore:
         self.probe_kinds: list[str] = list(self._contents.probe_kinds)
         self.probe_positions: np.ndarray = self._contents.probe_positions
         self.diagnostics: dict[str, np.ndarray] = self._contents.diagnostics
+        self.probe_hashes: list[str] = list(self._contents.probe_hashes or [""] * len(self.probe_names))
+        self.probe_bake_ids: np.ndarray = np.asarray(self._contents.probe_bake_ids if
+                                                     self._contents.probe_bake_ids is not None else
+                                                     np.zeros(len(self.probe_names)), dtype=int)
+        self.history: list[dict[str, str]] = list(self._contents.history)
         self.encodings: dict[str, EncodingInfo] = {}
         for name, entry in self._contents.encodings.items():
             at = entry["attributes"]
@@ -68,6 +73,22 @@ class ProbeStore:
                 f"({cls.version}); upgrade bakery"
             )
         return cls.from_settings(self.encodings[name].settings), entry
+
+    def select_probes(self, pattern: str | None = None, region: tuple[float, ...] | None = None) -> list[int]:
+        """Indices of probes whose name matches the glob ``pattern`` (e.g. ``/World/Volume/*``) and whose position
+        lies in the axis-aligned box ``region`` = (xmin, ymin, zmin, xmax, ymax, zmax) (bake frame, metres)."""
+        import fnmatch
+
+        selected = []
+        for i, name in enumerate(self.probe_names):
+            if pattern and not fnmatch.fnmatchcase(name, pattern):
+                continue
+            if region is not None:
+                lo, hi = np.asarray(region[:3]), np.asarray(region[3:])
+                if not np.all((self.probe_positions[i] >= lo) & (self.probe_positions[i] <= hi)):
+                    continue
+            selected.append(i)
+        return selected
 
     def fields(self, encoding: str) -> dict[str, np.ndarray]:
         """Stored per-probe arrays of an encoding {field: (P_k, ...)}, including ``probe_index``."""

@@ -219,11 +219,37 @@ def migrate(store: Path, output: Path | None, dry_run: bool) -> None:
 @main.command()
 @click.argument("store", type=click.Path(path_type=Path))
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
-def inspect(store: Path, as_json: bool) -> None:
-    """Print a store's format version, conventions, probes, encodings and bytes per probe."""
+@click.option("--probes", "pattern", help="List the probes whose prim path matches this glob (e.g. '/World/*').")
+@click.option("--region", help="List the probes inside the box xmin,ymin,zmin,xmax,ymax,zmax (metres, bake frame).")
+def inspect(store: Path, as_json: bool, pattern: str | None, region: str | None) -> None:
+    """Print a store's format version, conventions, probes, encodings and bytes per probe; with --probes/--region,
+    list the selected probes with their position and the bake that produced them."""
     from bakery.api import open_store
 
     s = open_store(store)
+    if pattern or region:
+        box = None
+        if region:
+            try:
+                box = tuple(float(v) for v in region.split(","))
+                assert len(box) == 6
+            except (ValueError, AssertionError):
+                raise click.BadParameter("--region takes six comma-separated numbers") from None
+        rows = []
+        for i in s.select_probes(pattern, box):
+            bake = s.history[s.probe_bake_ids[i]] if s.history else {}
+            rows.append({"name": s.probe_names[i], "kinds": s.probe_kinds[i],
+                         "position": [float(v) for v in s.probe_positions[i]], "content_hash": s.probe_hashes[i],
+                         "baked": bake.get("time_utc", ""), "bakery_version": bake.get("bakery_version", "")})
+        if as_json:
+            out.print_json(json.dumps(rows))
+            return
+        table = Table("probe", "kinds", "position (m)", "baked", "content hash", title=f"{len(rows)} probes")
+        for row in rows:
+            table.add_row(row["name"], row["kinds"], ", ".join(f"{v:.3g}" for v in row["position"]), row["baked"],
+                          row["content_hash"][:12])
+        out.print(table)
+        return
     info = {
         "format": s.attributes.get("format"), "format_version": s.format_version,
         "bakery_version": s.attributes.get("bakery_version"), "settings_hash": s.attributes.get("settings_hash"),
@@ -241,10 +267,18 @@ def inspect(store: Path, as_json: bool) -> None:
         conventions.add_row(key, value)
     out.print(conventions)
     out.print(f"{len(s.probe_names)} probes: " + ", ".join(s.probe_names[:10]) + (" …" if len(s.probe_names) > 10 else ""))
-    table = Table("encoding", "kind", "version", "probes", "bytes/probe", "description", title="encodings")
+    table = Table("encoding", "kind", "version", "probes", "bytes/probe", "total bytes", title="encodings")
     for name, e in s.encodings.items():
-        table.add_row(name, e.kind, e.version, str(e.probe_count), str(e.bytes_per_probe), e.description)
+        table.add_row(name, e.kind, e.version, str(e.probe_count), str(e.bytes_per_probe),
+                      f"{e.bytes_per_probe * e.probe_count:,}")
     out.print(table)
+    if s.history:
+        last = s.history[-1]
+        out.print(f"last bake {last.get('time_utc')} (bakery {last.get('bakery_version')}); "
+                  f"{len(s.history)} bake(s) in the history")
+    skipped = json.loads(s.attributes.get("skipped", "[]"))
+    for skip in skipped:
+        out.print(f"skipped {skip.get('encoding') or skip.get('probe')}: {skip['reason']}")
 
 
 @main.group()

@@ -243,3 +243,15 @@ def test_dry_run_prints_the_plan_and_writes_nothing(tmp_path, environments):
     result = bakery_cli("bake", *environments, "-o", store, "--recipe", recipe(tmp_path, 4), "--dry-run", "--json")
     plan = json.loads(result.stdout)
     assert plan["probes"] == 6 and plan["batches"] == 2 and not store.exists()
+
+
+def test_inspect_selects_probes_by_path_and_region(tmp_path, environments):
+    store = tmp_path / "s.h5"
+    bakery_cli("bake", *environments, "-o", store, "--recipe", recipe(tmp_path, 6), "-j", "1")
+    rows = json.loads(bakery_cli("inspect", store, "--probes", "/environment/env[12]", "--json").stdout)
+    assert [r["name"] for r in rows] == ["/environment/env1", "/environment/env2"]
+    assert all(len(r["content_hash"]) == 64 for r in rows)
+    inside = json.loads(bakery_cli("inspect", store, "--region=-1,-1,-1,1,1,1", "--json").stdout)
+    assert len(inside) == 6  # distant probes sit at the origin
+    outside = json.loads(bakery_cli("inspect", store, "--region=1,1,1,2,2,2", "--json").stdout)
+    assert outside == []
