@@ -39,7 +39,6 @@ import numpy as np
 from bakery.errors import BakeryWarning, ConfigError, SceneError
 from bakery.pipeline.capture import register_capture
 from bakery.probe import Probe
-from bakery.sphere.cubemap import cube_texel_directions, sample_cube_bilinear
 
 SCENE_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
 
@@ -60,18 +59,6 @@ def default_layer_path(output: Path) -> Path:
     """``<store stem>.bake.usda`` beside the store (never the scene's own file, whatever the store is called)."""
     output = Path(output)
     return output.with_name(f"{output.stem}.bake.usda")
-
-
-def _to_face_size(cube: np.ndarray, face_size: int) -> np.ndarray:
-    """Resample a capture (6, M, M, 3) to the bake grid (6, N, N, 3): box average when M = k·N, else bilinear."""
-    m = cube.shape[1]
-    if m == face_size:
-        return cube
-    if m % face_size == 0:
-        k = m // face_size
-        return cube.reshape(6, face_size, k, face_size, k, 3).mean(axis=(2, 4)).astype(np.float32)
-    directions = cube_texel_directions(face_size).reshape(-1, 3)
-    return sample_cube_bilinear(cube, directions).reshape(6, face_size, face_size, 3).astype(np.float32)
 
 
 def _files_hash(paths: tuple[str, ...]) -> str:
@@ -107,7 +94,7 @@ def _scene_state(scene_path: str, scene_hash: str, params: SceneCaptureParams): 
 @register_capture("scene")
 def capture_scene_probe(spec, face_size: int, probe: Probe):  # noqa: ANN001 - CaptureSpec
     """Radiance cube (6, N, N, 3) of one scene probe; no reference quadrature, no sanitize report."""
-    from bakery.capture import load_captured_cube
+    from bakery.capture import load_captured_cube, to_face_size
 
     params = spec.param("capture", SceneCaptureParams())
     specs, renderer = _scene_state(spec.source, spec.inputs[0] if spec.inputs else "", params)
@@ -123,7 +110,7 @@ def capture_scene_probe(spec, face_size: int, probe: Probe):  # noqa: ANN001 - C
         CAPTURE_COUNTERS["rays"] += stats.rays
         CAPTURE_COUNTERS["seconds"] += stats.seconds
         CAPTURE_COUNTERS["rendered"] += 1
-    return _to_face_size(cube, face_size), None, None
+    return to_face_size(cube, face_size), None, None
 
 
 # ---------------------------------------------------------------------------------------------------------------

@@ -92,7 +92,7 @@ def SphereLight "Lamp"
 }}
 """ + probe("P", (0.0, 1.0, 0.0))
     n = 16
-    _, cubes, _ = capture(write(tmp_path / "lamp.usda", text), face_size=n, samples=16, bounces=1)
+    _, cubes, _ = capture(write(tmp_path / "lamp.usda", text), face_size=n, samples=32, bounces=1)
     d = cube_texel_directions(n)
     face = d[3]  # -Y face: every texel hits the plane
     t = 1.0 / -face[..., 1]
@@ -100,7 +100,9 @@ def SphereLight "Lamp"
     to_light = np.array([0.0, height, 0.0]) - points
     dist = np.linalg.norm(to_light, axis=-1)
     e = math.pi * radiance * (radius / dist) ** 2 * (to_light[..., 1] / dist)
-    np.testing.assert_allclose(cubes[0][3][..., 0], rho * e / math.pi, rtol=0.02)
+    # per texel: cone-sampling noise σ ≈ 0.6% at 32 rays; over the face: texel-footprint averaging only
+    np.testing.assert_allclose(cubes[0][3][..., 0], rho * e / math.pi, rtol=0.03)
+    np.testing.assert_allclose(cubes[0][3][..., 0].mean(), (rho * e / math.pi).mean(), rtol=0.01)
     # looking up: texels whose whole footprint lies inside the lamp's disc see exactly its radiance
     up = d[2]
     cos_max = math.sqrt(1 - (radius / (height - 1.0)) ** 2)
@@ -176,10 +178,11 @@ def DomeLight "Sky"
 }}
 """ + probe("P", (0.0, 1.0, 0.0))
     n = 16
-    _, cubes, _ = capture(write(tmp_path / "dome.usda", text), face_size=n, samples=8, bounces=1)
+    _, cubes, _ = capture(write(tmp_path / "dome.usda", text), face_size=n, samples=64, bounces=1)
     d = cube_texel_directions(n)
     below = d[..., 1] < -0.2
-    np.testing.assert_allclose(cubes[0][below].mean(axis=0), rho * e / math.pi, rtol=0.02)
+    # standard error of this mean ≈ 0.7% (measured over repeated seeds) for the textured dome, less when constant
+    np.testing.assert_allclose(cubes[0][below].mean(axis=0), rho * e / math.pi, rtol=0.03)
 
 
 def test_captures_are_deterministic_and_seeded_by_prim_path(tmp_path):
@@ -194,3 +197,21 @@ def test_captures_are_deterministic_and_seeded_by_prim_path(tmp_path):
     assert not np.array_equal(first[0], first[1])  # same place, different prim path → different noise
     digest = hashlib.sha256(b"0:/A").digest()
     assert probe_seed("/A") == int.from_bytes(digest[:8], "little") & ((1 << 63) - 1)
+
+
+def test_wide_distant_light_is_seen_by_escaping_rays_with_its_illuminance_as_flux(tmp_path):
+    """A 20° sun (wider than a texel) is ray-traced, not splatted: radiance L = E/(π sin²α) inside its disc (UsdLux:
+    E is the illuminance at normal incidence), so ∫ L dω = L·2π(1 − cos α) = E·2/(1 + cos α)."""
+    angle, intensity = 20.0, 5.0
+    text = header() + _distant_light(intensity, (1.0, 1.0, 1.0), 0.0, True, angle) + probe("P")
+    n = 32
+    _, cubes, _ = capture(write(tmp_path / "wide.usda", text), face_size=n, samples=256, bounces=0)
+    alpha = math.radians(angle / 2)
+    omega = cube_texel_solid_angles(n)
+    flux = (cubes[0] * omega[..., None]).sum(axis=(0, 1, 2))
+    # partially covered edge texels are estimated from 256 jittered rays each: ~1% noise on the total
+    np.testing.assert_allclose(flux, intensity * 2 / (1 + math.cos(alpha)), rtol=0.025)
+    d = cube_texel_directions(n)
+    deep_inside = d[..., 1] > math.cos(alpha - math.atan(math.sqrt(2) / n))
+    assert deep_inside.any()
+    np.testing.assert_allclose(cubes[0][deep_inside], intensity / (math.pi * math.sin(alpha) ** 2), rtol=1e-6)

@@ -3,7 +3,6 @@ pick-up of every registered encoding (including a test-only reflection encoding)
 rendered by headless Chromium without console messages and with its plots present."""
 
 import json
-import os
 import re
 import shutil
 import struct
@@ -187,6 +186,28 @@ def test_report_includes_registered_reflection_encodings(toy_reflection_encoding
     assert data["memory"]["ratios"][toy_reflection_encoding]["vs_split_sum_cube_bc6h"] > 0
 
 
+REFLECTION = [n for n, c in ENCODINGS.items() if c.kind == "reflection"]
+SMALL_SETTINGS = {"face_size": 8, "min_face_size": 4, "fit_face_size": 8}
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not REFLECTION, reason="no reflection encoding registered")
+def test_report_with_every_registered_reflection_encoding(tmp_path):
+    env = sun_environment(tmp_path / "e.exr", height=16)
+    settings = {}
+    for name in REFLECTION:
+        defaults = ENCODINGS[name]().settings
+        settings[name] = {k: v for k, v in SMALL_SETTINGS.items() if k in defaults}
+    bake_environment(env, tmp_path / "s.h5", BakeSettings(face_size=8, encodings=("sh2", *REFLECTION),
+                                                          encoding_settings=settings))
+    data, html = build_report(tmp_path / "s.h5")
+    for name in REFLECTION:
+        curve = data["reflection_alpha_curves"]["encodings"][name]
+        assert all(np.isfinite(v) for m in ("chrome", "glass") for v in curve[m][0])
+        assert data["errors"][name]["kind"] == "reflection"
+    assert 'data-plot="error-vs-memory-reflection"' in html and 'data-plot="alpha-glass"' in html
+
+
 # --------------------------------------------------------------------------------------------------- chromium
 def chromium_binary():
     for name in ("chromium", "chromium-browser", "google-chrome", "chrome"):
@@ -227,3 +248,32 @@ def test_report_renders_in_headless_chromium(image_store, tmp_path):
     shot = tmp_path / "shot.png"
     result = run_chromium(url, f"--screenshot={shot}", "--window-size=1280,1600")
     assert result.returncode == 0 and shot.stat().st_size > 20_000  # a blank page compresses to a few kB
+
+
+# --------------------------------------------------------------------------------------------------- pareto bench
+def test_pareto_front_flags_non_dominated_points():
+    from bakery.bench.pareto import pareto_front
+
+    points = [(1.0, 0.5), (2.0, 0.1), (3.0, 0.2), (1.0, 0.6), (0.5, 0.9)]
+    assert pareto_front(points) == [True, True, False, False, True]
+
+
+@pytest.mark.slow
+def test_quick_pareto_bench_covers_the_registry_and_round_trips(tmp_path):
+    from bakery.bench.pareto import compare_pareto, run_pareto_bench
+
+    envs = tmp_path / "envs"
+    envs.mkdir()
+    sun_environment(envs / "a.exr", height=16)
+    result = run_pareto_bench(envs, tmp_path / "out", quick=True, repeats=1)
+    saved = json.loads((tmp_path / "out" / "pareto.json").read_text())
+    assert saved["rows"] == json.loads(json.dumps(result["rows"]))
+    assert {r["encoding"] for r in saved["rows"]} == set(ENCODINGS)
+    ok = [r for r in saved["rows"] if "error" in r]
+    assert all(np.isfinite(r["error"]["mean"]) and r["time_per_probe_s"]["warm"] > 0 for r in ok)
+    for kind in {r["kind"] for r in ok}:
+        assert any(r["pareto"] for r in ok if r["kind"] == kind)
+    assert (tmp_path / "out" / "pareto_irradiance.svg").read_text().startswith("<svg")
+    assert "| variant |" in (tmp_path / "out" / "pareto.md").read_text()
+    same = compare_pareto(saved, saved)
+    assert len(same) == len(ok) and all(c["time_ratio"] == 1.0 for c in same)

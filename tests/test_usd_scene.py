@@ -120,22 +120,25 @@ def test_probe_volume_grid_positions(tmp_path):
     assert all(p.volume == "/Vol" and p.kind == "irradiance" for p in probes)
 
 
-def test_legacy_and_namespaced_light_attributes_and_normalize(tmp_path):
-    text = header() + """
+@pytest.mark.parametrize("metres_per_unit", [1.0, 0.01])
+def test_legacy_and_namespaced_light_attributes_and_normalize(tmp_path, metres_per_unit):
+    """Legacy un-namespaced inputs are honoured; normalize divides by the emitting area in m² (unit-invariant)."""
+    k = 1.0 / metres_per_unit
+    text = header(meters_per_unit=metres_per_unit) + f"""
 def SphereLight "Legacy"
-{
+{{
     float intensity = 3
     float exposure = 1
     color3f color = (1, 0.5, 0.25)
-    float radius = 0.5
-}
+    float radius = {0.5 * k}
+}}
 def RectLight "Panel"
-{
+{{
     float inputs:intensity = 4
-    float inputs:width = 2
-    float inputs:height = 0.5
+    float inputs:width = {2 * k}
+    float inputs:height = {0.5 * k}
     bool inputs:normalize = 1
-}
+}}
 """ + probe("P")
     lights = {light.name: light for light in read_scene(write(tmp_path / "legacy.usda", text)).scene.lights}
     np.testing.assert_allclose(lights["/Legacy"].radiance, (6.0, 3.0, 1.5))
@@ -260,3 +263,21 @@ def test_dome_light_1_pole_axis(tmp_path, pole, up):
     to_bake = np.eye(3) if up == "Y" else np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])
     # the texture's pole (dome-local +Y before the pole alignment) lands on the pole axis
     np.testing.assert_allclose(rotation @ np.array([0.0, 1.0, 0.0]), to_bake @ pole_stage, atol=1e-12)
+
+
+def test_usdz_package_textures_are_read(tmp_path):
+    """A dome texture inside a .usdz (resolved as pkg.usdz[member]) is read through USD's asset resolver."""
+    from pxr import Sdf, UsdUtils
+
+    pixels = np.full((8, 16, 3), 0.25, dtype=np.float32)
+    out = oiio.ImageOutput.create(str(tmp_path / "sky.exr"))
+    assert out.open(str(tmp_path / "sky.exr"), oiio.ImageSpec(16, 8, 3, oiio.FLOAT))
+    out.write_image(pixels)
+    out.close()
+    write(tmp_path / "scene.usda", header() + 'def DomeLight "Sky"\n{\n    asset inputs:texture:file = @./sky.exr@\n}\n'
+          + probe("P"))
+    assert UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(tmp_path / "scene.usda")), str(tmp_path / "scene.usdz"))
+    (tmp_path / "sky.exr").unlink()  # only the packaged copy remains
+    reading = read_scene(tmp_path / "scene.usdz")
+    assert not reading.errors, reading.errors
+    np.testing.assert_allclose(reading.scene.dome.pixels, 0.25)

@@ -2,7 +2,8 @@
 
 Every sampler returns, for points x with normals n, a direction ωᵢ towards the light, the distance to the sampled
 point (for the shadow ray), and the one-sample estimate of  ∫ L(ωᵢ) max(0, n·ωᵢ) dωᵢ  over the light, i.e.
-L·cos/pdf_ω. Diffuse shading multiplies it by albedo/π.
+L·cos/pdf_ω, as a scalar weight w (M,) times the light's colour (3,) (every light here is uniform). Diffuse
+shading multiplies it by albedo/π.
 
 Samplers (pbrt-v4, "Light Sampling")
     distant  uniform in the cone of half-angle α around the light direction; estimate E·max(0, n·ωᵢ).
@@ -41,8 +42,9 @@ def sample_cone(axis: np.ndarray, one_minus_cos_max: np.ndarray, u: np.ndarray) 
 
 def sample_light(
     light: Light, points: np.ndarray, normals: np.ndarray, u: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Direction ωᵢ (M, 3), shadow distance (M,) and estimate of ∫ L cos dω (M, 3) for points, normals (M, 3)."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Direction ωᵢ (M, 3), shadow distance (M,), weight w (M,) and colour (3,) with w·colour the estimate of
+    ∫ L cos dω, for points and normals (M, 3)."""
     m = points.shape[0]
     axes = np.asarray(light.axes, dtype=np.float64)
     if light.kind == "distant":
@@ -50,7 +52,7 @@ def sample_light(
         axis = np.broadcast_to(light.direction_to_light, (m, 3))
         wi = sample_cone(axis, np.full(m, 1.0 - np.cos(alpha)), u) if alpha > 0 else np.array(axis)
         cos = np.maximum(0.0, np.einsum("ij,ij->i", normals, wi))
-        return wi, np.full(m, FAR), cos[:, None] * np.asarray(light.illuminance, dtype=np.float64)
+        return wi, np.full(m, FAR), cos, np.asarray(light.illuminance, dtype=np.float64)
     radiance = np.asarray(light.radiance, dtype=np.float64)
     centre = np.asarray(light.position, dtype=np.float64)
     if light.kind == "sphere":
@@ -69,7 +71,7 @@ def sample_light(
         dist = np.maximum(0.0, b - np.sqrt(disc))
         cos = np.maximum(0.0, np.einsum("ij,ij->i", normals, wi))
         weight = np.where(outside, cos * 2.0 * np.pi * one_minus_cos, 0.0)
-        return wi, dist, weight[:, None] * radiance
+        return wi, dist, weight, radiance
     # rect or disk: a point uniformly on the area
     if light.kind == "rect":
         a = (u[:, 0] - 0.5) * light.size[0]
@@ -85,7 +87,7 @@ def sample_light(
     cos_l = np.einsum("ij,j->i", wi, axes[2])  # the light's emitting normal is −Z: seen when ωᵢ·Z > 0
     cos = np.maximum(0.0, np.einsum("ij,ij->i", normals, wi))
     weight = np.where(cos_l > 0, cos * light.area * cos_l / np.maximum(dist * dist, 1e-300), 0.0)
-    return wi, dist, weight[:, None] * radiance
+    return wi, dist, weight, radiance
 
 
 def intersect_light_shapes(

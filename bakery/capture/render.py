@@ -1,7 +1,7 @@
 """Rendering a probe's radiance cube with Embree: what each probe sees, on the bake grid.
 
 For every cube texel (:func:`bakery.sphere.cubemap.cube_texel_directions`) ``samples`` rays leave the probe through
-jittered points of the texel; the texel's value is their mean radiance. Along a ray:
+jittered points of the texel (Latin-hypercube stratified in u and v); the texel's value is their mean radiance. Along a ray:
 
 - a visible area light in front of all geometry contributes its radiance;
 - a miss sees the dome (:class:`bakery.capture.dome.DomeSampler`);
@@ -59,12 +59,21 @@ class CaptureStats:
 
 
 def _jittered_texel_directions(face_size: int, samples: int, rng: np.random.Generator) -> np.ndarray:
-    """(samples, 6, N, N, 3) directions through uniformly jittered points of every texel."""
+    """(samples, 6, N, N, 3) directions through jittered points of every texel.
+
+    The ``samples`` points of a texel are a Latin hypercube: sample j takes the u-stratum j and a random v-stratum
+    (a per-texel permutation), jittered uniformly inside its stratum cell, so every texel's u and v are each
+    stratified into ``samples`` intervals (lower variance than independent jitter, same expectation).
+    """
     n = face_size
     jitter = rng.random((samples, 6, n, n, 2))
+    strata_u = np.arange(samples, dtype=np.float64)[:, None, None, None]
+    strata_v = rng.permuted(np.broadcast_to(strata_u, (samples, 6, n, n)), axis=0)
+    fu = (strata_u + jitter[..., 0]) / samples
+    fv = (strata_v + jitter[..., 1]) / samples
     idx = np.arange(n, dtype=np.float64)
-    u = (idx[None, None, None, :] + jitter[..., 0]) / n * 2.0 - 1.0
-    v = (idx[None, None, :, None] + jitter[..., 1]) / n * 2.0 - 1.0
+    u = (idx[None, None, None, :] + fu) / n * 2.0 - 1.0
+    v = (idx[None, None, :, None] + fv) / n * 2.0 - 1.0
     face = np.broadcast_to(np.arange(6)[None, :, None, None], u.shape)
     return cube_face_uv_to_direction(face, u, v)
 
@@ -167,13 +176,13 @@ class ProbeRenderer:
         m = points.shape[0]
         total = np.zeros((m, 3))
         for light in self.scene.lights:
-            wi, dist, estimate = sample_light(light, points, normals, rng.random((m, 2)))
-            active = estimate.max(axis=1) > 0
-            if not active.any():
+            wi, dist, weight, colour = sample_light(light, points, normals, rng.random((m, 2)))
+            idx = np.flatnonzero(weight > 0)
+            if idx.size == 0:
                 continue
-            idx = np.flatnonzero(active)
             blocked = self.tracer.occluded(points[idx], wi[idx], dist[idx] * (1.0 - 1e-6))
-            total[idx[~blocked]] += estimate[idx[~blocked]]
+            lit = idx[~blocked]
+            total[lit] += weight[lit, None] * colour
         if not self.dome.black and self.dome.scale.max() > 0:
             total += self._dome_direct(points, normals, rng)
         return total

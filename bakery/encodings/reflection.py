@@ -95,14 +95,15 @@ class SHExp(ReflectionEncoding):
 
     name = "shexp"
     version = "1.0.0"
-    description = "SH exponentials E0 = exp(<vMF(1/a).Y(r), p>) exp(<vMF(1/a).Y(h_r), q>), + Fresnel-tail table"
+    description = ("SH exponentials PQ = exp(<vMF(1/a).Y(r), p>) exp(<vMF(1/a).Y(h_r), q>); E = PQ (F0 A + B) with "
+                   "the DFG table (albedo-normalised) or PQ (F0 + (1-F0) tau) (paper)")
 
     _KEYS = ("p_band", "q_band", "n_normals", "n_views", "n_alphas", "alpha_min", "alpha_max", "fit_face_size",
-             "fit")
+             "fit", "albedo_normalized")
 
     def __init__(self, **settings: Any) -> None:
         defaults = {"p_band": 4, "q_band": 2, "n_normals": 64, "n_views": 64, "n_alphas": 4, "alpha_min": 0.2,
-                    "alpha_max": 1.0, "fit_face_size": 32, "fit": "fast"}
+                    "alpha_max": 1.0, "fit_face_size": 32, "fit": "fast", "albedo_normalized": True}
         merged = {**defaults, **{k: v for k, v in settings.items() if k in self._KEYS}}
         if merged["fit"] not in ("fast", "dense"):
             raise ValueError(f"shexp fit must be 'fast' or 'dense', got {merged['fit']!r}")
@@ -111,6 +112,7 @@ class SHExp(ReflectionEncoding):
             p_band=int(merged["p_band"]), q_band=int(merged["q_band"]), n_normals=int(merged["n_normals"]),
             n_views=int(merged["n_views"]), n_alphas=int(merged["n_alphas"]), alpha_min=float(merged["alpha_min"]),
             alpha_max=float(merged["alpha_max"]), fit_face_size=int(merged["fit_face_size"]),
+            albedo_normalized=bool(merged["albedo_normalized"]),
         )
 
     def field_specs(self) -> tuple[FieldSpec, ...]:
@@ -121,8 +123,12 @@ class SHExp(ReflectionEncoding):
                       "log-space SH of Q(h_r), bands 1..q_band (no DC), index l*(l+1)+m-1, RGB last"),
         )
 
+    def _table_name(self) -> str:
+        return "dfg" if self.model.albedo_normalized else "fresnel_tail"
+
     def shared_tables(self) -> dict[str, np.ndarray]:
-        return {"fresnel_tail": compute_dfg_tables(TABLE_SIZE, TABLE_SAMPLES).fresnel_tail}
+        tables = compute_dfg_tables(TABLE_SIZE, TABLE_SAMPLES)
+        return {"dfg": tables.dfg} if self.model.albedo_normalized else {"fresnel_tail": tables.fresnel_tail}
 
     def _fit_settings(self, face_size: int) -> SHExpSettings:
         f = self.model.fit_face_size
@@ -143,7 +149,7 @@ class SHExp(ReflectionEncoding):
 
     def evaluate_reflection(self, fields, shared, view, normal, alpha, f0):
         coeffs = np.concatenate([np.asarray(fields["p"]), np.asarray(fields["q"])], axis=1)
-        tail = shared.get("fresnel_tail") if shared else None
-        if tail is None:
-            tail = self.shared_tables()["fresnel_tail"]
-        return evaluate_shexp(coeffs, tail, view, normal, alpha, f0, self.model)
+        table = shared.get(self._table_name()) if shared else None
+        if table is None:
+            table = self.shared_tables()[self._table_name()]
+        return evaluate_shexp(coeffs, table, view, normal, alpha, f0, self.model)

@@ -15,6 +15,16 @@ Fit as fixed linear operators (Eq. 13–14)
     A[m] = [vMF(α_m) ⊙ Y(r_m), vMF(α_m) ⊙ Y(h_r,m)[1:]] (Eq. 14). W and A⁺ are built once per settings and cached;
     a batch of P probes is GEMM → log → GEMM.
 
+Albedo normalisation (beyond the paper; ``albedo_normalized``, default on)
+    Under constant radiance c, rotational symmetry forces p, q to their DC terms, so the paper's model is a
+    constant while the truth is c·a(n·v, α), a = A + B the f_DV albedo (0.33 … 1 for α ∈ [0.2, 1]): the model
+    spends its bands on the albedo instead of the lighting. We fit log(E0 / a(n·v, α)) instead (a from the shared
+    DFG table, a fixed per-row offset: [p; q] = A⁺ · (log E0 − log a)) and reconstruct
+        E = exp(⟨…, p⟩ + ⟨…, q⟩) · (F0·A + B)(n·v, α),
+    which equals a·PQ·(F0 + (1 − F0)·τ) with the consistent tail ratio τ = B/(A + B): the same Fresnel treatment
+    as Eq. 5/15, now exact for constant radiance. ``albedo_normalized=False`` is the paper's formulation
+    (E = PQ·(F0 + (1 − F0) τ)). Both are measured in docs/reflection.md.
+
 Log guard
     Black or near-black hemispheres are real (E0 = 0 makes log undefined). Every sample is floored at
     floor = max(ε_rel · mean(E0 of the probe over all samples and channels), ε_abs), ε_rel = 1e-4, ε_abs = 1e-12,
@@ -77,6 +87,7 @@ class SHExpSettings:
     fit_face_size: int = 32
     fast_band: int = 12
     fast_sparse: int = 32
+    albedo_normalized: bool = True
 
     @property
     def p_count(self) -> int:
@@ -138,7 +149,8 @@ def fit_design(settings: SHExpSettings) -> tuple[np.ndarray, np.ndarray, np.ndar
 @dataclass(frozen=True)
 class SHExpOperators:
     """Cached fixed operators of one settings: W (M, T) float32, its transpose, A (M, K), A⁺ (K, M) float32,
-    and the fast-path pieces W·Y_F (M, K_F) and the weighted basis Yᵀ Ω (K_F, T)."""
+    the fast-path pieces W·Y_F (M, K_F) and the weighted basis Yᵀ Ω (K_F, T), and the per-row log-albedo
+    offset (M,) (zeros unless ``albedo_normalized``) with its image A⁺·log a (K,)."""
 
     weights: np.ndarray
     weights_t: np.ndarray
@@ -146,6 +158,22 @@ class SHExpOperators:
     pinv: np.ndarray
     weights_sh: np.ndarray
     projector: np.ndarray
+    log_albedo: np.ndarray
+    pinv_log_albedo: np.ndarray
+
+
+#: Shared table resolution used by the albedo normalisation (same table as the encodings store).
+TABLE_SIZE = 64
+TABLE_SAMPLES = 64
+
+
+def design_albedo(view: np.ndarray, normal: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+    """f_DV albedo a = A + B (M,) at (n·v, α) from the shared DFG table (bilinear)."""
+    from bakery.reflection.tables import compute_dfg_tables, lookup_table
+
+    tables = compute_dfg_tables(TABLE_SIZE, TABLE_SAMPLES)
+    nv = np.clip(np.sum(np.asarray(view) * np.asarray(normal), axis=-1), 0.0, 1.0)
+    return lookup_table(tables.albedo, nv, np.asarray(alpha, dtype=np.float64))
 
 
 @lru_cache(maxsize=4)
@@ -166,9 +194,15 @@ def build_operators(settings: SHExpSettings) -> SHExpOperators:
     basis = evaluate_sh_basis(dirs, settings.fast_band)  # (T, K_F)
     weights_sh = (weights @ basis.astype(np.float32)).astype(np.float32)  # W · Y_F
     projector = (basis * omega[:, None]).T.astype(np.float32)  # Yᵀ Ω
-    for array in (weights, design, pinv, weights_sh, projector):
+    if settings.albedo_normalized:
+        log_albedo = np.log(np.maximum(design_albedo(v, n, a), 1e-6)).astype(np.float32)
+    else:
+        log_albedo = np.zeros(v.shape[0], np.float32)
+    pinv_log_albedo = (pinv @ log_albedo).astype(np.float32)
+    weights_t = np.ascontiguousarray(weights.T)
+    for array in (weights, weights_t, design, pinv, weights_sh, projector, log_albedo, pinv_log_albedo):
         array.setflags(write=False)
-    return SHExpOperators(weights, np.ascontiguousarray(weights.T), design, pinv, weights_sh, projector)
+    return SHExpOperators(weights, weights_t, design, pinv, weights_sh, projector, log_albedo, pinv_log_albedo)
 
 
 @lru_cache(maxsize=8)
@@ -206,8 +240,9 @@ def log_e0(e0: np.ndarray, p: int) -> np.ndarray:
 
 
 def solve_coefficients(log_samples: np.ndarray, operators: SHExpOperators, p: int) -> np.ndarray:
-    """[p; q] = A⁺ · log E0 ([SHExp] Eq. 13–14): (M, 3P) → (P, K, 3)."""
+    """[p; q] = A⁺ · (log E0 − log a) ([SHExp] Eq. 13–14; a ≡ 1 unless albedo-normalised): (M, 3P) → (P, K, 3)."""
     coeffs = operators.pinv @ np.asarray(log_samples, dtype=np.float32)  # (K, 3P)
+    coeffs -= operators.pinv_log_albedo[:, None]
     return coeffs.reshape(-1, p, 3).transpose(1, 0, 2).astype(np.float32)
 
 
@@ -255,35 +290,54 @@ def _reference_fit_shexp(cubes: np.ndarray, settings: SHExpSettings) -> np.ndarr
     out = []
     for cube in np.asarray(cubes):
         e0 = _reference_e0_samples(cube[None], settings)
-        coeffs, *_ = np.linalg.lstsq(ops.design, log_e0(e0, 1).astype(np.float64), rcond=None)
+        target = log_e0(e0, 1).astype(np.float64) - ops.log_albedo[:, None]
+        coeffs, *_ = np.linalg.lstsq(ops.design, target, rcond=None)
         out.append(coeffs.astype(np.float32))
     return np.stack(out)
 
 
-def evaluate_e0(coefficients: np.ndarray, view: np.ndarray, normal: np.ndarray, alpha: np.ndarray, settings: SHExpSettings) -> np.ndarray:
-    """E0 (P, M, 3) = exp(A(v, n, α) · [p; q]) ([SHExp] Eq. 9–11) for coefficients (P, K, 3)."""
+def evaluate_pq(coefficients: np.ndarray, view: np.ndarray, normal: np.ndarray, alpha: np.ndarray, settings: SHExpSettings) -> np.ndarray:
+    """P·Q (P, M, 3) = exp(A(v, n, α) · [p; q]) ([SHExp] Eq. 9–11) for coefficients (P, K, 3)."""
     a = np.broadcast_to(np.asarray(alpha, dtype=np.float64).reshape(-1), (np.asarray(view).reshape(-1, 3).shape[0],))
     design = design_matrix(np.asarray(view).reshape(-1, 3), np.asarray(normal).reshape(-1, 3), a, settings)
     return np.exp(np.einsum("mk,pkc->pmc", design, np.asarray(coefficients, dtype=np.float64)))
 
 
+def evaluate_e0(coefficients: np.ndarray, view: np.ndarray, normal: np.ndarray, alpha: np.ndarray, settings: SHExpSettings) -> np.ndarray:
+    """Base reflectance E0 (P, M, 3): P·Q, times the albedo a(n·v, α) when albedo-normalised."""
+    pq = evaluate_pq(coefficients, view, normal, alpha, settings)
+    if not settings.albedo_normalized:
+        return pq
+    v = np.asarray(view, dtype=np.float64).reshape(-1, 3)
+    a = np.broadcast_to(np.asarray(alpha, dtype=np.float64).reshape(-1), (v.shape[0],))
+    return pq * design_albedo(v, np.asarray(normal, dtype=np.float64).reshape(-1, 3), a)[None, :, None]
+
+
 def evaluate_shexp(
     coefficients: np.ndarray,
-    fresnel_tail: np.ndarray,
+    table: np.ndarray,
     view: np.ndarray,
     normal: np.ndarray,
     alpha: np.ndarray,
     f0: np.ndarray,
     settings: SHExpSettings,
 ) -> np.ndarray:
-    """E (P, M, 3) = E0 · (F0 + (1 − F0) τ(n·v, α)) ([SHExp] Eq. 5, 15)."""
+    """Specular radiance E (P, M, 3) from coefficients (P, K, 3).
+
+    Albedo-normalised: E = P·Q · (F0·A + B)(n·v, α), ``table`` the DFG table (Nα, Nv, 2).
+    Paper: E = P·Q · (F0 + (1 − F0) τ(n·v, α)) ([SHExp] Eq. 5, 15), ``table`` the Fresnel-tail table (Nα, Nv).
+    """
     from bakery.reflection.tables import lookup_table
 
     v = np.asarray(view, dtype=np.float64).reshape(-1, 3)
     n = np.asarray(normal, dtype=np.float64).reshape(-1, 3)
     a = np.broadcast_to(np.asarray(alpha, dtype=np.float64).reshape(-1), (v.shape[0],))
-    e0 = evaluate_e0(coefficients, v, n, a, settings)
-    tau = lookup_table(fresnel_tail, np.clip(np.sum(v * n, axis=-1), 0.0, 1.0), a)  # (M,)
+    pq = evaluate_pq(coefficients, v, n, a, settings)
+    nv = np.clip(np.sum(v * n, axis=-1), 0.0, 1.0)
     f0 = np.asarray(f0, dtype=np.float64)
     f0 = f0[:, None] if f0.ndim == 1 else np.broadcast_to(f0, (v.shape[0], 3))
-    return e0 * (f0 + (1.0 - f0) * tau[:, None])[None]
+    if settings.albedo_normalized:
+        ab = lookup_table(table, nv, a)  # (M, 2): A, B
+        return pq * (f0 * ab[:, 0:1] + ab[:, 1:2])[None]
+    tau = lookup_table(table, nv, a)  # (M,)
+    return pq * (f0 + (1.0 - f0) * tau[:, None])[None]

@@ -57,15 +57,18 @@ def build_report(store_path: str | os.PathLike[str], environment: str | os.PathL
     negatives = quality.negative_shares(store)
     quantization = quality.quantization_errors(store)
     curves = quality.reflection_alpha_curves(store, references)
+    reflection_errors = {name: np.mean([np.asarray(c[m]) for m in quality.MATERIALS], axis=(0, 2))
+                         for name, c in curves.get("encodings", {}).items()}  # (P_k,) mean over α and materials
+    for name, v in reflection_errors.items():
+        errors.setdefault(name, v)
     data: dict[str, Any] = {
         "store": str(store_path), "format_version": store.format_version,
         "bakery_version": bakery.__version__, "store_bakery_version": store.attributes.get("bakery_version"),
         "settings_hash": store.attributes.get("settings_hash"),
         "probes": len(store.probe_names), "reference_available": references is not None,
         "memory": memory,
-        "errors": {n: {"metric": "relative RMSE vs exact irradiance" if store.encodings[n].kind == "irradiance"
-                       else "stored reference error", "summary": quality.summarise(v), "per_probe": v}
-                   for n, v in errors.items()},
+        "errors": {n: {"kind": store.encodings[n].kind, "metric": _metric(store, n, reflection_errors),
+                       "summary": quality.summarise(v), "per_probe": v} for n, v in errors.items()},
         "worst_probes": quality.worst_probes(store, errors),
         "negative_share": {n: {"summary": quality.summarise(v), "per_probe": v} for n, v in negatives.items()},
         "quantization": {n: {"source": q["source"], "summary": quality.summarise(q["relative_rmse"]),
@@ -76,19 +79,22 @@ def build_report(store_path: str | os.PathLike[str], environment: str | os.PathL
         "warnings": json.loads(store.attributes.get("warnings", "[]") or "[]"),
     }
     plots: dict[str, str] = {}
-    points = []
-    for name, v in errors.items():
-        s = quality.summarise(v)
-        if s["count"]:
-            points.append({"label": name, "x": float(store.encodings[name].bytes_per_probe), "y": s["median"],
-                           "y_lo": s["min"], "y_hi": s["max"]})
-    if points:
-        plots["error-vs-memory"] = svg.scatter_plot(
-            "error-vs-memory", "Error vs memory (median, whiskers min–max over probes)", points,
-            "bytes per probe", "relative error vs reference")
-        plots["error-distribution"] = svg.strip_plot(
-            "error-distribution", "Per-probe error distribution", {n: list(map(float, v)) for n, v in errors.items()},
-            "relative error vs reference")
+    for kind, suffix, ylabel in (("irradiance", "", "relative RMSE vs exact irradiance"),
+                                 ("reflection", "-reflection", "relative MSE vs reference (mean over α, materials)")):
+        points = []
+        chosen = {n: v for n, v in errors.items() if store.encodings[n].kind == kind}
+        for name, v in chosen.items():
+            s = quality.summarise(v)
+            if s["count"]:
+                points.append({"label": name, "x": float(store.encodings[name].bytes_per_probe), "y": s["median"],
+                               "y_lo": s["min"], "y_hi": s["max"]})
+        if points:
+            plots[f"error-vs-memory{suffix}"] = svg.scatter_plot(
+                f"error-vs-memory{suffix}", f"{kind.capitalize()}: error vs memory (median, whiskers min–max over "
+                "probes)", points, "bytes per probe", ylabel)
+            plots[f"error-distribution{suffix}"] = svg.strip_plot(
+                f"error-distribution{suffix}", f"{kind.capitalize()}: per-probe error distribution",
+                {n: list(map(float, v)) for n, v in chosen.items()}, ylabel)
     plots["memory"] = svg.bar_plot(
         "memory", "Bytes per probe (log scale)",
         [(n, float(e["bytes_per_probe"])) for n, e in memory["encodings"].items()]
@@ -111,6 +117,14 @@ def build_report(store_path: str | os.PathLike[str], environment: str | os.PathL
     data["seconds"] = time.perf_counter() - start
     data = _jsonable(data)
     return data, render_page(data, plots, previews_out)
+
+
+def _metric(store: Any, name: str, reflection_errors: dict[str, Any]) -> str:
+    if store.encodings[name].kind == "irradiance":
+        return "relative RMSE vs exact irradiance"
+    if name in reflection_errors:
+        return "relative MSE vs brute-force reflection, mean over α and chrome/glass"
+    return "stored reference_error diagnostic"
 
 
 def _roles(picked: dict[str, int]) -> dict[str, int]:

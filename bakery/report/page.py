@@ -6,7 +6,7 @@ from html import escape
 from typing import Any
 
 _CSS = """
-body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:24px auto;max-width:1200px;color:#222;
+body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:24px auto;max-width:1340px;color:#222;
 background:#fafafa;padding:0 16px}
 h1{font-size:22px}h2{font-size:18px;border-bottom:1px solid #ccc;padding-bottom:4px;margin-top:32px}
 h3{font-size:15px}
@@ -88,14 +88,18 @@ def render_page(data: dict[str, Any], plots: dict[str, str], previews: dict[str,
     parts.append('<div class="plots">' + plots.get("memory", "") + "</div>")
     parts.append("<h2>Quality</h2>")
     if data["errors"]:
-        rows = [[n, data["memory"]["encodings"][n]["bytes_per_probe"], e["summary"].get("count", 0),
+        rows = [[n, e["metric"], data["memory"]["encodings"][n]["bytes_per_probe"], e["summary"].get("count", 0),
                  e["summary"].get("mean"), e["summary"].get("median"), e["summary"].get("p90"), e["summary"].get("max")]
                 for n, e in data["errors"].items()]
-        parts.append(_table(["encoding", "bytes/probe", "probes", "mean", "median", "p90", "max"], rows))
+        parts.append(_table(["encoding", "metric", "bytes/probe", "probes", "mean", "median", "p90", "max"], rows,
+                            left=2))
         parts.append('<p class="note">Irradiance: relative RMSE √Σ(E−E<sub>ref</sub>)²/√ΣE<sub>ref</sub>² over 1024 '
-                     'Fibonacci normals and RGB against the brute-force irradiance of the full-resolution capture.</p>')
-        parts.append('<div class="plots">' + plots.get("error-vs-memory", "") + plots.get("error-distribution", "")
-                     + "</div>")
+                     'Fibonacci normals and RGB against the brute-force irradiance of the full-resolution capture. '
+                     'Reflection: relative MSE ΣΔE²/ΣE<sub>ref</sub>² over 128 (v, n) rows per α, averaged over '
+                     'α ∈ [0.25, 1] and chrome/glass (seed 000 Fig. 4–7 protocol).</p>')
+        parts.append('<div class="plots">' + "".join(plots.get(k, "") for k in (
+            "error-vs-memory", "error-distribution", "error-vs-memory-reflection", "error-distribution-reflection"))
+            + "</div>")
         parts.append("<h3>Worst probes</h3>")
         worst = [[n, w["probe"], w["error"], ", ".join(f"{x:.3g}" for x in w["position"])]
                  for n, ws in data["worst_probes"].items() for w in ws[:3]]

@@ -56,6 +56,10 @@ def _per_probe(store: Any, key: str, encoding: str) -> np.ndarray | None:
 
 def load_reference_samples(store: Any, environment: str | Path | None = None) -> list[Any] | None:
     """Per-probe full-resolution quadratures, or None when no capture is available (module doc)."""
+    if environment is not None and not Path(environment).is_file():
+        from bakery.errors import ImageError
+
+        raise ImageError(f"{environment}: environment image for the report's references not found")
     source = environment or store.attributes.get("source")
     if source is None or str(store.attributes.get("source_kind", "image")) == "usd" and environment is None:
         return None

@@ -30,7 +30,9 @@ def check_scene(path: str | Path) -> list[Issue]:
     issues: list[Issue] = []
     for error in stage.GetCompositionErrors():
         text = str(error).splitlines()[0] if str(error) else type(error).__name__
-        issues.append(Issue("warning", "/", f"composition: {text}"))
+        site = getattr(error, "rootSite", None)
+        prim = str(site.path) if site is not None and str(getattr(site, "path", "")) else "/"
+        issues.append(Issue("warning", prim, f"composition: {text}"))
     reading = SceneReader(stage, load_textures=True).read()
     issues.extend(reading.issues)
     order = {"error": 0, "warning": 1}

@@ -12,13 +12,13 @@ a MaterialX one, or bindings to MaterialX materials that could not be composed (
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 import OpenImageIO as oiio
 from pxr import Sdf, Usd, UsdGeom, UsdShade
 
 from bakery.capture.scene import Material
+from bakery.usd.assets import local_asset_path
 
 _T = Usd.TimeCode.EarliestTime()
 
@@ -129,8 +129,8 @@ class MaterialReader:
         if not isinstance(asset, Sdf.AssetPath) or not asset.path:
             self._warn_once(path, "UsdUVTexture has no inputs:file; using the input's value")
             return None
-        resolved = asset.resolvedPath
-        if not resolved or not Path(resolved).is_file():
+        resolved = local_asset_path(asset)
+        if resolved is None:
             self._warn_once(path, f"texture {asset.path!r} not found; using the input's value")
             return None
         color_space = str(texture.GetInput("sourceColorSpace").Get(_T) or "auto") if texture.GetInput(

@@ -10,7 +10,7 @@ Where the files live
 
 Regenerating after editing ``schema.usda`` (from the repository root)::
 
-    python -m bakery.usd.plugin --sync
+    python -m bakery.usd.sync_schemas
 
 OpenUSD builds its schema registry once, on first use; plugins registered after that are not seen by
 ``UsdSchemaRegistry`` (prim definitions, fallbacks). bakery's scene reader does not rely on the registry: it reads
@@ -94,10 +94,3 @@ def sync_schemas(source_dir: Path) -> None:
             shutil.copyfile(Path(tmp) / name, source_dir / name)
             shutil.copyfile(Path(tmp) / name, PLUGIN_DIR / name)
 
-
-if __name__ == "__main__":  # pragma: no cover - developer tool
-    if "--sync" in sys.argv:
-        sync_schemas(Path("schemas/usd"))
-        print(f"regenerated schemas/usd and {PLUGIN_DIR}")
-    else:
-        print(__doc__)

@@ -33,6 +33,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
 from bakery.capture.scene import CaptureScene, Dome, Light, Mesh, ProbeSpec
 from bakery.environment.io import read_environment
 from bakery.errors import ImageError, SceneError
+from bakery.usd.assets import local_asset_path
 from bakery.usd.materials import MaterialReader, is_8bit_image, srgb_to_linear
 from bakery.usd.plugin import FALLBACKS, PROBE_TYPES
 
@@ -274,8 +275,8 @@ class SceneReader:
         image_attr = prim.GetAttribute("bakery:capture:image")
         asset = image_attr.Get(_T) if image_attr else None
         if isinstance(asset, Sdf.AssetPath) and asset.path:
-            image = asset.resolvedPath
-            if not image or not Path(image).is_file():
+            image = local_asset_path(asset) or ""
+            if not image:
                 self.issue("error", prim, f"bakery:capture:image {asset.path!r} not found")
                 return
         kind = "irradiance" if type_name == "BakeryIrradianceProbe" else "reflection"
@@ -354,6 +355,13 @@ class SceneReader:
         color = np.asarray(self._input(prim, "color", (1.0, 1.0, 1.0)), dtype=np.float64)
         if bool(self._input(prim, "enableColorTemperature", False)):
             self.issue("warning", prim, "enableColorTemperature is not applied (color temperature ignored)")
+        unapplied = sorted(
+            a.GetName() for a in prim.GetAuthoredAttributes()
+            if a.GetName().startswith(("inputs:shaping:", "shaping:", "inputs:shadow:", "shadow:"))
+            or a.GetName() in ("inputs:diffuse", "diffuse")
+        )
+        if unapplied:
+            self.issue("warning", prim, f"not applied by the capture: {', '.join(unapplied)}")
         scale = intensity * 2.0**exposure * color
         if not np.all(np.isfinite(scale)) or (scale < 0).any():
             raise SceneError(f"light emission {scale.tolist()} is negative or not finite")
@@ -378,6 +386,9 @@ class SceneReader:
             angle = float(self._input(prim, "angle", 0.53))
             alpha = math.radians(0.5 * angle)
             illuminance = scale if normalize else scale * math.pi * math.sin(alpha) ** 2
+            if not normalize and angle <= 0:
+                self.issue("warning", prim, "DistantLight with angle 0 and normalize off emits nothing (its "
+                           "illuminance is radiance × the disc's solid angle); set inputs:normalize = 1")
             self.lights.append(Light("distant", name, illuminance=tuple(illuminance), axes=axes, angle=angle))
             return
         if prim.IsA(UsdLux.SphereLight):
@@ -386,9 +397,10 @@ class SceneReader:
             if bool(self._input(prim, "treatAsPoint", False)) or radius <= 0:
                 # a point of the same radiant intensity I = L·πr² as the sphere, drawn as a tiny sphere
                 tiny = 1e-4
+                base = scale / light.area if normalize and light.area > 0 else scale
                 factor = (radius / tiny) ** 2 if radius > 0 else 1.0 / (math.pi * tiny**2)
                 self.lights.append(
-                    Light("sphere", name, radiance=tuple(scale * factor), position=position, axes=axes,
+                    Light("sphere", name, radiance=tuple(base * factor), position=position, axes=axes,
                           size=(tiny, 0.0), visible=False)
                 )
                 return
@@ -426,8 +438,8 @@ class SceneReader:
         if not isinstance(texture, Sdf.AssetPath) or not texture.path:
             self.domes.append(Dome(name, scale=tuple(scale), rotation=rotation))
             return
-        resolved = texture.resolvedPath
-        if not resolved or not Path(resolved).is_file():
+        resolved = local_asset_path(texture)
+        if resolved is None:
             self.issue("error", prim, f"dome texture {texture.path!r} not found")
             return
         layouts = {"automatic": None, "latlong": "equirect", "angular": "angular"}

@@ -1,2 +1,2 @@
 """Package data: bakery's codeless USD schema plugin (plugInfo.json, generatedSchema.usda). Generated from
-``schemas/usd/schema.usda`` by ``python -m bakery.usd.plugin --sync``; do not edit by hand."""
+``schemas/usd/schema.usda`` by ``python -m bakery.usd.sync_schemas``; do not edit by hand."""
