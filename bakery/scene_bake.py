@@ -129,8 +129,11 @@ class SceneBakeContext:
     layer_path: Path | None = None
 
     def execute(self, plan, settings, output, executor, previous=None, resume: bool = True, progress=None,
-                layer: Path | None = None):  # noqa: ANN001 - pipeline types
+                layer: Path | None = None, band_energy_tolerance: float | None = None):  # noqa: ANN001
         """Run the plan (:func:`bakery.pipeline.run.execute_plan`), then write the baked-results layer.
+
+        ``band_energy_tolerance`` is passed to the pipeline (None: no band skipping, every requested encoding is
+        written to the store and the layer).
 
         Returns the pipeline's ``BakeSummary``; its ``timings`` gain ``capture_rays``, ``capture_seconds`` and
         ``rays_per_second`` for captures run in this process (all of them with the serial executor).
@@ -152,7 +155,7 @@ class SceneBakeContext:
             },
             layers=str(self.layer_path),
             on_written=lambda merged, attributes: self._write_layer(merged, attributes, output),
-            band_energy_tolerance=None,
+            band_energy_tolerance=band_energy_tolerance,
         )
         rays = CAPTURE_COUNTERS["rays"] - before["rays"]
         seconds = CAPTURE_COUNTERS["seconds"] - before["seconds"]

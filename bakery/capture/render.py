@@ -11,7 +11,8 @@ jittered points of the texel (Latin-hypercube stratified in u and v); the texel'
   sampling and cosine sampling, pdf = ½·p_dome + ½·cos/π: the balance heuristic of the two strategies), and
   a cosine-sampled continuation ray for each of ``bounces`` diffuse bounces (the estimate ρ/π·L·cos/(cos/π) = ρ·L).
   Continuation rays add emission of the surfaces they hit but neither the dome nor the lights (those are
-  counted by next-event estimation), so nothing is counted twice.
+  counted by next-event estimation), so nothing is counted twice. Light shapes are visible to probe rays but do
+  not occlude (they are not in the Embree scene).
 
 Distant lights smaller than one texel are splatted: if the probe sees the light's direction unoccluded, its
 illuminance E is added to the texel containing that direction as E/Ω_texel (flux preserved exactly). Wider distant
