@@ -99,7 +99,8 @@ class _Progress:
 @click.option("--encodings", "-e", multiple=True, help="Encodings to bake (repeatable); overrides the recipe.")
 @click.option("--face-size", type=int, default=None, help="Bake-grid cube face size (default 64 images, 32 scenes).")
 @click.option("--layout", type=click.Choice(["equirect", "cube", "angular"]), help="Force the image layout.")
-@click.option("--layer", type=click.Path(path_type=Path), help="USD layer to write (scenes; default STORE.usda).")
+@click.option("--layer", type=click.Path(path_type=Path),
+              help="USD layer of baked attributes (scenes; default <store stem>.bake.usda).")
 @click.option("--jobs", "-j", type=int, default=None, help="Worker processes (default: number of cores).")
 @click.option("--scheduler", help="Dask scheduler address (tcp://host:port) to bake on a farm.")
 @click.option("--dask-local", is_flag=True, help="Use a local Dask cluster of --jobs workers.")
@@ -158,7 +159,8 @@ def bake(sources: tuple[Path, ...], output: Path | None, recipe: str | None, enc
             extra = {"sources": json.dumps([str(s) for s in sources])}
             if scene_context is not None:
                 summary = scene_context.execute(plan, settings, output, executor, previous, not no_resume,
-                                                progress, layer)
+                                                progress, layer, band_energy_tolerance=None if encodings
+                                                else pipeline.get("band_energy_tolerance", 1e-6))
             else:
                 summary = execute_plan(plan, settings, output, executor, previous, resume=not no_resume,
                                        progress=progress, attributes=extra,
@@ -317,7 +319,7 @@ def bench_reflection(folder: Path, output: Path, speed: bool, face_size: int) ->
 @click.argument("scene", type=click.Path(path_type=Path))
 def check(scene: Path) -> None:
     """Check a USD scene for problems, per prim; exit 5 if any error."""
-    from bakery.usd.check import check_scene
+    from bakery.usd.check import check_exit_code, check_scene
 
     issues = check_scene(scene)
     errors = 0
@@ -326,8 +328,8 @@ def check(scene: Path) -> None:
         errors += issue.severity == "error"
         out.print(f"[{colour}]{issue.severity}[/{colour}] {issue.prim}: {issue.message}")
     out.print(f"{len(issues)} issue(s), {errors} error(s)")
-    if errors:
-        sys.exit(5)
+    if check_exit_code(issues):
+        sys.exit(check_exit_code(issues))
 
 
 if __name__ == "__main__":  # pragma: no cover

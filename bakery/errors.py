@@ -8,6 +8,10 @@ count and record in the store.
 from __future__ import annotations
 
 
+#: Exit status of ``bakery check`` when the scene has errors.
+CHECK_FAILED_EXIT_CODE = 5
+
+
 class BakeryError(Exception):
     """Base of every error bakery raises on purpose. ``exit_code`` is the CLI's exit status for it."""
 
@@ -54,6 +58,10 @@ class SanitizedInputWarning(BakeryWarning):
 
 class ClampWarning(BakeryWarning):
     """A value was clamped to a documented range (e.g. a float format's maximum)."""
+
+
+class SceneWarning(BakeryWarning):
+    """A scene problem that the bake works around (unsupported light feature, MaterialX-only material, …)."""
 
 
 class DegenerateInputWarning(BakeryWarning):

@@ -7,7 +7,7 @@
 Parent
     :func:`bakery.usd.scene.read_scene` reads and checks the scene. Errors (``bakery check`` severity "error") stop
     the bake with :class:`bakery.errors.SceneError` before anything is written; warnings are re-emitted as
-    :class:`bakery.errors.BakeryWarning`. Every probe becomes a :class:`bakery.probe.Probe` (name = prim path,
+    :class:`bakery.errors.SceneWarning`. Every probe becomes a :class:`bakery.probe.Probe` (name = prim path,
     members of a volume ``<volume>[i,j,k]``) and a ``"scene"`` :class:`~bakery.pipeline.plan.CaptureSpec` whose
     ``inputs`` hold the SHA-256 of every layer and asset the scene reads (so an unchanged scene reuses the stored
     probes and any edit re-bakes them) and whose ``params`` hold the capture settings.
@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from bakery.errors import BakeryWarning, ConfigError, SceneError
+from bakery.errors import ConfigError, SceneError, SceneWarning
 from bakery.pipeline.capture import register_capture
 from bakery.probe import Probe
 
@@ -61,23 +61,14 @@ def default_layer_path(output: Path) -> Path:
     return output.with_name(f"{output.stem}.bake.usda")
 
 
-def _files_hash(paths: tuple[str, ...]) -> str:
-    digest = hashlib.sha256()
-    for path in sorted(set(paths)):
-        digest.update(path.encode())
-        try:
-            with open(path, "rb") as handle:
-                for chunk in iter(lambda: handle.read(1 << 20), b""):
-                    digest.update(chunk)
-        except OSError:
-            digest.update(b"<unreadable>")
-    return digest.hexdigest()
+def _json_attribute(value):  # noqa: ANN001, ANN202
+    import json as _json
+
+    return value if isinstance(value, (str, int, float, bool)) else _json.dumps(value, sort_keys=True)
 
 
 # ---------------------------------------------------------------------------------------------------------------
 # Worker side
-#: Rays and seconds of the captures run in this process (the serial executor's are the bake's).
-CAPTURE_COUNTERS = {"rays": 0, "seconds": 0.0, "rendered": 0, "loaded": 0}
 
 
 @lru_cache(maxsize=2)
@@ -104,13 +95,13 @@ def capture_scene_probe(spec, face_size: int, probe: Probe):  # noqa: ANN001 - C
     n = probe_spec.resolution or face_size
     if probe_spec.image:
         cube = load_captured_cube(probe_spec.image, np.asarray(probe_spec.rotation), n)
-        CAPTURE_COUNTERS["loaded"] += 1
+        stats = {"capture_loaded": 1.0}
     else:
-        cube, stats = renderer.render(np.asarray(probe_spec.position), n, probe_spec.name)
-        CAPTURE_COUNTERS["rays"] += stats.rays
-        CAPTURE_COUNTERS["seconds"] += stats.seconds
-        CAPTURE_COUNTERS["rendered"] += 1
-    return to_face_size(cube, face_size), None, None
+        cube, render_stats = renderer.render(np.asarray(probe_spec.position), n, probe_spec.name)
+        stats = {"capture_rays": float(render_stats.rays), "capture_seconds": float(render_stats.seconds),
+                 "capture_rendered": 1.0}
+    # The 4th element is summed into the batch timings by the worker, whatever process it runs in.
+    return to_face_size(cube, face_size), None, None, stats
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -136,7 +127,7 @@ class SceneBakeContext:
         written to the store and the layer).
 
         Returns the pipeline's ``BakeSummary``; its ``timings`` gain ``capture_rays``, ``capture_seconds`` and
-        ``rays_per_second`` for captures run in this process (all of them with the serial executor).
+        ``rays_per_second`` summed over every worker's captures.
         """
         from bakery.pipeline.run import execute_plan
 
@@ -145,10 +136,10 @@ class SceneBakeContext:
         if str(self.layer_path.resolve()) in self.protected_layers:
             raise SceneError(f"{self.layer_path}: refusing to overwrite one of the scene's own layers; choose "
                              "another --layer")
-        before = dict(CAPTURE_COUNTERS)
         summary = execute_plan(
             plan, settings, output, executor, previous, resume=resume, progress=progress,
             attributes={
+                **{k: _json_attribute(v) for k, v in plan.attributes.items()},
                 "source": str(self.scene_path), "source_kind": "usd", "scene_up_axis": self.up_axis,
                 "scene_meters_per_unit": self.meters_per_unit, "capture_samples": self.params.samples,
                 "capture_bounces": self.params.bounces, "capture_seed": self.params.seed,
@@ -157,10 +148,8 @@ class SceneBakeContext:
             on_written=lambda merged, attributes: self._write_layer(merged, attributes, output),
             band_energy_tolerance=band_energy_tolerance,
         )
-        rays = CAPTURE_COUNTERS["rays"] - before["rays"]
-        seconds = CAPTURE_COUNTERS["seconds"] - before["seconds"]
-        summary.timings["capture_rays"] = float(rays)
-        summary.timings["capture_seconds"] = float(seconds)
+        rays = summary.timings.get("capture_rays", 0.0)
+        seconds = summary.timings.get("capture_seconds", 0.0)
         summary.timings["rays_per_second"] = rays / seconds if seconds > 0 else 0.0
         return summary
 
@@ -195,6 +184,28 @@ class SceneBakeContext:
         )
 
 
+def _apply_light_changes(plan, entries, settings, previous, lights, batch_size):  # noqa: ANN001
+    """Re-plan: reused probes that a changed local light can affect are baked again (see dependencies)."""
+    import json as _json
+
+    from bakery.pipeline.dependencies import mean_irradiance_from_store, probes_affected_by_light_changes
+    from bakery.pipeline.plan import make_batches
+
+    old_table = _json.loads(str(previous.attributes.get("scene_lights", "[]")))
+    names = list(plan.reused)
+    position = {p.name: p.position for p, _ in entries}
+    affected, changed = probes_affected_by_light_changes(
+        old_table, lights, names, np.array([position[n] for n in names]), mean_irradiance_from_store(previous, names)
+    )
+    if not affected:
+        return plan
+    plan.reused = [n for n in plan.reused if n not in affected]
+    todo = [t for t in plan.tasks if t.probe.name not in set(plan.reused)]
+    plan.batches = make_batches(todo, batch_size, settings.as_json())
+    plan.attributes["changed_lights"] = changed
+    return plan
+
+
 def plan_scene_bake(
     scene_path: Path, settings, previous=None, batch_size: int = 64,  # noqa: ANN001 - pipeline types
     samples: int = DEFAULT_SAMPLES, bounces: int = 1, seed: int = 0,
@@ -217,8 +228,13 @@ def plan_scene_bake(
         listing = "\n".join(f"  {issue}" for issue in reading.errors)
         raise SceneError(f"{scene_path}: {len(reading.errors)} error(s); the bake cannot be trusted:\n{listing}")
     for issue in reading.issues:
-        warnings.warn(f"{scene_path}: {issue}", BakeryWarning, stacklevel=2)
-    scene_hash = _files_hash(reading.layers + reading.assets)
+        warnings.warn(f"{scene_path}: {issue}", SceneWarning, stacklevel=2)
+    # Dependencies (bakery.pipeline.dependencies): one hash for what every probe sees; the probe's own data and
+    # captured image; local lights tracked one by one in the light table.
+    from bakery.pipeline.dependencies import environment_hash, file_digest, light_table
+
+    scene_hash = environment_hash(reading.scene, tuple(reading.assets))
+    lights = light_table(reading.scene)
     params = SceneCaptureParams(samples, bounces, seed)
     entries = []
     prim_of: dict[str, str] = {}
@@ -227,14 +243,18 @@ def plan_scene_bake(
         if spec.influence:
             probe_settings["influence"] = spec.influence
         probe = Probe(spec.name, (spec.kind,), spec.position, probe_settings)
+        inputs = (scene_hash, file_digest(spec.image)) if spec.image else (scene_hash,)
         capture = CaptureSpec(
-            "scene", str(scene_path.resolve()), (scene_hash,),
+            "scene", str(scene_path.resolve()), inputs,
             (("capture", params), ("resolution", spec.resolution), ("image", spec.image),
              ("rotation", spec.rotation)),
         )
         entries.append((probe, capture))
         prim_of[spec.name] = spec.volume or spec.name
     plan = plan_tasks(entries, settings, previous, batch_size)
+    if previous is not None and plan.reused:
+        plan = _apply_light_changes(plan, entries, settings, previous, lights, batch_size)
+    plan.attributes["scene_lights"] = lights
     context = SceneBakeContext(
         scene_path=scene_path,
         up_axis=reading.up_axis,

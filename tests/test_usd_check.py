@@ -9,7 +9,7 @@ import sys
 import pytest
 from usd_scenes import box_mesh, header, material, probe, write
 
-from bakery.errors import SceneError
+from bakery.errors import CHECK_FAILED_EXIT_CODE, SceneError
 from bakery.scene_bake import bake_scene
 from bakery.usd.check import check_exit_code, check_scene
 
@@ -88,7 +88,7 @@ def test_bad_scene_reports_per_prim(tmp_path, case):
     matching = [i for i in issues if i.prim == prim and words in i.message]
     assert matching, f"expected a {severity} on {prim} mentioning {words!r}, got {issues}"
     assert matching[0].severity == severity
-    assert check_exit_code(issues) == (SceneError.exit_code if severity == "error" else 0)
+    assert check_exit_code(issues) == (CHECK_FAILED_EXIT_CODE if severity == "error" else 0)
 
 
 @pytest.mark.parametrize("case", [c for c in sorted(BAD) if BAD[c][1] == "error"])

@@ -21,8 +21,24 @@ from bakery.environment.resample import environment_samples, resample_to_cube
 from bakery.environment.sanitize import SanitizeReport
 from bakery.sphere.grid import SphericalSamples
 
-#: kind → f(spec, face_size, probe) → (cube (6, N, N, 3), reference samples or None, sanitize report or None)
+#: kind → f(spec, face_size, probe) → (cube (6, N, N, 3), reference samples or None, sanitize report or None
+#: [, statistics {name: number} summed into the batch timings])
 CAPTURES: dict[str, Callable] = {}
+
+#: Modules that register capture kinds, imported on first use (a worker process may not have imported them).
+_PROVIDERS = {"scene": "bakery.scene_bake"}
+
+
+def capture_function(kind: str) -> Callable:
+    """The capture function of ``kind``, importing its provider module on first use."""
+    if kind not in CAPTURES and kind in _PROVIDERS:
+        import importlib
+
+        importlib.import_module(_PROVIDERS[kind])
+    try:
+        return CAPTURES[kind]
+    except KeyError:
+        raise KeyError(f"unknown capture kind {kind!r}; known: {', '.join(sorted(set(CAPTURES) | set(_PROVIDERS)))}") from None
 
 
 def register_capture(kind: str) -> Callable[[Callable], Callable]:

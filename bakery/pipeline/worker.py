@@ -12,7 +12,7 @@ import numpy as np
 from bakery.bake import BakeSettings, EncodedBatch, encode_batch, sanitize_diagnostics, select_encodings
 from bakery.environment.sanitize import SanitizeReport
 from bakery.errors import BakeryError
-from bakery.pipeline.capture import CAPTURES
+from bakery.pipeline.capture import capture_function
 from bakery.pipeline.plan import BatchTask
 from bakery.probe import ProbeBatch
 
@@ -39,10 +39,14 @@ def run_batch(task: BatchTask) -> BatchOutcome:
     start = time.perf_counter()
     settings = _settings(task)
     cubes, references, reports, probes, failures = [], [], [], [], {}
+    capture_stats: dict[str, float] = {}
     for probe_task in task.probes:
         try:
-            capture = CAPTURES[probe_task.capture.kind]
-            cube, reference, report = capture(probe_task.capture, settings.face_size, probe_task.probe)
+            capture = capture_function(probe_task.capture.kind)
+            captured = capture(probe_task.capture, settings.face_size, probe_task.probe)
+            cube, reference, report = captured[:3]
+            for key, value in (captured[3] if len(captured) > 3 else {}).items():
+                capture_stats[key] = capture_stats.get(key, 0.0) + value
             if not np.all(np.isfinite(cube)):
                 raise BakeryError(f"{probe_task.probe.name}: capture produced non-finite radiance")
         except Exception as error:  # noqa: BLE001 - one failing probe must not lose the batch
@@ -62,4 +66,5 @@ def run_batch(task: BatchTask) -> BatchOutcome:
         {k for p in probes for k in p.kinds},
     )
     result = encode_batch(probes, batch, settings, encodings, sanitize_diagnostics(reports))
+    result.timings.update(capture_stats)
     return BatchOutcome(task.key, result, failures, time.perf_counter() - start)

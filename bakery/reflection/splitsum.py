@@ -18,7 +18,8 @@ Formulations
     ``prefilter_chain`` — fast, per level (seed 003 §6, frequency vs angular prefiltering):
         * rough levels: SH domain. K_α is zonal, so (Funk–Hecke) the prefiltered SH is λ_l · L_lm with
           λ_l = 2π ∫ K_α(t) P_l(t) dt (t = n·l), computed by Gauss–Legendre quadrature; bands up to the smallest
-          L_max with λ_l < ``sh_tolerance`` for all l > L_max. Used when L_max ≤ ``max_sh_band``.
+          L_max with λ_l < ``sh_tolerance`` for all l > L_max. Used when L_max ≤ ``max_sh_band``. One projection
+          (from the capture or its area-weighted mip of face ≤ 128) serves every SH level.
         * sharp levels: filtered importance sampling ([KC08]) with ``fis_samples`` Hammersley samples, each read
           from the source mip whose texel solid angle matches the sample's, lod = ½ log2(Ω_s / Ω_p) + 1.
         * α = 0: copy of the capture (area-weighted downsample when the level is smaller).
@@ -134,17 +135,36 @@ def sh_band_limit(alpha: float, tolerance: float, cap: int = _BAND_CAP) -> int:
     return int(above[-1]) if above.size else 0
 
 
-def _prefilter_sh(cube: np.ndarray, alpha: float, out_size: int, max_band: int) -> np.ndarray:
-    """SH-domain level: project, scale band l by λ_l, evaluate at the level's texel centres."""
-    n = cube.shape[1]
-    dirs = cube_texel_directions(n).reshape(-1, 3)
-    omega = cube_texel_solid_angles(n).reshape(-1)
-    basis_in = _cached_basis(n, max_band)
-    coeffs = (basis_in * omega[:, None]).T @ cube.reshape(-1, cube.shape[-1]).astype(np.float64)  # (K, C)
-    coeffs *= kernel_band_factors(float(alpha), max_band)[sh_bands(max_band)][:, None]  # [Seed003] Eq. 5
-    out = _cached_basis(out_size, max_band) @ coeffs
-    del dirs
+#: SH-domain levels project from the mip of at most this face size (64 moved suns by up to a texel: 7% error at
+#: α = 0.16 on park; 128 keeps it < 1%).
+SH_PROJECTION_FACE = 128
+
+
+def _project_sh(cube: np.ndarray, max_band: int) -> np.ndarray:
+    """Radiance SH (K, C) of a cube, from its mip of face ≤ SH_PROJECTION_FACE (one GEMM)."""
+    small = resize_cube(np.asarray(cube, dtype=np.float32), min(cube.shape[1], SH_PROJECTION_FACE))
+    weighted = _cached_weighted_basis(small.shape[1], max_band)
+    return weighted.T @ small.reshape(-1, small.shape[-1]).astype(np.float32)
+
+
+def _prefilter_sh(cube: np.ndarray, alpha: float, out_size: int, max_band: int,
+                  coeffs: np.ndarray | None = None) -> np.ndarray:
+    """SH-domain level: project (or reuse ``coeffs`` of ≥ max_band), scale band l by λ_l, evaluate at the level's
+    texel centres. (6, N, N, C) → (6, out, out, C)."""
+    k = (max_band + 1) ** 2
+    if coeffs is None:
+        coeffs = _project_sh(cube, max_band)
+    scaled = coeffs[:k].astype(np.float64) * kernel_band_factors(float(alpha), max_band)[sh_bands(max_band)][:, None]
+    out = _cached_basis(out_size, max_band) @ scaled  # [Seed003] Eq. 5: per-band scaling
     return out.reshape(6, out_size, out_size, -1)
+
+
+@lru_cache(maxsize=16)
+def _cached_weighted_basis(face_size: int, max_band: int) -> np.ndarray:
+    b = (evaluate_sh_basis(cube_texel_directions(face_size).reshape(-1, 3), max_band)
+         * cube_texel_solid_angles(face_size).reshape(-1, 1)).astype(np.float32)
+    b.setflags(write=False)
+    return b
 
 
 @lru_cache(maxsize=16)
@@ -245,13 +265,16 @@ def prefilter_chain(cube: np.ndarray, settings: SplitSumSettings) -> list[np.nda
     if cube.shape[1] != settings.face_size:
         raise ValueError(f"cube face size {cube.shape[1]} != settings.face_size {settings.face_size}")
     mips = build_mips(cube)
+    kinds = [level_formulation(settings, float(a)) for a in settings.level_alphas()]
+    bands = [sh_band_limit(float(a), settings.sh_tolerance) for a, k in zip(settings.level_alphas(), kinds) if k == "sh"]
+    coeffs = _project_sh(cube, max(bands)) if bands else None  # one projection for every SH level
     levels = []
-    for alpha, size in zip(settings.level_alphas(), settings.level_sizes(), strict=True):
-        kind = level_formulation(settings, float(alpha))
+    for alpha, size, kind in zip(settings.level_alphas(), settings.level_sizes(), kinds, strict=True):
         if kind == "copy":
             level = resize_cube(cube, size)
         elif kind == "sh":
-            level = _prefilter_sh(cube, float(alpha), size, sh_band_limit(float(alpha), settings.sh_tolerance))
+            band = sh_band_limit(float(alpha), settings.sh_tolerance)
+            level = _prefilter_sh(cube, float(alpha), size, band, coeffs)
         else:
             level = _prefilter_fis(mips, float(alpha), size, settings.fis_samples)
         levels.append(np.asarray(level, dtype=np.float32))

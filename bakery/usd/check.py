@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from bakery.errors import SceneError
+from bakery.errors import CHECK_FAILED_EXIT_CODE, SceneError
 from bakery.usd.scene import Issue, SceneReader, open_stage
 
 __all__ = ["Issue", "check_scene", "check_exit_code"]
@@ -40,5 +40,5 @@ def check_scene(path: str | Path) -> list[Issue]:
 
 
 def check_exit_code(issues: list[Issue]) -> int:
-    """0 when no issue is an error (warnings allowed), else :attr:`bakery.errors.SceneError.exit_code`."""
-    return SceneError.exit_code if any(i.severity == "error" for i in issues) else 0
+    """0 when no issue is an error (warnings allowed), else :data:`bakery.errors.CHECK_FAILED_EXIT_CODE`."""
+    return CHECK_FAILED_EXIT_CODE if any(i.severity == "error" for i in issues) else 0

@@ -1,0 +1,80 @@
+"""Incremental scene bakes on constructed USD scenes: nothing changed → zero; one probe moved → that probe;
+a local light changed → only the probes it can affect (conservative bound); the dome changed → all."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+
+from usd_scenes import header, material, plane_mesh, probe, write
+
+ENV = {**os.environ, "SOURCE_DATE_EPOCH": "1700000000"}
+
+
+def scene_text(light_intensity=50.0, moved=0.0, dome_intensity=0.5):
+    probes = "".join(probe(f"P{i}", (x + (moved if i == 3 else 0.0), 1.0, 0.0))
+                     for i, x in enumerate([0.0, 0.5, 100.0, 200.0]))
+    return (header() + material("Grey") + plane_mesh("Ground", 400.0, "/Grey") + f"""
+def DomeLight "Sky"
+{{
+    float inputs:intensity = {dome_intensity}
+}}
+def SphereLight "Lamp"
+{{
+    float inputs:intensity = {light_intensity}
+    float inputs:radius = 0.1
+    double3 xformOp:translate = (0, 1.5, 0)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+}}
+""" + probes)
+
+
+def bake(scene, store):
+    result = subprocess.run([sys.executable, "-m", "bakery.cli", "bake", str(scene), "-o", str(store), "-e", "sh2",
+                             "--face-size", "8", "-j", "1", "--json"], capture_output=True, text=True, env=ENV)
+    assert result.returncode == 0, result.stderr
+    return json.loads(result.stdout)
+
+
+def test_incremental_scene_rebakes(tmp_path):
+    scene = write(tmp_path / "scene.usda", scene_text())
+    store = tmp_path / "scene.h5"
+    assert bake(scene, store)["baked"] == 4
+    again = bake(scene, store)
+    assert (again["baked"], again["reused"]) == (0, 4)
+    write(scene, scene_text(moved=1.0))  # move P3 only
+    moved = bake(scene, store)
+    assert (moved["baked"], moved["reused"]) == (1, 3)
+    # The lamp at (0, 1.5, 0) with radius 0.1: P0 and P1 are 0.5 m from it and mostly lit by it; P2 and P3 are
+    # 100–200 m away, where its bound (L·A/d²) is far below 1/256 of their dome irradiance.
+    write(scene, scene_text(light_intensity=80.0, moved=1.0))
+    light = bake(scene, store)
+    assert (light["baked"], light["reused"]) == (2, 2)
+    write(scene, scene_text(light_intensity=80.0, moved=1.0, dome_intensity=0.7))
+    dome = bake(scene, store)
+    assert (dome["baked"], dome["reused"]) == (4, 0)
+
+
+def test_light_bound_is_conservative_against_the_render(tmp_path):
+    # Bake with and without the lamp: for every probe the bound says is unaffected, the baked irradiance really
+    # changes by less than τ = 1/256.
+    import bakery
+    from bakery.pipeline.dependencies import LIGHT_INFLUENCE_FRACTION, irradiance_bound
+
+    with_lamp = write(tmp_path / "a.usda", scene_text(light_intensity=50.0))
+    without = write(tmp_path / "b.usda", scene_text(light_intensity=0.0))
+    a, b = tmp_path / "a.h5", tmp_path / "b.h5"
+    bake(with_lamp, a)
+    bake(without, b)
+    sa, sb = bakery.open_store(a), bakery.open_store(b)
+    up = np.array([[0.0, 1.0, 0.0]])
+    ea = sa.evaluate_irradiance("sh2", up)[:, 0].mean(axis=1)
+    eb = sb.evaluate_irradiance("sh2", up)[:, 0].mean(axis=1)
+    record = json.loads(str(sa.attributes["scene_lights"]))[0]
+    bound = irradiance_bound(record, sa.probe_positions)
+    for i in range(4):
+        if bound[i] < LIGHT_INFLUENCE_FRACTION * eb[i]:
+            assert abs(ea[i] - eb[i]) < LIGHT_INFLUENCE_FRACTION * eb[i]
+    assert abs(ea[0] - eb[0]) <= bound[0]  # the bound bounds the real change
