@@ -124,6 +124,8 @@ def test_report_of_a_multi_probe_store_names_worst_probes(scene_store, tmp_path)
     # deringing removes every negative direction; the stored diagnostics are what the report shows
     if "zh3_deringed" in data["negative_share"]:
         assert data["negative_share"]["zh3_deringed"]["summary"]["max"] == 0.0
+        assert data["deringing"]["zh3_deringed"]["before"] == "zh3"
+        assert data["deringing"]["zh3_deringed"]["max_after"] == 0.0
     assert "No reflection encodings" in html or any(
         e["kind"] == "reflection" for e in data["memory"]["encodings"].values())
 

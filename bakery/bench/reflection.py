@@ -87,11 +87,13 @@ def run_reflection_bench(
     cubes = np.stack([resample_to_cube(img, face_size) for img in images])
     batch = ProbeBatch(cubes)
     shexp, split = SHExp(fit="dense"), SplitSum(face_size=face_size)
+    paper = SHExp(fit="dense", albedo_normalized=False)
     t0 = time.perf_counter()
     fields_shexp = shexp.encode(batch)
     t1 = time.perf_counter()
     fields_split = split.encode(batch)
     t2 = time.perf_counter()
+    fields_paper = paper.encode(batch)
     view, normal, alpha, cases = _rows(sphere_resolution)
     rows = []
     for i, (name, image) in enumerate(zip(names, images, strict=True)):
@@ -102,17 +104,20 @@ def run_reflection_bench(
             reference = reflected_radiance(e0, e1, f0s)
             est_shexp = shexp.evaluate_reflection(one(fields_shexp), shexp.shared_tables(), view, normal, alpha, f0s)[0]
             est_split = split.evaluate_reflection(one(fields_split), split.shared_tables(), view, normal, alpha, f0s)[0]
+            est_paper = paper.evaluate_reflection(one(fields_paper), paper.shared_tables(), view, normal, alpha, f0s)[0]
             for view_name, a, sl in cases:
                 ref = reference[sl]
                 mse_shexp = float(np.mean((est_shexp[sl] - ref) ** 2))
                 mse_split = float(np.mean((est_split[sl] - ref) ** 2))
+                mse_paper = float(np.mean((est_paper[sl] - ref) ** 2))
                 power = float(np.mean(ref**2))
                 rows.append({
                     "environment": name, "material": material, "view": view_name, "alpha": a,
-                    "mse_shexp": mse_shexp, "mse_splitsum": mse_split,
+                    "mse_shexp": mse_shexp, "mse_splitsum": mse_split, "mse_shexp_paper": mse_paper,
                     "rel_mse_shexp": mse_shexp / power if power > 0 else 0.0,
                     "rel_mse_splitsum": mse_split / power if power > 0 else 0.0,
                     "ratio": mse_shexp / mse_split if mse_split > 0 else float("inf"),
+                    "ratio_paper": mse_paper / mse_split if mse_split > 0 else float("inf"),
                 })
     ratios = np.array([r["ratio"] for r in rows])
     losses = [r for r in rows if r["ratio"] >= 1.0]
@@ -129,6 +134,9 @@ def run_reflection_bench(
             "shexp_wins": int(np.sum(ratios < 1.0)),
             "shexp_win_share": float(np.mean(ratios < 1.0)),
             "median_ratio": float(np.median(ratios)),
+            "paper_formulation_wins": int(sum(r["ratio_paper"] < 1.0 for r in rows)),
+            "paper_formulation_win_share": float(np.mean([r["ratio_paper"] < 1.0 for r in rows])),
+            "wins_at_alpha_ge_0.36": float(np.mean([r["ratio"] < 1.0 for r in rows if r["alpha"] > 0.3])),
             "geometric_mean_ratio": float(np.exp(np.mean(np.log(np.maximum(ratios, 1e-30))))),
             "bytes_per_probe": {"shexp": shexp.bytes_per_probe(), "splitsum": split.bytes_per_probe()},
             "memory_ratio": split.bytes_per_probe() / shexp.bytes_per_probe(),
@@ -237,7 +245,9 @@ def format_table(result: dict) -> str:
     lines = [
         f"# Reflection bench ({s['cases']} cases)", "",
         f"SH-exp lower MSE in {s['shexp_wins']}/{s['cases']} cases ({100 * s['shexp_win_share']:.1f}%); "
-        f"median ratio {s['median_ratio']:.3g}, geometric mean {s['geometric_mean_ratio']:.3g}.",
+        f"median ratio {s['median_ratio']:.3g}, geometric mean {s['geometric_mean_ratio']:.3g}. "
+        f"Paper formulation (no albedo normalisation): {s['paper_formulation_wins']}/{s['cases']} "
+        f"({100 * s['paper_formulation_win_share']:.1f}%).",
         f"Bytes per probe: shexp {s['bytes_per_probe']['shexp']}, splitsum {s['bytes_per_probe']['splitsum']} "
         f"(ratio {s['memory_ratio']:.0f}×).", "",
         "| environment | " + " | ".join(f"α={a:.3g}" for a in ALPHAS) + " |",

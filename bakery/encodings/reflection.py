@@ -103,7 +103,7 @@ class SHExp(ReflectionEncoding):
 
     def __init__(self, **settings: Any) -> None:
         defaults = {"p_band": 4, "q_band": 2, "n_normals": 64, "n_views": 64, "n_alphas": 4, "alpha_min": 0.2,
-                    "alpha_max": 1.0, "fit_face_size": 32, "fit": "fast", "albedo_normalized": True}
+                    "alpha_max": 1.0, "fit_face_size": 32, "fit": "dense", "albedo_normalized": True}
         merged = {**defaults, **{k: v for k, v in settings.items() if k in self._KEYS}}
         if merged["fit"] not in ("fast", "dense"):
             raise ValueError(f"shexp fit must be 'fast' or 'dense', got {merged['fit']!r}")

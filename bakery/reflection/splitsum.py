@@ -52,7 +52,7 @@ class SplitSumSettings:
     face_size: int = 128
     n_levels: int = 6
     min_face_size: int = 32
-    fis_samples: int = 256
+    fis_samples: int = 128
     max_sh_band: int = 32
     sh_tolerance: float = 1e-3
 

@@ -71,6 +71,11 @@ def build_report(store_path: str | os.PathLike[str], environment: str | os.PathL
                        "summary": quality.summarise(v), "per_probe": v} for n, v in errors.items()},
         "worst_probes": quality.worst_probes(store, errors),
         "negative_share": {n: {"summary": quality.summarise(v), "per_probe": v} for n, v in negatives.items()},
+        "deringing": {n: {"before": base, "mean_before": float(np.mean(negatives[base])),
+                          "mean_after": float(np.mean(negatives[n])), "max_before": float(np.max(negatives[base])),
+                          "max_after": float(np.max(negatives[n]))}
+                      for n in negatives for base in [n.removesuffix("_deringed")]
+                      if n.endswith("_deringed") and base in negatives and len(negatives[base]) == len(negatives[n])},
         "quantization": {n: {"source": q["source"], "summary": quality.summarise(q["relative_rmse"]),
                              "per_probe": q["relative_rmse"]} for n, q in quantization.items()},
         "reflection_alpha_curves": curves,

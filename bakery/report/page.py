@@ -114,6 +114,11 @@ def render_page(data: dict[str, Any], plots: dict[str, str], previews: dict[str,
         parts.append('<p class="note">Share of 1024 Fibonacci normals where any channel of the reconstructed '
                      "irradiance is negative (compare an encoding with its <code>_deringed</code> variant: before "
                      "and after deringing).</p>")
+        if data.get("deringing"):
+            rows = [[d["before"], n, d["mean_before"], d["mean_after"], d["max_before"], d["max_after"]]
+                    for n, d in data["deringing"].items()]
+            parts.append(_table(["before", "after deringing", "mean share before", "mean share after",
+                                 "max before", "max after"], rows, left=2))
         parts.append('<div class="plots">' + plots.get("negative-share", "") + "</div>")
     if data["quantization"]:
         parts.append("<h3>Quantization error</h3>")
