@@ -315,6 +315,21 @@ def bench_reflection(folder: Path, output: Path, speed: bool, face_size: int) ->
     console.print(f"wrote results to {output}")
 
 
+@bench.command("scale")
+@click.option("-o", "--output", type=click.Path(path_type=Path), default=Path("bench-results/scale"), show_default=True)
+@click.option("--volume", default="25,16,25", show_default=True, help="Irradiance volume counts nx,ny,nz.")
+@click.option("--reflection", type=int, default=1000, show_default=True, help="Number of reflection probes.")
+@click.option("--recipe", default="console", show_default=True)
+@click.option("--face-size", type=int, default=16, show_default=True)
+def bench_scale(output: Path, volume: str, reflection: int, recipe: str, face_size: int) -> None:
+    """Wall time, peak memory and store size of a generated large scene with 1 and 2 workers."""
+    from bakery.bench.scale import run_scale_bench
+
+    counts = tuple(int(v) for v in volume.split(","))
+    result = run_scale_bench(output, counts, reflection, recipe, face_size)
+    out.print_json(json.dumps(result))
+
+
 @main.command()
 @click.argument("scene", type=click.Path(path_type=Path))
 def check(scene: Path) -> None:
