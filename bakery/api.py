@@ -42,7 +42,7 @@ class ProbeStore:
         a = self._contents.attributes
         self.attributes: dict[str, Any] = a
         self.format_version: str = str(a["format_version"])
-        self.conventions: dict[str, str] = json.loads(a.get("conventions", "{}"))
+        self.conventions: dict[str, str] = {}
         self.probe_names: list[str] = list(self._contents.probe_names)
         self.probe_kinds: list[str] = list(self._contents.probe_kinds)
         self.probe_positions: np.ndarray = self._contents.probe_positions
@@ -53,13 +53,18 @@ class ProbeStore:
                                                      np.zeros(len(self.probe_names)), dtype=int)
         self.history: list[dict[str, str]] = list(self._contents.history)
         self.encodings: dict[str, EncodingInfo] = {}
-        for name, entry in self._contents.encodings.items():
-            at = entry["attributes"]
-            self.encodings[name] = EncodingInfo(
-                name=name, kind=str(at["kind"]), version=str(at["encoding_version"]),
-                bytes_per_probe=int(at["bytes_per_probe"]), description=str(at.get("description", "")),
-                settings=json.loads(at.get("settings", "{}")), probe_count=len(entry["fields"]["probe_index"]),
-            )
+        try:
+            self.conventions = json.loads(a.get("conventions", "{}"))
+            for name, entry in self._contents.encodings.items():
+                at = entry["attributes"]
+                self.encodings[name] = EncodingInfo(
+                    name=name, kind=str(at["kind"]), version=str(at["encoding_version"]),
+                    bytes_per_probe=int(at["bytes_per_probe"]), description=str(at.get("description", "")),
+                    settings=json.loads(at.get("settings", "{}")), probe_count=len(entry["fields"]["probe_index"]),
+                )
+        except (KeyError, ValueError, TypeError) as error:  # JSONDecodeError is a ValueError
+            raise StoreFormatError(f"{self.path}: malformed store metadata ({type(error).__name__}: {error}); the "
+                                   f"file was not written by bakery or is corrupt") from None
 
     def _encoding(self, name: str):
         if name not in self.encodings:

@@ -23,7 +23,7 @@ from bakery.encodings import ENCODINGS, Encoding, get_encoding
 from bakery.environment.io import read_environment
 from bakery.environment.resample import environment_samples, resample_to_cube
 from bakery.environment.sanitize import SanitizeReport
-from bakery.errors import BakeryWarning, ConfigError, DegenerateInputWarning
+from bakery.errors import BakeryWarning, ConfigError, DegenerateInputWarning, EncodingError
 from bakery.irradiance.reference import reference_irradiance
 from bakery.pipeline.skip import irradiance_band_energy
 from bakery.probe import PROBE_KINDS, Probe, ProbeBatch
@@ -157,6 +157,11 @@ def encode_batch(
     """Encode ``batch`` (one capture per probe, same order) with every selected encoding. No I/O."""
     if len(probes) != batch.count:
         raise ConfigError(f"{len(probes)} probes but {batch.count} captures")
+    finite = np.isfinite(batch.cubes).reshape(batch.count, -1).all(axis=1)
+    if not finite.all():
+        bad = [probes[i].name for i in np.flatnonzero(~finite)]
+        raise EncodingError(f"non-finite captured radiance in probe(s) {', '.join(bad[:5])}"
+                            f"{' …' if len(bad) > 5 else ''}; sanitise captures before encoding")
     timings: dict[str, float] = {}
     if encodings is None:
         encodings = select_encodings(settings, {k for p in probes for k in p.kinds})

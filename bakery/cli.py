@@ -52,7 +52,7 @@ def _settings_from(recipe_name: str | None, encodings: tuple[str, ...], face_siz
     recipe = load_recipe(recipe_name) if recipe_name else None
     bake_options = dict(recipe.bake) if recipe else {}
     settings = BakeSettings(
-        face_size=face_size or bake_options.get("face_size", default_face_size),
+        face_size=face_size if face_size is not None else bake_options.get("face_size", default_face_size),
         encodings=encodings or (recipe.encodings if recipe else ()),
         encoding_settings=recipe.encoding_settings if recipe else {},
         quality_directions=bake_options.get("quality_directions", 1024),
@@ -313,6 +313,32 @@ def bench_reflection(folder: Path, output: Path, speed: bool, face_size: int) ->
 
     run_reflection_bench(folder, output, speed=speed, face_size=face_size)
     console.print(f"wrote results to {output}")
+
+
+@main.command()
+@click.argument("store", type=click.Path(path_type=Path))
+@click.option("-o", "--output", "out_dir", type=click.Path(path_type=Path), required=True,
+              help="Folder for report.html and report.json.")
+@click.option("--environment", type=click.Path(path_type=Path), default=None,
+              help="Capture image for references (default: the store's source).")
+@click.option("--no-previews", is_flag=True, help="Skip the sphere preview renders.")
+def report(store: Path, out_dir: Path, environment: Path | None, no_previews: bool) -> None:
+    """Write DIR/report.html + report.json: memory and quality of STORE, per encoding and probe."""
+    from bakery.report import write_report
+
+    paths = write_report(store, out_dir, environment=environment, previews=not no_previews)
+    console.print(f"wrote {paths['html']} and {paths['json']}")
+
+
+@bench.command("pareto")
+@click.argument("folder", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("-o", "--output", type=click.Path(path_type=Path), default=Path("bench-results"), show_default=True)
+@click.option("--quick", is_flag=True, help="Fewer parameters and environments.")
+def bench_pareto(folder: Path, output: Path, quick: bool) -> None:
+    """Run time against error for every encoding and its parameters; Pareto table, plot and JSON."""
+    from bakery.bench.pareto import format_pareto_table, run_pareto_bench
+
+    out.print(format_pareto_table(run_pareto_bench(folder, output, quick=quick)))
 
 
 @bench.command("scale")

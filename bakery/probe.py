@@ -33,6 +33,14 @@ class Probe:
     position: tuple[float, float, float] = (0.0, 0.0, 0.0)
     settings: dict = field(default_factory=dict)
 
+    def __post_init__(self) -> None:
+        from bakery.errors import ConfigError
+
+        if not self.kinds or any(k not in PROBE_KINDS for k in self.kinds):
+            raise ConfigError(f"{self.name}: probe kinds must be a non-empty subset of {PROBE_KINDS}, got {self.kinds}")
+        if len(self.position) != 3 or not np.all(np.isfinite(np.asarray(self.position, dtype=np.float64))):
+            raise ConfigError(f"{self.name}: probe position must be three finite numbers, got {self.position}")
+
 
 _GRID_CACHE: dict[tuple[int, int], SHProjector] = {}
 

@@ -5,12 +5,15 @@ conformance tests. All store *radiance* coefficients (conventions); irradiance i
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from bakery.encodings.registry import Encoding, FieldSpec, register
 from bakery.irradiance import quantize
+from bakery.errors import ClampWarning
 from bakery.irradiance.dering import clamp_zonal_l2, dering_zh3
-from bakery.irradiance.sh_irradiance import evaluate_sh_irradiance
+from bakery.irradiance.sh_irradiance import evaluate_sh_irradiance, minimum_sh_irradiance
 from bakery.irradiance.zh3 import (
     PAPER_HALLUCINATION_CURVE,
     evaluate_zh3_irradiance,
@@ -32,6 +35,35 @@ _ZONAL = FieldSpec(
     "zonal_l2", (3,), "float32", "zonal L2 radiance coefficient f2^0 per RGB channel in the frame of the luminance "
     "axis of radiance_sh (ZH3 paper Eq. 10)"
 )
+
+
+def _warn_clamps(name: str, stats: dict) -> None:
+    """Warn (counted in the store's ``warnings``) when packing clamped the DC or ratios to the layout's range."""
+    if stats["dc_clamped"] or stats["ratios_clamped"]:
+        warnings.warn(
+            f"{name}: {stats['dc_clamped']} DC values above the R11G11B10F maximum (65024) and "
+            f"{stats['ratios_clamped']} ratios outside the App. A bounds were clamped", ClampWarning, stacklevel=3,
+        )
+
+
+def _dering_quantized(packed: np.ndarray, companding: bool, rounds: int = 12) -> np.ndarray:
+    """Make decoded quantized ZH3 non-negative: re-dering the decoded values with a relative floor that starts at
+    one SNORM8 step and doubles each round, and re-pack, until the exact minimum of every decoded probe is ≥ 0.
+    A floor above π·Y00 ≈ 0.886 (relative to f0) leaves only DC, which is non-negative, so this terminates."""
+    margin = QUANTIZED_MARGIN
+    for _ in range(rounds):
+        decoded_linear, decoded_zonal = quantize.unpack_zh3(packed, companding)
+        minimum = minimum_sh_irradiance(expand_zh3_to_sh3(decoded_linear, decoded_zonal,
+                                                          luminance_axis(decoded_linear)))
+        negative = np.any(minimum < 0.0, axis=-1)
+        if not negative.any():
+            break
+        fixed_linear, fixed_zonal, _ = dering_zh3(decoded_linear[negative], decoded_zonal[negative], margin=margin)
+        repacked, _ = quantize.pack_zh3(fixed_linear, fixed_zonal, companding)
+        packed = packed.copy()
+        packed[negative] = repacked
+        margin *= 2.0
+    return packed
 
 
 class IrradianceEncoding(Encoding):
@@ -181,7 +213,8 @@ class ZH3Quantized(IrradianceEncoding):
         if self.settings["dering"]:
             linear, zonal, _ = dering_zh3(linear, zonal)
         band2 = expand_zh3_to_sh3(linear, zonal, luminance_axis(linear))[:, 4:9]
-        first, _ = quantize.pack_zh3(linear, zonal, companding)
+        first, stats = quantize.pack_zh3(linear, zonal, companding)
+        _warn_clamps(self.name, stats)
         decoded_linear, _ = quantize.unpack_zh3(first, companding)
         decoded_axis = luminance_axis(decoded_linear)
         zonal = solve_zonal_l2(band2, decoded_axis)
@@ -189,14 +222,7 @@ class ZH3Quantized(IrradianceEncoding):
             zonal = clamp_zonal_l2(decoded_linear, zonal, decoded_axis)
         packed, _ = quantize.pack_zh3(decoded_linear, zonal, companding)
         if self.settings["dering"]:
-            # Rounding can push a deringed probe slightly negative: re-dering the decoded values with a floor of
-            # about one ratio step and re-pack, until the decoded probe is non-negative (≤ 4 rounds).
-            for _ in range(4):
-                decoded_linear, decoded_zonal = quantize.unpack_zh3(packed, companding)
-                fixed_linear, fixed_zonal, stats = dering_zh3(decoded_linear, decoded_zonal, margin=QUANTIZED_MARGIN)
-                if stats["windowed"] == 0 and stats["clamped"] == 0:
-                    break
-                packed, _ = quantize.pack_zh3(fixed_linear, fixed_zonal, companding)
+            packed = _dering_quantized(packed, companding)
         return {"packed": packed}
 
     def evaluate_irradiance(self, fields, normals):
@@ -218,7 +244,8 @@ class SH3Quantized(IrradianceEncoding):
         return (FieldSpec("packed", (28,), "uint8", "28-byte SH3 layout, see schemas/store-v1.md"),)
 
     def encode(self, batch):
-        packed, _ = quantize.pack_sh3(batch.radiance_sh(2), self.settings["sqrt_companding"])
+        packed, stats = quantize.pack_sh3(batch.radiance_sh(2), self.settings["sqrt_companding"])
+        _warn_clamps(self.name, stats)
         return {"packed": packed}
 
     def evaluate_irradiance(self, fields, normals):

@@ -63,7 +63,10 @@ def read_environment(path: str | os.PathLike[str], layout: str | None = None) ->
                 f"{path}: header claims {width}x{height} = {width * height:,} pixels, more than the {MAX_PIXELS:,} "
                 f"bakery accepts; the file is corrupt or not an environment map"
             )
-        chosen = layout or detect_layout(width, height, str(spec.getattribute("textureformat") or ""))
+        try:
+            chosen = layout or detect_layout(width, height, str(spec.getattribute("textureformat") or ""))
+        except ImageError as error:
+            raise ImageError(f"{path}: {error}") from None
         if chosen not in LAYOUTS:
             raise ImageError(f"{path}: unknown layout {chosen!r}; expected one of {LAYOUTS}")
         if chosen == "cube" and height != 6 * width:

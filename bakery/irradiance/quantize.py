@@ -13,7 +13,7 @@ Bounds (radiance SH of a non-negative function, ratio x = f_lm / f0)
 Byte layouts (little-endian; all ratios coefficient-major, RGB inside each coefficient)
     DC       uint32 R11G11B10F: R = bits 0–10, G = bits 11–21, B = bits 22–31 (DXGI_FORMAT_R11G11B10_FLOAT: unsigned,
              5-bit exponent with bias 15, 6/6/5-bit mantissa, round to nearest even; values above the format's
-             maximum 65024 (R, G) / 64512 (B) clamp to it and are counted).
+             maximum 65024 (R, G) / 64512 (B) clamp to it and are counted and warned).
     ratio    int8 SNORM: s = q / 127 ∈ [−1, 1]. Remap t = x / hi for x ≥ 0 and x / |lo| for x < 0 (zero stays exact),
              optionally companded s = sign(t)·√|t| (App. A.1: "square root to encode the magnitude"), then
              q = round(127·s). Decoding inverts: t = s (or sign(s)·s²), x = t·hi or t·|lo|.
@@ -45,16 +45,23 @@ _SHIFT = (0, 11, 22)
 
 
 def _float_to_small(values: np.ndarray, mantissa_bits: int) -> tuple[np.ndarray, int]:
-    """Unsigned small float with float16's exponent: float16 bits with 10 − m mantissa bits rounded off (RNE)."""
+    """Unsigned small float (5-bit exponent, bias 15, ``mantissa_bits`` mantissa bits) with one correct rounding to
+    nearest-even from float64; returns the codes and how many values exceeded the format's maximum (clamped)."""
     v = np.nan_to_num(np.asarray(values, dtype=np.float64), nan=0.0, posinf=np.inf)
     v = np.maximum(v, 0.0)
-    drop = 10 - mantissa_bits
+    scale = float(1 << mantissa_bits)
     max_code = (30 << mantissa_bits) | ((1 << mantissa_bits) - 1)
     max_value = _small_to_float(np.array([max_code]), mantissa_bits)[0]
     overflow = v > max_value
-    half = np.minimum(v, 65504.0).astype(np.float16).view(np.uint16).astype(np.int64)
-    rounded = (half + (1 << (drop - 1)) - 1 + ((half >> drop) & 1)) >> drop
-    code = np.where(overflow, max_code, np.minimum(rounded, max_code))
+    finite = np.where(overflow, 0.0, v)
+    _, exponent = np.frexp(finite)  # finite = m·2^exponent, m ∈ [0.5, 1)
+    biased = np.maximum(exponent - 1 + 15, 1)  # denormals share the smallest normal exponent's step
+    step = np.ldexp(1.0, (biased - 15) - mantissa_bits)  # value of one mantissa unit
+    units = np.rint(finite / step).astype(np.int64)  # rint: round half to even
+    # units counts steps from 0: normal codes are (biased << m) + (units − 2^m); a carry to 2^(m+1) moves into the
+    # next exponent naturally; denormals (biased = 1 and units < 2^m) are code = units.
+    code = np.where(units >= scale, ((biased - 1) << mantissa_bits) + units, units)
+    code = np.where(overflow, max_code, np.minimum(code, max_code))
     return code.astype(np.uint32), int(overflow.sum())
 
 

@@ -88,6 +88,7 @@ class SHExpSettings:
     fast_band: int = 12
     fast_sparse: int = 32
     albedo_normalized: bool = True
+    alpha_spacing: str = "linear"
 
     @property
     def p_count(self) -> int:
@@ -138,7 +139,12 @@ def fit_design(settings: SHExpSettings) -> tuple[np.ndarray, np.ndarray, np.ndar
     turn = np.arange(settings.n_normals)[:, None] * _GOLDEN_ANGLE
     local = np.stack([rho * np.cos(phi + turn), rho * np.sin(phi + turn), np.broadcast_to(z, turn.shape[:1] + z.shape)], -1)
     views = to_world(local, normals[:, None, :])  # (n_normals, n_views, 3)
-    alphas = np.linspace(settings.alpha_min, settings.alpha_max, settings.n_alphas)
+    if settings.alpha_spacing == "linear":  # paper Sec. 5.1: uniform in α
+        alphas = np.linspace(settings.alpha_min, settings.alpha_max, settings.n_alphas)
+    elif settings.alpha_spacing == "perceptual":  # uniform in r = √α
+        alphas = np.linspace(np.sqrt(settings.alpha_min), np.sqrt(settings.alpha_max), settings.n_alphas) ** 2
+    else:
+        raise ValueError(f"unknown alpha_spacing {settings.alpha_spacing!r}")
     v = np.broadcast_to(views, (settings.n_alphas,) + views.shape).reshape(-1, 3)
     n = np.broadcast_to(normals[:, None, :], views.shape)
     n = np.broadcast_to(n, (settings.n_alphas,) + views.shape).reshape(-1, 3)

@@ -161,7 +161,11 @@ def read_store(path: str | os.PathLike[str], load_fields: bool = True) -> StoreC
         if attributes.get("format") != FORMAT_NAME:
             raise StoreFormatError(f"{path}: not a bakery probe store (format attribute {attributes.get('format')!r})")
         version = str(attributes.get("format_version", ""))
-        if _major(version) > _major(FORMAT_VERSION):
+        try:
+            major = _major(version)
+        except StoreFormatError as error:
+            raise StoreFormatError(f"{path}: {error}") from None
+        if major > _major(FORMAT_VERSION):
             raise StoreFormatError(
                 f"{path}: store format {version} is newer than this bakery reads ({FORMAT_VERSION}); "
                 f"upgrade bakery to read it"
