@@ -128,16 +128,12 @@ IMAGE_CASES = {
     "huge_hdr": (_huge_hdr, ()),
     "huge_exr": (_huge_exr, ("header",)),
 }
-#: Known gaps (reported to the lead): xfail until fixed.
-IMAGE_CASES_KNOWN_GAPS = {
-    "odd_aspect": (_odd_aspect, ("layout",), "detect_layout's error does not name the file"),
-}
+IMAGE_CASES["odd_aspect"] = (_odd_aspect, ("layout",))
 
 
-@pytest.mark.parametrize("case", list(IMAGE_CASES) + [
-    pytest.param(c, marks=pytest.mark.xfail(reason=v[2], strict=False)) for c, v in IMAGE_CASES_KNOWN_GAPS.items()])
+@pytest.mark.parametrize("case", list(IMAGE_CASES))
 def test_bad_environment_images_fail_cleanly_and_keep_outputs(case, good_exr, existing, tmp_path):
-    make, needles = {**IMAGE_CASES, **{k: v[:2] for k, v in IMAGE_CASES_KNOWN_GAPS.items()}}[case]
+    make, needles = IMAGE_CASES[case]
     bad = make(good_exr, tmp_path)
     result = run("bake", bad, "-o", existing, "-e", "sh2", "--face-size", "4")
     assert_clean_failure(result, 2, bad.name, *needles)
@@ -156,10 +152,7 @@ def test_unknown_encoding_is_a_settings_error(good_exr, existing):
     assert existing.read_bytes() == EXISTING
 
 
-@pytest.mark.parametrize("face_size", [
-    pytest.param("0", marks=pytest.mark.xfail(reason="cli.py uses `face_size or 64`: --face-size 0 silently bakes at 64",
-                                              strict=False)),
-    "-3", "100000"])
+@pytest.mark.parametrize("face_size", ["0", "-3", "100000"])
 def test_absurd_face_size_is_a_settings_error(good_exr, existing, face_size):
     result = run("bake", good_exr, "-o", existing, "-e", "sh2", "--face-size", face_size)
     assert_clean_failure(result, 3, "face_size")
@@ -275,19 +268,17 @@ STORE_CASES = {
     "missing_positions": (_edited("no_positions", _missing_positions), ()),
 }
 #: Wrong attribute types that currently escape as Python exceptions (exit 1 + traceback): reported to the lead.
-STORE_CASES_KNOWN_GAPS = {
+#: Malformed metadata (formerly known gaps, now StoreFormatError naming the file).
+STORE_CASES_MALFORMED = {
     "version_not_a_version": (_edited("bad_version", _version_not_a_version), ()),
     "bytes_per_probe_wrong_type": (_edited("bad_bpp", _bytes_per_probe_wrong_type), ()),
     "settings_not_json": (_edited("bad_settings", _settings_not_json), ()),
 }
 
 
-@pytest.mark.parametrize("case", list(STORE_CASES) + [
-    pytest.param(c, marks=pytest.mark.xfail(reason="store attribute types are not validated on read: the error is a "
-                                                    "raw ValueError/JSONDecodeError (exit 1) or does not name the file",
-                                             strict=False)) for c in STORE_CASES_KNOWN_GAPS])
+@pytest.mark.parametrize("case", list(STORE_CASES) + list(STORE_CASES_MALFORMED))
 def test_bad_stores_fail_cleanly_in_inspect(case, store, tmp_path):
-    make, needles = {**STORE_CASES, **STORE_CASES_KNOWN_GAPS}[case]
+    make, needles = {**STORE_CASES, **STORE_CASES_MALFORMED}[case]
     bad = make(store, tmp_path)
     before = bad.read_bytes()
     result = run("inspect", bad)
