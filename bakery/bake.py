@@ -91,7 +91,17 @@ def _bake_time() -> str:
 def select_encodings(settings: BakeSettings, kinds: set[str]) -> dict[str, Encoding]:
     """Instantiate the requested encodings (default: every registered one whose kind some probe has)."""
     names = settings.encodings or tuple(name for name, cls in ENCODINGS.items() if cls.kind in kinds)
-    return {name: get_encoding(name)(**settings.encoding_settings.get(name, {})) for name in names}
+    return {name: instantiate_encoding(name, settings) for name in names}
+
+
+def instantiate_encoding(name: str, settings: BakeSettings) -> Encoding:
+    """An encoding with the bake's parameters: the recipe's ``encoding_settings`` for it, and the bake face size for
+    encodings that resample the capture (``face_size`` setting, e.g. the split-sum chain) unless set explicitly."""
+    cls = get_encoding(name)
+    options = dict(settings.encoding_settings.get(name, {}))
+    if getattr(cls, "follows_bake_face_size", False):
+        options.setdefault("face_size", settings.face_size)
+    return cls(**options)
 
 
 def irradiance_diagnostics(

@@ -307,11 +307,12 @@ def bench_irradiance(folder: Path, output: Path, face_size: int) -> None:
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=Path("bench-results"), show_default=True)
 @click.option("--speed", is_flag=True, help="Also measure probes/s of the fits and prefilters.")
 @click.option("--face-size", type=int, default=128, show_default=True)
-def bench_reflection(folder: Path, output: Path, speed: bool, face_size: int) -> None:
+@click.option("--no-plain", is_flag=True, help="Do not score the plain 1024-sample split-sum chain (~20 s/probe).")
+def bench_reflection(folder: Path, output: Path, speed: bool, face_size: int, no_plain: bool) -> None:
     """SH-exponential vs split-sum reflection error against the reference (seed 000 Fig. 4–7 protocol)."""
     from bakery.bench.reflection import run_reflection_bench
 
-    run_reflection_bench(folder, output, speed=speed, face_size=face_size)
+    run_reflection_bench(folder, output, speed=speed, face_size=face_size, plain_splitsum=not no_plain)
     console.print(f"wrote results to {output}")
 
 

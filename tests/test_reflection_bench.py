@@ -15,7 +15,8 @@ def test_bench_writes_quality_table(shared_data, tmp_path):
         pytest.skip("city.hdr not present")
     (tmp_path / "env").mkdir()
     shutil.copy(env, tmp_path / "env" / env.name)
-    result = run_reflection_bench(tmp_path / "env", tmp_path / "out", face_size=32, sphere_resolution=6)
+    result = run_reflection_bench(tmp_path / "env", tmp_path / "out", face_size=32, sphere_resolution=6,
+                                  plain_splitsum=False)
     summary = result["summary"]
     assert summary["cases"] == 1 * 2 * 2 * 6  # env × materials × views × α
     assert summary["bytes_per_probe"]["shexp"] == 396

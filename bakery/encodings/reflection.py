@@ -7,6 +7,7 @@ Both reconstruct E(v, n, α, F0) = specular radiance for GGX + height-correlated
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import numpy as np
@@ -16,7 +17,11 @@ from bakery.probe import ProbeBatch
 from bakery.reflection.shexp import SHExpSettings, evaluate_shexp, fit_shexp
 from bakery.reflection.splitsum import SplitSumSettings, evaluate_split_sum, prefilter_batch, resize_cube
 from bakery.reflection.tables import compute_dfg_tables
+from bakery.errors import ClampWarning
 from bakery.sphere.cubemap import cube_texel_directions, sample_cube_bilinear
+
+#: Largest finite float16; prefiltered radiance above it is clamped (and counted) before storage.
+FLOAT16_MAX = 65504.0
 
 #: Shared-table resolution (Nα = Nv) and quadrature samples per axis.
 TABLE_SIZE = 64
@@ -47,6 +52,8 @@ class SplitSum(ReflectionEncoding):
     name = "splitsum"
     version = "1.0.0"
     description = "split-sum GGX prefiltered cube-map chain (v = n), float16 RGB, + DFG scale/bias table"
+    #: The chain's face size defaults to the bake's (bakery.bake.instantiate_encoding).
+    follows_bake_face_size = True
 
     def __init__(self, **settings: Any) -> None:
         defaults = {"face_size": 64, "n_levels": 6, "min_face_size": 32}
@@ -79,7 +86,12 @@ class SplitSum(ReflectionEncoding):
 
     def encode(self, batch: ProbeBatch) -> dict[str, np.ndarray]:
         levels = prefilter_batch(_cubes_at(batch, self.chain.face_size), self.chain)
-        return {f"level{i}": np.asarray(level, dtype=np.float16) for i, level in enumerate(levels)}
+        clamped = sum(int(np.count_nonzero(np.asarray(level) > FLOAT16_MAX)) for level in levels)
+        if clamped:
+            warnings.warn(f"{self.name}: {clamped} prefiltered values above float16's maximum {FLOAT16_MAX:g} were "
+                          f"clamped to it", ClampWarning, stacklevel=2)
+        return {f"level{i}": np.minimum(np.asarray(level), FLOAT16_MAX).astype(np.float16)
+                for i, level in enumerate(levels)}
 
     def evaluate_reflection(self, fields, shared, view, normal, alpha, f0):
         levels = [np.asarray(fields[f"level{i}"], dtype=np.float32) for i in range(self.chain.n_levels)]

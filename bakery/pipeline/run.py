@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from bakery.bake import BakeSettings, EncodedBatch, merge_batches, store_contents
+from bakery.bake import BakeSettings, EncodedBatch, instantiate_encoding, merge_batches, store_contents
 from bakery.encodings import ENCODINGS, get_encoding
 from bakery.errors import InputError, StoreFormatError
 from bakery.pipeline.journal import Journal
@@ -200,9 +200,7 @@ def execute_plan(
             for key in [k for k in merged.diagnostics if k.endswith("/" + skip["encoding"])]:
                 del merged.diagnostics[key]
         skipped += skips
-    instances = {}
-    for name in merged.encoded:
-        instances[name] = get_encoding(name)(**settings.encoding_settings.get(name, {}))
+    instances = {name: instantiate_encoding(name, settings) for name in merged.encoded}
     hash_of = {t.probe.name: t.content_hash for t in plan.tasks}
     history: list[dict[str, str]] = []
     bake_ids = None

@@ -154,12 +154,11 @@ def fit_design(settings: SHExpSettings) -> tuple[np.ndarray, np.ndarray, np.ndar
 
 @dataclass(frozen=True)
 class SHExpOperators:
-    """Cached fixed operators of one settings: W (M, T) float32, its transpose, A (M, K), A⁺ (K, M) float32,
+    """Cached fixed operators of one settings: W (M, T) float32, A (M, K), A⁺ (K, M) float32,
     the fast-path pieces W·Y_F (M, K_F) and the weighted basis Yᵀ Ω (K_F, T), and the per-row log-albedo
     offset (M,) (zeros unless ``albedo_normalized``) with its image A⁺·log a (K,)."""
 
     weights: np.ndarray
-    weights_t: np.ndarray
     design: np.ndarray
     pinv: np.ndarray
     weights_sh: np.ndarray
@@ -183,8 +182,8 @@ def design_albedo(view: np.ndarray, normal: np.ndarray, alpha: np.ndarray) -> np
 
 
 @lru_cache(maxsize=4)
-def build_operators(settings: SHExpSettings) -> SHExpOperators:
-    """Build W, A, A⁺ (and the fast-path operators) once per settings (cached)."""
+def _design_weights(settings: SHExpSettings) -> np.ndarray:
+    """W (M, T) float32 for the design and fit grid of ``settings`` (cached on those fields only)."""
     v, n, a = fit_design(settings)
     f = settings.fit_face_size
     dirs = cube_texel_directions(f).reshape(-1, 3)
@@ -195,6 +194,25 @@ def build_operators(settings: SHExpSettings) -> SHExpOperators:
     for s in range(0, v.shape[0], rows):
         sl = slice(s, s + rows)
         weights[sl] = _weights_float32(l_t, omega, v[sl], n[sl], a[sl])[0]  # W of [SHExp] Eq. 6 (f_DV⟨l,n⟩Ω)
+    weights.setflags(write=False)
+    return weights
+
+
+def _weights_key(settings: SHExpSettings) -> SHExpSettings:
+    from dataclasses import replace
+
+    return replace(settings, p_band=4, q_band=2, fast_band=12, fast_sparse=32, albedo_normalized=True)
+
+
+@lru_cache(maxsize=4)
+def build_operators(settings: SHExpSettings) -> SHExpOperators:
+    """Build W, A, A⁺ (and the fast-path operators) once per settings (cached; W is shared by settings that differ
+    only in model orders or normalisation)."""
+    v, n, a = fit_design(settings)
+    f = settings.fit_face_size
+    dirs = cube_texel_directions(f).reshape(-1, 3)
+    omega = cube_texel_solid_angles(f).reshape(-1)
+    weights = _design_weights(_weights_key(settings))
     design = design_matrix(v, n, a, settings)
     pinv = np.linalg.pinv(design).astype(np.float32)  # A⁺ of [SHExp] Eq. 14
     basis = evaluate_sh_basis(dirs, settings.fast_band)  # (T, K_F)
@@ -205,10 +223,17 @@ def build_operators(settings: SHExpSettings) -> SHExpOperators:
     else:
         log_albedo = np.zeros(v.shape[0], np.float32)
     pinv_log_albedo = (pinv @ log_albedo).astype(np.float32)
-    weights_t = np.ascontiguousarray(weights.T)
-    for array in (weights, weights_t, design, pinv, weights_sh, projector, log_albedo, pinv_log_albedo):
+    for array in (design, pinv, weights_sh, projector, log_albedo, pinv_log_albedo):
         array.setflags(write=False)
-    return SHExpOperators(weights, weights_t, design, pinv, weights_sh, projector, log_albedo, pinv_log_albedo)
+    return SHExpOperators(weights, design, pinv, weights_sh, projector, log_albedo, pinv_log_albedo)
+
+
+@lru_cache(maxsize=2)
+def _weights_transposed(settings: SHExpSettings) -> np.ndarray:
+    """Wᵀ (T, M), contiguous rows = columns of W (fast path only; built on first use)."""
+    wt = np.ascontiguousarray(_design_weights(_weights_key(settings)).T)
+    wt.setflags(write=False)
+    return wt
 
 
 @lru_cache(maxsize=8)
@@ -276,8 +301,9 @@ def fast_e0_samples(cubes: np.ndarray, settings: SHExpSettings) -> np.ndarray:
     e0 = ops.weights_sh @ (ops.projector @ smooth)  # (M, 3P)
     residual = x.reshape(t, p, 3) - smooth.reshape(t, p, 3)
     idx = top[:k]  # (k, P)
+    weights_t = _weights_transposed(settings)
     for j in range(p):  # per probe (not per sample): k exact columns of W
-        cols = ops.weights_t[idx[:, j]]  # (k, M), contiguous rows of Wᵀ
+        cols = weights_t[idx[:, j]]  # (k, M), contiguous rows of Wᵀ
         e0[:, 3 * j : 3 * j + 3] += cols.T @ residual[idx[:, j], j]
     return e0
 
