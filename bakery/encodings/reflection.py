@@ -20,6 +20,10 @@ from bakery.reflection.tables import compute_dfg_tables
 from bakery.errors import ClampWarning
 from bakery.sphere.cubemap import cube_texel_directions, sample_cube_bilinear
 
+from bakery import operator_cache
+
+operator_cache.install()
+
 #: Largest finite float16; prefiltered radiance above it is clamped (and counted) before storage.
 FLOAT16_MAX = 65504.0
 

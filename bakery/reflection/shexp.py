@@ -64,6 +64,7 @@ from scipy import sparse
 from bakery.brdf.ggx import reflect
 from bakery.brdf.sampling import to_world
 from bakery.reflection.reference import _weights_float32
+from bakery.reflection.tables import OperatorCache
 from bakery.sh.basis import evaluate_sh_basis, sh_bands
 from bakery.sphere.cubemap import cube_texel_directions, cube_texel_solid_angles
 from bakery.sphere.fibonacci import fibonacci_directions
@@ -181,9 +182,19 @@ def design_albedo(view: np.ndarray, normal: np.ndarray, alpha: np.ndarray) -> np
     return lookup_table(tables.albedo, nv, np.asarray(alpha, dtype=np.float64))
 
 
+def weights_key(settings: SHExpSettings) -> str:
+    """Stable identity of W: the design and fit-grid fields it depends on, and the formulation's version."""
+    return "shexp-W-v1-" + repr((settings.n_normals, settings.n_views, settings.n_alphas, settings.alpha_min,
+                                  settings.alpha_max, settings.alpha_spacing, settings.fit_face_size))
+
+
 @lru_cache(maxsize=4)
 def _design_weights(settings: SHExpSettings) -> np.ndarray:
     """W (M, T) float32 for the design and fit grid of ``settings`` (cached on those fields only)."""
+    key = weights_key(settings)
+    cached = OperatorCache.load(key)
+    if cached is not None:
+        return cached
     v, n, a = fit_design(settings)
     f = settings.fit_face_size
     dirs = cube_texel_directions(f).reshape(-1, 3)
@@ -194,6 +205,7 @@ def _design_weights(settings: SHExpSettings) -> np.ndarray:
     for s in range(0, v.shape[0], rows):
         sl = slice(s, s + rows)
         weights[sl] = _weights_float32(l_t, omega, v[sl], n[sl], a[sl])[0]  # W of [SHExp] Eq. 6 (f_DV⟨l,n⟩Ω)
+    weights = OperatorCache.save(key, weights)
     weights.setflags(write=False)
     return weights
 

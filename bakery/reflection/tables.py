@@ -87,12 +87,26 @@ def integrate_dfg(n_dot_v: np.ndarray, alpha: np.ndarray, samples_per_axis: int 
     return out.reshape(shape + (2,))
 
 
+class OperatorCache:
+    """Where environment-independent operators (DFG tables, the SH-exponential W) live between processes. The math
+    does no I/O: by default they are cached in memory only; the encoding layer installs ``load(key) -> array |
+    None`` / ``save(key, array) -> array`` backed by memory-mapped files (:mod:`bakery.operator_cache`), so every
+    worker process of a bake shares one copy instead of rebuilding it."""
+
+    load = staticmethod(lambda key: None)
+    save = staticmethod(lambda key, array: array)
+
+
 @lru_cache(maxsize=8)
 def compute_dfg_tables(size: int = 64, samples_per_axis: int = 64, tail_mode: str = "ratio") -> DFGTables:
     """Build the DFG and Fresnel-tail tables (Nα = Nv = ``size``); cached. ``tail_mode``: "ratio" or "paper"."""
-    centres = (np.arange(size) + 0.5) / size
-    alpha, nv = np.meshgrid(centres, centres, indexing="ij")
-    ab = integrate_dfg(nv, alpha, samples_per_axis)
+    key = f"dfg-v1-{size}-{samples_per_axis}"
+    ab = OperatorCache.load(key)
+    if ab is None:
+        centres = (np.arange(size) + 0.5) / size
+        alpha, nv = np.meshgrid(centres, centres, indexing="ij")
+        ab = OperatorCache.save(key, integrate_dfg(nv, alpha, samples_per_axis))
+    ab = np.asarray(ab)
     if tail_mode == "ratio":
         tail = ab[..., 1] / np.maximum(ab[..., 0] + ab[..., 1], 1e-12)  # τ = B/(A+B), see module doc
     elif tail_mode == "paper":
