@@ -144,7 +144,7 @@ class SceneBakeContext:
                 "scene_meters_per_unit": self.meters_per_unit, "capture_samples": self.params.samples,
                 "capture_bounces": self.params.bounces, "capture_seed": self.params.seed,
             },
-            layers=str(self.layer_path),
+            layers=_json_attribute(list(self.protected_layers)),  # the scene's layer identifiers
             on_written=lambda merged, attributes: self._write_layer(merged, attributes, output),
             band_energy_tolerance=band_energy_tolerance,
         )
