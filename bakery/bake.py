@@ -1,7 +1,9 @@
 """Baking: encode a batch of probes with every requested encoding and write the store.
 
-This is the library entry point the CLI and the scene pipeline call; it does no printing. ``bake_environment``
-bakes one distant environment image as one probe of every kind; ``bake_probes`` bakes any batch (scene probes).
+Library entry points (no printing): ``encode_batch`` encodes captured probes (what pipeline workers run),
+``merge_batches`` and ``store_contents`` assemble what the single writer stores; ``bake_probes`` does all three for
+an in-memory batch and ``bake_environment`` for one environment image (the CLI goes through
+:mod:`bakery.pipeline`, which adds planning, workers, checkpoints and incremental reuse).
 """
 
 from __future__ import annotations
