@@ -236,12 +236,23 @@ def plan_scene_bake(
     scene_hash = environment_hash(reading.scene, tuple(reading.assets))
     lights = light_table(reading.scene)
     params = SceneCaptureParams(samples, bounces, seed)
+    from bakery.pipeline.roughness import fit_alpha_range, visible_roughness
+
     entries = []
+    roughness_notes: list[dict[str, str]] = []
     prim_of: dict[str, str] = {}
     for spec in reading.scene.probes:
         probe_settings = {"encodings": list(spec.encodings)} if spec.encodings else {}
         if spec.influence:
             probe_settings["influence"] = spec.influence
+        if spec.kind == "reflection":
+            alpha_range = fit_alpha_range(visible_roughness(spec.position, spec.influence or {}, reading.scene.meshes))
+            if alpha_range is not None:
+                probe_settings["encoding_settings"] = {"shexp": {"alpha_min": alpha_range[0],
+                                                                 "alpha_max": alpha_range[1]}}
+                roughness_notes.append({"probe": spec.name, "reason": (
+                    f"shexp fitted over α ∈ [{alpha_range[0]:g}, {alpha_range[1]:g}] (materials in its influence "
+                    f"volume) instead of the default range")})
         probe = Probe(spec.name, (spec.kind,), spec.position, probe_settings)
         inputs = (scene_hash, file_digest(spec.image)) if spec.image else (scene_hash,)
         capture = CaptureSpec(
@@ -255,6 +266,7 @@ def plan_scene_bake(
     if previous is not None and plan.reused:
         plan = _apply_light_changes(plan, entries, settings, previous, lights, batch_size)
     plan.attributes["scene_lights"] = lights
+    plan.skipped.extend(roughness_notes)
     context = SceneBakeContext(
         scene_path=scene_path,
         up_axis=reading.up_axis,

@@ -77,11 +77,13 @@ def probe_content_hash(probe: Probe, capture: CaptureSpec, encodings: tuple[str,
 
 
 def make_batches(tasks: list[ProbeTask], batch_size: int, settings_json: str) -> list[BatchTask]:
-    """Split tasks into batches of ≤ batch_size with one encoding set each, in plan order (deterministic: batch
-    composition depends only on the plan, never on the number of workers)."""
-    groups: dict[tuple[str, ...], list[ProbeTask]] = {}
+    """Split tasks into batches of ≤ batch_size with one encoding set and one set of per-probe encoding-setting
+    overrides (``probe.settings["encoding_settings"]``) each, in plan order (deterministic: batch composition
+    depends only on the plan, never on the number of workers)."""
+    groups: dict[tuple, list[ProbeTask]] = {}
     for task in tasks:
-        groups.setdefault(task.encodings, []).append(task)
+        overrides = json.dumps(task.probe.settings.get("encoding_settings", {}), sort_keys=True)
+        groups.setdefault((task.encodings, overrides), []).append(task)
     batches = []
     for group in groups.values():
         for start in range(0, len(group), batch_size):

@@ -61,10 +61,20 @@ def run_batch(task: BatchTask) -> BatchOutcome:
         return BatchOutcome(task.key, None, failures, time.perf_counter() - start)
     reference = references if all(r is not None for r in references) else None
     batch = ProbeBatch(np.stack(cubes), reference)
+    # Per-probe encoding-setting overrides (one set per batch, see make_batches), e.g. a reflection probe's fit α range.
+    overrides = task.probes[0].probe.settings.get("encoding_settings", {})
+    base = json.loads(task.settings_json)
+    merged_settings = {name: {**base.get("encoding_settings", {}).get(name, {}), **values}
+                       for name, values in {**base.get("encoding_settings", {}), **overrides}.items()}
     encodings = select_encodings(
-        BakeSettings(**{**json.loads(task.settings_json), "encodings": task.probes[0].encodings}),
+        BakeSettings(**{**base, "encodings": task.probes[0].encodings, "encoding_settings": merged_settings}),
         {k for p in probes for k in p.kinds},
     )
-    result = encode_batch(probes, batch, settings, encodings, sanitize_diagnostics(reports))
+    diagnostics = sanitize_diagnostics(reports)
+    if "shexp" in overrides:
+        alpha = overrides["shexp"]
+        diagnostics["fit_alpha_range"] = np.tile(
+            np.array([alpha["alpha_min"], alpha["alpha_max"]], dtype=np.float32), (len(probes), 1))
+    result = encode_batch(probes, batch, settings, encodings, diagnostics)
     result.timings.update(capture_stats)
     return BatchOutcome(task.key, result, failures, time.perf_counter() - start)

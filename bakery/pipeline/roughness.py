@@ -1,0 +1,56 @@
+"""The roughness range a reflection probe needs (issue 5: skip what a scene does not need).
+
+An SH-exponential fit covers a design range of GGX α (paper: [0.2, 1]). A probe only ever shades the materials
+inside its influence volume, so its fit can spend all its design samples on their range instead: the
+probe's range is [r_lo², r_hi²] where r are the perceptual roughnesses (UsdPreviewSurface ``roughness``) of the
+materials whose geometry intersects the influence volume, bucketed outwards to steps of 0.1 in r (so a scene needs
+few distinct fit operators, which are cached per range), widened to at least one step, and clipped to
+α ∈ [ALPHA_FLOOR, 1]. Geometry counts as inside when a triangle's bounding sphere meets the influence volume's
+bounding sphere (radius for spheres, the box's |extent| for boxes: conservative — it may include more materials,
+never fewer). A probe with no geometry in range keeps the encoding's default range.
+
+Evaluation does not depend on the design range (the stored coefficients are evaluated at any α), so the stored
+layout is unchanged; the range used is recorded per probe in ``diagnostics/fit_alpha_range``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Lowest α a fit design goes to (r ≈ 0.22); sharper materials are fitted at this α.
+ALPHA_FLOOR = 0.05
+STEP = 0.1
+
+
+def influence_radius(influence: dict) -> float:
+    if influence.get("shape") == "box":
+        return float(np.linalg.norm(np.asarray(influence.get("extent_m", [0.0, 0.0, 0.0]), dtype=np.float64)))
+    return float(influence.get("radius_m", 0.0))
+
+
+def visible_roughness(position, influence: dict, meshes) -> list[float]:  # noqa: ANN001 - capture dataclasses
+    """Perceptual roughness of every material with a triangle inside the influence bound of a probe at ``position``."""
+    radius = influence_radius(influence)
+    p = np.asarray(position, dtype=np.float64)
+    found = []
+    for mesh in meshes:
+        triangles = np.asarray(mesh.triangles, dtype=np.float64)
+        if triangles.size == 0:
+            continue
+        centres = triangles.mean(axis=1)
+        spans = np.linalg.norm(triangles - centres[:, None, :], axis=2).max(axis=1)
+        if np.any(np.linalg.norm(centres - p, axis=1) <= radius + spans):
+            found.append(float(mesh.material.roughness))
+    return found
+
+
+def fit_alpha_range(roughness: list[float]) -> tuple[float, float] | None:
+    """Bucketed GGX α range [r_lo², r_hi²] for the given perceptual roughnesses (module docstring), or None."""
+    if not roughness:
+        return None
+    r = np.clip(np.asarray(roughness, dtype=np.float64), 0.0, 1.0)
+    lo = np.floor(r.min() / STEP + 1e-9) * STEP
+    hi = np.ceil(r.max() / STEP - 1e-9) * STEP
+    if hi - lo < STEP:
+        lo, hi = (hi - STEP, hi) if hi >= STEP else (0.0, STEP)
+    return float(round(max(lo * lo, ALPHA_FLOOR), 6)), float(round(max(hi * hi, ALPHA_FLOOR + 0.01), 6))

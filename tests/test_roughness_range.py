@@ -1,0 +1,95 @@
+"""Skip decisions for reflection probes: the SH-exp fit range comes from the materials in the influence volume."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import bakery
+from bakery.pipeline.roughness import fit_alpha_range
+from usd_scenes import header, write
+
+ENV = {**os.environ, "SOURCE_DATE_EPOCH": "1700000000"}
+
+
+@pytest.mark.parametrize("roughness,expected", [
+    ([0.9], (0.64, 0.81)),  # r ∈ [0.8, 0.9] after widening to one 0.1 step
+    ([0.3, 0.9], (0.09, 0.81)),
+    ([0.35, 0.62], (0.09, 0.49)),
+    ([0.0], (0.05, 0.06)),  # sharper than the floor: fitted at the floor
+    ([], None),
+])
+def test_alpha_range_from_roughness(roughness, expected):
+    result = fit_alpha_range(roughness)
+    assert result == (pytest.approx(expected) if expected else None)
+
+
+def _material(name, roughness):
+    return f"""
+def Material "{name}"
+{{
+    token outputs:surface.connect = </{name}/S.outputs:surface>
+    def Shader "S"
+    {{
+        uniform token info:id = "UsdPreviewSurface"
+        float inputs:roughness = {roughness}
+        token outputs:surface
+    }}
+}}
+"""
+
+
+def _quad(name, material, centre, half):
+    cx, cy, cz = centre
+    pts = [(cx - half, cy, cz - half), (cx + half, cy, cz - half), (cx + half, cy, cz + half), (cx - half, cy, cz + half)]
+    points = ", ".join(f"({x}, {y}, {z})" for x, y, z in pts)
+    return f"""
+def Mesh "{name}" (prepend apiSchemas = ["MaterialBindingAPI"])
+{{
+    int[] faceVertexCounts = [4]
+    int[] faceVertexIndices = [0, 3, 2, 1]
+    point3f[] points = [{points}]
+    rel material:binding = </{material}>
+}}
+"""
+
+
+def _reflection_probe(name, position, radius):
+    x, y, z = position
+    return f"""
+def BakeryReflectionProbe "{name}"
+{{
+    float bakery:influence:radius = {radius}
+    double3 xformOp:translate = ({x}, {y}, {z})
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+}}
+"""
+
+
+def test_reflection_probes_fit_the_roughness_they_can_see(tmp_path):
+    # A rough floor patch (r = 0.9) under probe A; a glossy patch (r = 0.3) next to it under probe B, whose
+    # influence also reaches the rough patch; probe C sees nothing and keeps the default range.
+    text = (header() + _material("Rough", 0.9) + _material("Glossy", 0.3)
+            + _quad("RoughFloor", "Rough", (0, 0, 0), 1.0) + _quad("GlossyFloor", "Glossy", (10, 0, 0), 1.0)
+            + 'def DomeLight "Sky"\n{\n    float inputs:intensity = 1\n}\n'
+            + _reflection_probe("A", (0, 1, 0), 2.0) + _reflection_probe("B", (8, 1, 0), 8.0)
+            + _reflection_probe("C", (100, 50, 100), 2.0))
+    scene = write(tmp_path / "scene.usda", text)
+    store = tmp_path / "s.h5"
+    result = subprocess.run([sys.executable, "-m", "bakery.cli", "bake", str(scene), "-o", str(store), "-e", "shexp",
+                             "--face-size", "8", "-j", "1", "--json"], capture_output=True, text=True, env=ENV)
+    assert result.returncode == 0, result.stderr
+    summary = json.loads(result.stdout)
+    s = bakery.open_store(store)
+    ranges = dict(zip(s.probe_names, s.diagnostics["fit_alpha_range"]))
+    np.testing.assert_allclose(ranges["/A"], [0.64, 0.81], rtol=1e-6)
+    np.testing.assert_allclose(ranges["/B"], [0.09, 0.81], rtol=1e-6)
+    assert np.all(np.isnan(ranges["/C"]))
+    assert {entry["probe"] for entry in summary["skipped"]} == {"/A", "/B"}
+    # Every probe is still evaluable at any α.
+    values = s.evaluate_reflection("shexp", np.array([[0, 1.0, 0]]), np.array([[0, 1.0, 0]]), np.array([0.5]),
+                                   np.array([1.0]))
+    assert np.all(np.isfinite(values))
