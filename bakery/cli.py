@@ -281,6 +281,8 @@ def inspect(store: Path, as_json: bool, pattern: str | None, region: str | None)
     skipped = json.loads(s.attributes.get("skipped", "[]"))
     for skip in skipped:
         out.print(f"skipped {skip.get('encoding') or skip.get('probe')}: {skip['reason']}")
+    for note in json.loads(s.attributes.get("roughness_ranges", "[]")):
+        out.print(f"roughness range {note['probe']}: {note['reason']}")
 
 
 @main.group()

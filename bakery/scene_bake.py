@@ -266,7 +266,8 @@ def plan_scene_bake(
     if previous is not None and plan.reused:
         plan = _apply_light_changes(plan, entries, settings, previous, lights, batch_size)
     plan.attributes["scene_lights"] = lights
-    plan.skipped.extend(roughness_notes)
+    if roughness_notes:
+        plan.attributes["roughness_ranges"] = roughness_notes
     context = SceneBakeContext(
         scene_path=scene_path,
         up_axis=reading.up_axis,
