@@ -160,11 +160,12 @@ def execute_plan(
     if progress:
         progress(finished, total)
     todo = [b for b in plan.batches if b.key not in done]
+    size_of = {b.key: len(b.probes) for b in plan.batches}
     if todo:
         for outcome in executor.run(todo):
             journal.save(outcome)
             outcomes.append(outcome)
-            finished += len(next(b for b in plan.batches if b.key == outcome.key).probes)
+            finished += size_of[outcome.key]
             if progress:
                 progress(finished, total)
     failures: dict[str, str] = {}
@@ -226,7 +227,7 @@ def execute_plan(
         on_written(merged, contents.attributes)
     journal.remove()
     seconds = time.perf_counter() - start
-    baked = total - sum(1 for n in failures)
+    baked = total - len(failures)
     return BakeSummary(
         store=str(output), planned=len(plan.tasks), baked=baked, reused=len(plan.reused),
         resumed_batches=len(done), failed=failures, skipped=skipped, batches=len(plan.batches),
