@@ -67,11 +67,10 @@ from bakery.reflection.reference import _weights_float32
 from bakery.reflection.tables import OperatorCache
 from bakery.sh.basis import evaluate_sh_basis, sh_bands
 from bakery.sphere.cubemap import cube_texel_directions, cube_texel_solid_angles
-from bakery.sphere.fibonacci import fibonacci_directions
+from bakery.sphere.fibonacci import GOLDEN_ANGLE, fibonacci_directions
 
 EPS_REL = 1e-4
 EPS_ABS = 1e-12
-_GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
 
 
 @dataclass(frozen=True)
@@ -135,9 +134,9 @@ def fit_design(settings: SHExpSettings) -> tuple[np.ndarray, np.ndarray, np.ndar
     # Fibonacci hemisphere (z = 1 − (i + ½)/n_views keeps n·v ≥ 1/(2 n_views) > 0), turned per normal.
     i = np.arange(settings.n_views)
     z = np.maximum(1.0 - (i + 0.5) / settings.n_views, 0.02)
-    phi = i * _GOLDEN_ANGLE
+    phi = i * GOLDEN_ANGLE
     rho = np.sqrt(np.maximum(0.0, 1.0 - z * z))
-    turn = np.arange(settings.n_normals)[:, None] * _GOLDEN_ANGLE
+    turn = np.arange(settings.n_normals)[:, None] * GOLDEN_ANGLE
     local = np.stack([rho * np.cos(phi + turn), rho * np.sin(phi + turn), np.broadcast_to(z, turn.shape[:1] + z.shape)], -1)
     views = to_world(local, normals[:, None, :])  # (n_normals, n_views, 3)
     if settings.alpha_spacing == "linear":  # paper Sec. 5.1: uniform in α
