@@ -27,7 +27,7 @@ def _batch():
 ENCODERS = {
     "splitsum": lambda: refl.SplitSum(face_size=FACE, n_levels=4, min_face_size=4),
     "shexp": lambda: refl.SHExp(n_normals=16, n_views=16, fit_face_size=8),
-    "shexp_paper": lambda: refl.SHExp(n_normals=16, n_views=16, fit_face_size=8, albedo_normalized=False, fit="dense"),
+    "shexp_paper": lambda: refl.SHExp(n_normals=16, n_views=16, fit_face_size=8, albedo_normalized=False, fit="log"),
 }
 
 

@@ -15,7 +15,7 @@ Protocol
     chrome (F0 = 1) and glass (F0 = 0.04); E_ref by brute-force integration of the full-resolution image; averaged
     over α, materials and environments.
     Parameters: capture face size for every encoding; for encodings whose default settings have them, the keys of
-    :data:`PARAMETER_GRID` (SH-exp P order ``p_band``, ``fit`` fast/dense; split-sum ``n_levels``). The face size is
+    :data:`PARAMETER_GRID` (SH-exp P order ``p_band``, ``fit`` log/weighted; split-sum ``n_levels``). The face size is
     passed as the encoding's ``face_size`` setting when it has one (split-sum chain size).
     Pareto-optimal: no other variant of the same kind is both faster (warm) and more accurate (mean error).
 """
@@ -48,7 +48,7 @@ QUICK_FACE_SIZES = (8, 32)
 REFLECTION_FACE_SIZES = (16, 32, 64)
 QUICK_REFLECTION_FACE_SIZES = (16,)
 #: Extra settings explored when an encoding's defaults have the key (quick mode: defaults only).
-PARAMETER_GRID: dict[str, tuple[Any, ...]] = {"p_band": (2, 3, 4), "fit": ("fast", "dense"), "n_levels": (4, 6)}
+PARAMETER_GRID: dict[str, tuple[Any, ...]] = {"p_band": (2, 3, 4), "fit": ("log", "weighted"), "n_levels": (4, 6)}
 ALPHAS = tuple(float(r * r) for r in np.linspace(0.5, 1.0, 4))
 MATERIALS = {"chrome": 1.0, "glass": 0.04}
 NORMALS = 1024

@@ -10,9 +10,14 @@ Protocol
     material, view, α); MSE over the sphere's pixels and RGB; ratio = MSE(shexp) / MSE(splitsum) (< 1: SH-exp
     wins). Memory: bytes per probe of each encoding's stored fields (shared tables excluded).
 
-Speed (``speed=True``): single process, captures 6×N² (N = ``face_size``), batches of 32 probes.
-    SH-exp fit: dense W and fast (truncated SH + sparse bright texels) paths, ms/probe and probes/s, and the
-    fast path's error vs the dense one on every environment (sun-dominated ones included).
+    SH-exp is scored three ways: the default (albedo-normalised, luminance-weighted solve), the unweighted
+    log-space solve (``fit="log"``, to measure the weighting against the plain fit) and the paper's formulation
+    (unweighted, not albedo-normalised).
+
+Speed (``speed=True``): single process, captures 6×N² (N = ``face_size``), batches of 64 probes (a bake's batch size).
+    SH-exp fit: ms/probe and probes/s of the default (splatted multi-resolution grid, weighted solve), of the
+    unweighted solve and of a finer grid, with a breakdown by step; each one's error against the plain fit (E0 at
+    the design rows by brute force over every capture texel, same solve) on every environment.
     Split-sum chain: fast formulation (SH per-band scaling for rough levels, filtered importance sampling for
     sharp ones) vs the plain 1024-sample GGX importance sampling, ms/probe, and each one's error per level vs an
     exact dense quadrature of the same kernel at 512 texel directions.
@@ -32,7 +37,20 @@ from bakery.environment.io import read_environment
 from bakery.probe import ProbeBatch
 from bakery.reflection import splitsum as ss
 from bakery.reflection.reference import integrate_reflection, reflected_radiance
-from bakery.reflection.shexp import SHExpSettings, build_operators, evaluate_e0, fit_shexp
+from bakery.reflection.shexp import (
+    SHExpSettings,
+    build_operators,
+    design_e0_samples,
+    evaluate_e0,
+    fit_shexp,
+    log_e0,
+    plain_e0_samples,
+    row_weights,
+    slab_face_sizes,
+    solve_coefficients,
+    solve_from_samples,
+    splat_flux,
+)
 from bakery.sphere.fibonacci import fibonacci_directions
 
 IMAGE_SUFFIXES = (".hdr", ".exr")
@@ -88,14 +106,16 @@ def run_reflection_bench(
     names = [p.stem for p in paths]
     cubes = np.stack([resample_to_cube(img, face_size) for img in images])
     batch = ProbeBatch(cubes)
-    shexp, split = SHExp(fit="dense"), SplitSum(face_size=face_size)
-    paper = SHExp(fit="dense", albedo_normalized=False)
+    shexp, split = SHExp(), SplitSum(face_size=face_size)
+    paper = SHExp(fit="log", albedo_normalized=False)
+    unweighted = SHExp(fit="log")
     t0 = time.perf_counter()
     fields_shexp = shexp.encode(batch)
     t1 = time.perf_counter()
     fields_split = split.encode(batch)
     t2 = time.perf_counter()
     fields_paper = paper.encode(batch)
+    fields_log = unweighted.encode(batch)
     plain_levels = None
     if plain_splitsum:  # the paper's split-sum: 1024-sample plain IS chain, stored as float16 like the encoding
         chains = [ss._reference_prefilter_chain(c, split.chain, 1024) for c in cubes]
@@ -111,6 +131,8 @@ def run_reflection_bench(
             est_shexp = shexp.evaluate_reflection(one(fields_shexp), shexp.shared_tables(), view, normal, alpha, f0s)[0]
             est_split = split.evaluate_reflection(one(fields_split), split.shared_tables(), view, normal, alpha, f0s)[0]
             est_paper = paper.evaluate_reflection(one(fields_paper), paper.shared_tables(), view, normal, alpha, f0s)[0]
+            est_log = unweighted.evaluate_reflection(one(fields_log), unweighted.shared_tables(), view, normal, alpha,
+                                                     f0s)[0]
             est_plain = None
             if plain_levels is not None:
                 est_plain = split.evaluate_reflection({f"level{k}": lv[i : i + 1] for k, lv in enumerate(plain_levels)},
@@ -120,6 +142,7 @@ def run_reflection_bench(
                 mse_shexp = float(np.mean((est_shexp[sl] - ref) ** 2))
                 mse_split = float(np.mean((est_split[sl] - ref) ** 2))
                 mse_paper = float(np.mean((est_paper[sl] - ref) ** 2))
+                mse_log = float(np.mean((est_log[sl] - ref) ** 2))
                 mse_plain = float(np.mean((est_plain[sl] - ref) ** 2)) if est_plain is not None else float("nan")
                 power = float(np.mean(ref**2))
                 rows.append({
@@ -129,6 +152,8 @@ def run_reflection_bench(
                     "rel_mse_splitsum": mse_split / power if power > 0 else 0.0,
                     "ratio": mse_shexp / mse_split if mse_split > 0 else float("inf"),
                     "ratio_paper": mse_paper / mse_split if mse_split > 0 else float("inf"),
+                    "mse_shexp_unweighted": mse_log,
+                    "ratio_unweighted": mse_log / mse_split if mse_split > 0 else float("inf"),
                     "mse_splitsum_plain": mse_plain,
                     "ratio_vs_plain": mse_shexp / mse_plain if mse_plain > 0 else float("nan"),
                 })
@@ -149,6 +174,10 @@ def run_reflection_bench(
             "median_ratio": float(np.median(ratios)),
             "paper_formulation_wins": int(sum(r["ratio_paper"] < 1.0 for r in rows)),
             "paper_formulation_win_share": float(np.mean([r["ratio_paper"] < 1.0 for r in rows])),
+            "unweighted_wins": int(sum(r["ratio_unweighted"] < 1.0 for r in rows)),
+            "unweighted_geometric_mean_ratio": float(np.exp(np.mean(np.log(np.maximum(
+                [r["ratio_unweighted"] for r in rows], 1e-30))))),
+            "weighted_beats_unweighted": float(np.mean([r["mse_shexp"] < r["mse_shexp_unweighted"] for r in rows])),
             "wins_at_alpha_ge_0.36": float(np.mean([r["ratio"] < 1.0 for r in rows if r["alpha"] > 0.3])),
             "wins_at_alpha_ge_0.49": float(np.mean([r["ratio"] < 1.0 for r in rows if r["alpha"] > 0.4])),
             "win_share_vs_plain_splitsum": float(np.mean([r["ratio_vs_plain"] < 1.0 for r in rows])),
@@ -160,7 +189,7 @@ def run_reflection_bench(
             "losses_by_environment": _count(losses, "environment"),
             "losses_by_alpha": _count(losses, "alpha"),
             "losses_by_material": _count(losses, "material"),
-            "encode_ms_per_probe": {"shexp_dense": 1e3 * (t1 - t0) / len(names),
+            "encode_ms_per_probe": {"shexp": 1e3 * (t1 - t0) / len(names),
                                     "splitsum_fast": 1e3 * (t2 - t1) / len(names)},
         },
     }
@@ -187,27 +216,57 @@ def _time(fn, repeat: int = 3) -> float:
     return best
 
 
-def run_speed(cubes: np.ndarray, names: list[str], batch_size: int = 32, plain_probes: int = 2) -> dict:
+def run_speed(cubes: np.ndarray, names: list[str], batch_size: int = 64, plain_probes: int = 2) -> dict:
     """Speed protocol of the module doc on captures ``cubes`` (P, 6, N, N, 3)."""
-    settings = SHExpSettings()
+    from dataclasses import replace
+
+    default = SHExpSettings()
+    variants = {"default": default, "unweighted": replace(default, fit="log"),
+                "grid32": replace(default, fit_face_size=32)}
+    n = int(cubes.shape[2])
     start = time.perf_counter()
-    build_operators(settings)
+    build_operators(default, n)
     build_seconds = time.perf_counter() - start
-    big = cubes[np.arange(batch_size) % len(cubes)]
-    dense_s = _time(lambda: fit_shexp(big, settings, fast=False))
-    fast_s = _time(lambda: fit_shexp(big, settings, fast=True))
-    # fast vs dense on every environment: relative RMS of E0 on a Fibonacci set of (v = n) and grazing rows.
+    big = np.ascontiguousarray(cubes[np.arange(batch_size) % len(cubes)], dtype=np.float32)
+    ms = {k: 1e3 * _time(lambda st=st: fit_shexp(big, st), repeat=5) / batch_size for k, st in variants.items()}
+    ops = build_operators(default, n)
+    grids = tuple(b.face_size for b in ops.blocks)
+    flux = splat_flux(big, grids)
+    e0 = design_e0_samples(big, default)
+    logs, floored = log_e0(e0, batch_size)
+    weights = row_weights(floored, batch_size)
+    breakdown = {
+        "splat": _time(lambda: splat_flux(big, grids), 5),
+        "W_times_F": _time(lambda: [b.weights @ flux[b.face_size] for b in ops.blocks], 5),
+        "log_and_weights": _time(lambda: row_weights(log_e0(e0, batch_size)[1], batch_size), 5),
+        "weighted_solve": _time(lambda: solve_coefficients(logs, ops, batch_size, weights), 5),
+    }
+    breakdown = {k: 1e3 * v / batch_size for k, v in breakdown.items()}
+    # every formulation vs the plain fit (brute-force E0 at the design rows, same solve), on every environment:
+    # relative RMS of E0 on a Fibonacci set of (v = n) and grazing rows at α = 0.25, 0.5, 1.
     normals = fibonacci_directions(512)
     views = np.roll(normals, 7, axis=0) + normals
     views /= np.linalg.norm(views, axis=1, keepdims=True)
     rows_v = np.concatenate([normals, views] * 3)
     rows_n = np.concatenate([normals, normals] * 3)
     rows_a = np.repeat([0.25, 0.5, 1.0], 1024)
-    dense = evaluate_e0(fit_shexp(cubes, settings, fast=False), rows_v, rows_n, rows_a, settings)
-    fast = evaluate_e0(fit_shexp(cubes, settings, fast=True), rows_v, rows_n, rows_a, settings)
-    fast_error = {
-        name: float(np.sqrt(np.mean((fast[i] - dense[i]) ** 2)) / max(float(np.mean(dense[i])), 1e-30))
-        for i, name in enumerate(names)
+    start = time.perf_counter()
+    plain_samples = plain_e0_samples(cubes, default).astype(np.float32)  # (M, 3P)
+    plain_ms = 1e3 * (time.perf_counter() - start) / len(cubes)
+    vs_plain = {}
+    for key, st in variants.items():
+        plain_fit = solve_from_samples(plain_samples, st, build_operators(st, n))
+        truth = evaluate_e0(plain_fit, rows_v, rows_n, rows_a, st)
+        fast = evaluate_e0(fit_shexp(cubes, st), rows_v, rows_n, rows_a, st)
+        vs_plain[key] = {name: float(np.sqrt(np.mean((fast[i] - truth[i]) ** 2)) / max(float(np.mean(truth[i])), 1e-30))
+                         for i, name in enumerate(names)}
+    shexp_speed = {
+        "shexp_operator_build_s": build_seconds,
+        "shexp_grids": {k: list(slab_face_sizes(st, n)) for k, st in variants.items()},
+        "shexp_ms_per_probe": ms, "shexp_probes_per_s": {k: 1e3 / v for k, v in ms.items()},
+        "shexp_breakdown_ms_per_probe": breakdown,
+        "shexp_plain_ms_per_probe": plain_ms,
+        "shexp_vs_plain_rel_rms": vs_plain,
     }
     chain = ss.SplitSumSettings(face_size=cubes.shape[2])
     chain_fast_s = _time(lambda: ss.prefilter_chain(cubes[0], chain), repeat=2)
@@ -234,11 +293,7 @@ def run_speed(cubes: np.ndarray, names: list[str], batch_size: int = 32, plain_p
                                                / max(float(plain[level].mean()), 1e-30)),
             })
     return {
-        "batch_size": batch_size, "face_size": int(cubes.shape[2]),
-        "shexp_operator_build_s": build_seconds,
-        "shexp_dense_ms_per_probe": 1e3 * dense_s / batch_size, "shexp_fast_ms_per_probe": 1e3 * fast_s / batch_size,
-        "shexp_dense_probes_per_s": batch_size / dense_s, "shexp_fast_probes_per_s": batch_size / fast_s,
-        "shexp_fast_vs_dense_rel_rms": fast_error,
+        "batch_size": batch_size, "face_size": int(cubes.shape[2]), **shexp_speed,
         "splitsum_fast_ms_per_probe": 1e3 * chain_fast_s, "splitsum_plain_ms_per_probe": 1e3 * float(np.mean(plain_s)),
         "splitsum_level_errors": level_errors,
     }
@@ -263,7 +318,10 @@ def format_table(result: dict) -> str:
         f"# Reflection bench ({s['cases']} cases)", "",
         f"SH-exp lower MSE in {s['shexp_wins']}/{s['cases']} cases ({100 * s['shexp_win_share']:.1f}%); "
         f"median ratio {s['median_ratio']:.3g}, geometric mean {s['geometric_mean_ratio']:.3g}. "
-        f"Paper formulation (no albedo normalisation): {s['paper_formulation_wins']}/{s['cases']} "
+        f"Unweighted log-space solve: {s['unweighted_wins']}/{s['cases']} (geometric mean "
+        f"{s['unweighted_geometric_mean_ratio']:.3g}); the weighted solve has the lower MSE in "
+        f"{100 * s['weighted_beats_unweighted']:.1f}% of cases. "
+        f"Paper formulation (unweighted, no albedo normalisation): {s['paper_formulation_wins']}/{s['cases']} "
         f"({100 * s['paper_formulation_win_share']:.1f}%). Against the paper's split-sum setting (plain 1024-sample "
         f"IS chain): {100 * s['win_share_vs_plain_splitsum']:.1f}% (paper formulation "
         f"{100 * s['paper_formulation_win_share_vs_plain']:.1f}%).",
@@ -285,10 +343,14 @@ def format_table(result: dict) -> str:
         sp = result["speed"]
         lines += [
             "## Speed (single process)", "",
-            f"- SH-exp fit, dense W: {sp['shexp_dense_ms_per_probe']:.2f} ms/probe "
-            f"({sp['shexp_dense_probes_per_s']:.0f} probes/s)",
-            f"- SH-exp fit, fast: {sp['shexp_fast_ms_per_probe']:.2f} ms/probe ({sp['shexp_fast_probes_per_s']:.0f} "
-            f"probes/s); max rel. RMS vs dense {max(sp['shexp_fast_vs_dense_rel_rms'].values()):.3g}",
+            *[f"- SH-exp fit, {k} (grids {sp['shexp_grids'][k]}): {v:.3f} ms/probe "
+              f"({sp['shexp_probes_per_s'][k]:.0f} probes/s); rel. RMS of E0 vs the plain fit: max "
+              f"{max(sp['shexp_vs_plain_rel_rms'][k].values()):.3g}, median "
+              f"{np.median(list(sp['shexp_vs_plain_rel_rms'][k].values())):.3g}"
+              for k, v in sp["shexp_ms_per_probe"].items()],
+            "- default breakdown (ms/probe): " + ", ".join(
+                f"{k} {v:.3f}" for k, v in sp["shexp_breakdown_ms_per_probe"].items()),
+            f"- plain fit (brute-force design samples): {sp['shexp_plain_ms_per_probe']:.0f} ms/probe",
             f"- split-sum chain: fast {sp['splitsum_fast_ms_per_probe']:.0f} ms/probe, plain 1024-sample IS "
             f"{sp['splitsum_plain_ms_per_probe']:.0f} ms/probe", "",
             "| env | level | α | formulation | fast vs exact | plain vs exact |", "|---|---|---|---|---|---|",

@@ -110,24 +110,29 @@ class SHExp(ReflectionEncoding):
     """SH exponentials ([SHExp] Sec. 4): p (bands 0..p_band) and q (bands 1..q_band) float32 + Fresnel tail."""
 
     name = "shexp"
-    version = "1.0.0"
     description = ("SH exponentials PQ = exp(<vMF(1/a).Y(r), p>) exp(<vMF(1/a).Y(h_r), q>); E = PQ (F0 A + B) with "
                    "the DFG table (albedo-normalised) or PQ (F0 + (1-F0) tau) (paper)")
 
+    version = "1.1.0"  # 1.1.0: multi-resolution splatted fit grid and the weighted solve (same stored layout)
+
     _KEYS = ("p_band", "q_band", "n_normals", "n_views", "n_alphas", "alpha_min", "alpha_max", "fit_face_size",
-             "fit", "albedo_normalized")
+             "min_fit_face_size", "fit", "albedo_normalized")
+    #: Fit modes of stores written before 1.1.0 (both were the unweighted log-space fit).
+    _LEGACY_FIT = {"dense": "log", "fast": "log"}
 
     def __init__(self, **settings: Any) -> None:
         defaults = {"p_band": 4, "q_band": 2, "n_normals": 64, "n_views": 64, "n_alphas": 4, "alpha_min": 0.2,
-                    "alpha_max": 1.0, "fit_face_size": 32, "fit": "dense", "albedo_normalized": True}
+                    "alpha_max": 1.0, "fit_face_size": 16, "min_fit_face_size": 8, "fit": "weighted",
+                    "albedo_normalized": True}
         merged = {**defaults, **{k: v for k, v in settings.items() if k in self._KEYS}}
-        if merged["fit"] not in ("fast", "dense"):
-            raise ValueError(f"shexp fit must be 'fast' or 'dense', got {merged['fit']!r}")
+        merged["fit"] = self._LEGACY_FIT.get(merged["fit"], merged["fit"])
+        merged["min_fit_face_size"] = min(int(merged["min_fit_face_size"]), int(merged["fit_face_size"]))
         super().__init__(**merged)
         self.model = SHExpSettings(
             p_band=int(merged["p_band"]), q_band=int(merged["q_band"]), n_normals=int(merged["n_normals"]),
             n_views=int(merged["n_views"]), n_alphas=int(merged["n_alphas"]), alpha_min=float(merged["alpha_min"]),
             alpha_max=float(merged["alpha_max"]), fit_face_size=int(merged["fit_face_size"]),
+            min_fit_face_size=int(merged["min_fit_face_size"]), fit=str(merged["fit"]),
             albedo_normalized=bool(merged["albedo_normalized"]),
         )
 
@@ -146,20 +151,8 @@ class SHExp(ReflectionEncoding):
         tables = compute_dfg_tables(TABLE_SIZE, TABLE_SAMPLES)
         return {"dfg": tables.dfg} if self.model.albedo_normalized else {"fresnel_tail": tables.fresnel_tail}
 
-    def _fit_settings(self, face_size: int) -> SHExpSettings:
-        f = self.model.fit_face_size
-        while f > 1 and (face_size % f):
-            f //= 2
-        f = min(f, face_size)
-        if f == self.model.fit_face_size:
-            return self.model
-        from dataclasses import replace
-
-        return replace(self.model, fit_face_size=f)
-
     def encode(self, batch: ProbeBatch) -> dict[str, np.ndarray]:
-        model = self._fit_settings(batch.face_size)
-        coeffs = fit_shexp(batch.cubes, model, fast=self.settings["fit"] == "fast")
+        coeffs = fit_shexp(batch.cubes, self.model)
         k = self.model.p_count
         return {"p": np.ascontiguousarray(coeffs[:, :k]), "q": np.ascontiguousarray(coeffs[:, k:])}
 

@@ -9,11 +9,12 @@ Model ([SHExp] Eq. 9–12)
     in :mod:`bakery.reflection.tables`).
 
 Fit as fixed linear operators (Eq. 13–14)
-    The (v, n, α) design does not depend on the environment, so with the capture L (T, 3P) on the fit grid:
-        E0_samples = W · L            W[m, t] = f_DV(v_m, n_m, l_t, α_m) ⟨l_t, n_m⟩ Ω_t   (M, T)    (Eq. 6)
+    The (v, n, α) design does not depend on the environment, so with the capture's flux F (T, 3P) splatted onto
+    the fit grid ("Fit grid" below):
+        E0_samples = W · F            W[m, c] = f_DV(v_m, n_m, l_c, α_m) ⟨l_c, n_m⟩₊       (M, T)    (Eq. 6)
         [p; q]     = A⁺ · log(max(E0_samples, floor))                                   (33, M)    (Eq. 13–14)
-    A[m] = [vMF(α_m) ⊙ Y(r_m), vMF(α_m) ⊙ Y(h_r,m)[1:]] (Eq. 14). W and A⁺ are built once per settings and cached;
-    a batch of P probes is GEMM → log → GEMM.
+    A[m] = [vMF(α_m) ⊙ Y(r_m), vMF(α_m) ⊙ Y(h_r,m)[1:]] (Eq. 14). W, A⁺ (and the weighted solve's fixed pieces)
+    are built once per settings and cached; a batch of P probes is splat (GEMM) → W·F (GEMM) → log → solve (GEMM).
 
 Albedo normalisation (beyond the paper; ``albedo_normalized``, default on)
     Under constant radiance c, rotational symmetry forces p, q to their DC terms, so the paper's model is a
@@ -37,14 +38,29 @@ Design (paper Sec. 5.1: 64 normals × 64 views × 4 α ∈ [0.2, 1])
     the normal by the golden angle per normal so that the local view sets do not repeat; α: uniform in
     [alpha_min, alpha_max]. Deterministic: no random numbers.
 
-Fit grid
-    W is dense over the capture resampled (area-weighted, flux preserving) to ``fit_face_size`` (default 32: the
-    GGX lobe at α = 0.2 spans several 2.8° texels). Dense W is (M, 6·32²) = 16384 × 6144 float32 (400 MB).
+Fit grid (multi-resolution splat; method notes §4 "lower mip levels for rough α")
+    E0 at a design row is Σ_t w(l_t) Ω_t L_t with the smooth kernel w = f_DV⟨l, n⟩ (per steradian). We interpolate
+    w bilinearly (in cube-face coordinates) from the nodes of a coarse grid, w(l_t) ≈ Σ_c b_ct w(l_c), so that
+        E0 ≈ Σ_c w(l_c) F_c,   F_c = Σ_t b_ct Ω_t L_t                                                 (splat)
+    F is the capture's flux *splatted* bilinearly onto the coarse nodes: exact total flux, and a sun between
+    nodes keeps its centroid (a box filter would move it to a texel centre: measured 4–9 % fit error vs the
+    plain fit on ``park``/``sunrise`` at 32², 1 % with the splat). The splat is separable per face (a batched GEMM
+    per capture row along columns with Ω folded in, then one GEMM along rows; coarser grids are splatted from the
+    finest grid's flux). The node grid follows the lobe width (∝ α): ``fit_face_size`` for α < 2·0.2, halved per
+    doubling of α beyond 0.2, never below ``min_fit_face_size`` (default design: 16, 8, 8, 8 for α = 0.2, 0.47,
+    0.73, 1) — rows of one α slab use one grid, so W is a few dense blocks (4096 × 1536, 12288 × 384):
+    11 M multiply-adds per channel instead of 100 M for a dense 32² grid. Measured in docs/reflection.md against
+    the plain fit (E0 by brute force over every capture texel, :func:`plain_e0_samples`).
 
-Fast path (``fit_fast``): W acts through SH to band ``fast_band`` on a clamped capture, plus the ``fast_sparse``
-    brightest texels exactly: L = min(L, c) + (L − c)₊ with c the luminance of the (k+1)-th brightest texel;
-    E0 ≈ (W·Y_F)·(Yᵀ Ω min(L, c)) + W[:, top k]·(L − c)₊[top k]. Truncated SH of a bounded signal rings
-    mildly; the sun's flux goes through the exact columns (method notes §4: SH alone fails on ``park``).
+Weighted solve (beyond the paper; ``fit = "weighted"``, default)
+    The log-space fit is a proxy for linear MSE (paper Sec. 5.3): a linear error δE ≈ E·δlog E, so a plain log fit
+    gives a dark row as much say as a bright one. We weight each row by its luminance (the IRLS weight halfway
+    between the log fit, weight 1, and first-order linear MSE, weight E²; measured: E¹ beats both):
+        [p; q] = argmin Σ_m w_m (A_m x − log E0_m)²,  w_m = max(Y(E0_m) / mean_m Y(E0_m), w_min)         (Eq. 13–14)
+    solved per probe by the normal equations G x = Aᵀ W y. G_p = Aᵀ diag(w_p) A for a whole batch is one GEMM
+    with the fixed matrix of products A_mi A_mj (i ≤ j), so the solve stays GEMM → log → GEMM. w_min = 1e-2
+    keeps G well conditioned when a sun makes a few rows dominate. ``fit = "log"`` is the paper's unweighted fit
+    (A⁺ · log E0).
 
 Notation
     M design rows, T fit-grid texels, P probes, C = 3 channels, K_p = (p_band+1)², K_q = (q_band+1)² − 1.
@@ -59,7 +75,6 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-from scipy import sparse
 
 from bakery.brdf.ggx import reflect
 from bakery.brdf.sampling import to_world
@@ -71,11 +86,18 @@ from bakery.sphere.fibonacci import GOLDEN_ANGLE, fibonacci_directions
 
 EPS_REL = 1e-4
 EPS_ABS = 1e-12
+#: Weighted solve: row weights are floored at this fraction of the mean weight (module doc "Weighted solve").
+WEIGHT_MIN = 1e-2
+#: Luminance used for the row weights (Rec. 709 / sRGB primaries, the bake's working space).
+LUMINANCE = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+#: Rows with α < 2·FINEST_GRID_ALPHA use the finest fit grid; it halves per doubling of α beyond (module doc).
+FINEST_GRID_ALPHA = 0.2
+FIT_MODES = ("weighted", "log")
 
 
 @dataclass(frozen=True)
 class SHExpSettings:
-    """Model orders, fit design and fit grid (all recorded in the store's ``settings``)."""
+    """Model orders, fit design, fit grid and solve (all recorded in the store's ``settings``)."""
 
     p_band: int = 4
     q_band: int = 2
@@ -84,11 +106,18 @@ class SHExpSettings:
     n_alphas: int = 4
     alpha_min: float = 0.2
     alpha_max: float = 1.0
-    fit_face_size: int = 32
-    fast_band: int = 12
-    fast_sparse: int = 32
+    fit_face_size: int = 16
+    min_fit_face_size: int = 8
+    fit: str = "weighted"
     albedo_normalized: bool = True
     alpha_spacing: str = "linear"
+
+    def __post_init__(self) -> None:
+        if self.fit not in FIT_MODES:
+            raise ValueError(f"shexp fit must be one of {FIT_MODES}, got {self.fit!r}")
+        if not 1 <= self.min_fit_face_size <= self.fit_face_size:
+            raise ValueError(f"need 1 <= min_fit_face_size <= fit_face_size, got {self.min_fit_face_size}, "
+                             f"{self.fit_face_size}")
 
     @property
     def p_count(self) -> int:
@@ -128,6 +157,15 @@ def design_matrix(view: np.ndarray, normal: np.ndarray, alpha: np.ndarray, setti
     return np.concatenate([yp, yq[:, 1:]], axis=1)
 
 
+def design_alphas(settings: SHExpSettings) -> np.ndarray:
+    """The design's α values (n_alphas,), ascending."""
+    if settings.alpha_spacing == "linear":  # paper Sec. 5.1: uniform in α
+        return np.linspace(settings.alpha_min, settings.alpha_max, settings.n_alphas)
+    if settings.alpha_spacing == "perceptual":  # uniform in r = √α
+        return np.linspace(np.sqrt(settings.alpha_min), np.sqrt(settings.alpha_max), settings.n_alphas) ** 2
+    raise ValueError(f"unknown alpha_spacing {settings.alpha_spacing!r}")
+
+
 def fit_design(settings: SHExpSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The (v, n, α) design: views (M, 3), normals (M, 3), α (M,), M = n_alphas·n_normals·n_views (α slowest)."""
     normals = fibonacci_directions(settings.n_normals)
@@ -139,12 +177,7 @@ def fit_design(settings: SHExpSettings) -> tuple[np.ndarray, np.ndarray, np.ndar
     turn = np.arange(settings.n_normals)[:, None] * GOLDEN_ANGLE
     local = np.stack([rho * np.cos(phi + turn), rho * np.sin(phi + turn), np.broadcast_to(z, turn.shape[:1] + z.shape)], -1)
     views = to_world(local, normals[:, None, :])  # (n_normals, n_views, 3)
-    if settings.alpha_spacing == "linear":  # paper Sec. 5.1: uniform in α
-        alphas = np.linspace(settings.alpha_min, settings.alpha_max, settings.n_alphas)
-    elif settings.alpha_spacing == "perceptual":  # uniform in r = √α
-        alphas = np.linspace(np.sqrt(settings.alpha_min), np.sqrt(settings.alpha_max), settings.n_alphas) ** 2
-    else:
-        raise ValueError(f"unknown alpha_spacing {settings.alpha_spacing!r}")
+    alphas = design_alphas(settings)
     v = np.broadcast_to(views, (settings.n_alphas,) + views.shape).reshape(-1, 3)
     n = np.broadcast_to(normals[:, None, :], views.shape)
     n = np.broadcast_to(n, (settings.n_alphas,) + views.shape).reshape(-1, 3)
@@ -152,19 +185,106 @@ def fit_design(settings: SHExpSettings) -> tuple[np.ndarray, np.ndarray, np.ndar
     return np.ascontiguousarray(v), np.ascontiguousarray(n), a
 
 
+def slab_face_sizes(settings: SHExpSettings, capture_face_size: int | None = None) -> tuple[int, ...]:
+    """Fit-grid face size per design α (module doc "Fit grid"): ``fit_face_size`` halved ⌊log2(α/0.2)⌋ times
+    (none below α = 0.4), at least ``min_fit_face_size``, at most the capture's face size."""
+    sizes = []
+    for alpha in design_alphas(settings):
+        halvings = max(0, int(np.floor(np.log2(max(alpha, 1e-12) / FINEST_GRID_ALPHA) + 1e-9)))
+        face = max(settings.min_fit_face_size, settings.fit_face_size >> halvings)
+        sizes.append(min(face, capture_face_size) if capture_face_size else face)
+    return tuple(sizes)
+
+
+@lru_cache(maxsize=16)
+def splat_matrix(face_size: int, grid_size: int) -> np.ndarray:
+    """1-D bilinear splat (grid_size, face_size) float32 in face coordinates: fine texel i at coarse position
+    x = (i + ½)·g/n − ½ goes to nodes ⌊x⌋ and ⌊x⌋ + 1 with weights 1 − {x}, {x} (clamped at the face edge);
+    every column sums to 1, so the splat preserves flux exactly."""
+    x = (np.arange(face_size) + 0.5) * grid_size / face_size - 0.5
+    x0 = np.floor(x)
+    frac = x - x0
+    x0 = x0.astype(np.int64)
+    b = np.zeros((grid_size, face_size))
+    cols = np.arange(face_size)
+    np.add.at(b, (np.clip(x0, 0, grid_size - 1), cols), 1.0 - frac)
+    np.add.at(b, (np.clip(x0 + 1, 0, grid_size - 1), cols), frac)
+    b = b.astype(np.float32)
+    b.setflags(write=False)
+    return b
+
+
+@lru_cache(maxsize=4)
+def _column_splat(face_size: int, grid_size: int) -> np.ndarray:
+    """Per capture row i: the solid angles of row i times the column splat, kron(diag(Ω_i·) Bᵀ, I₃)
+    (N, 3N, 3g) float32 — Ω folded into the GEMM, channels stay interleaved."""
+    omega = cube_texel_solid_angles(face_size)[0]  # (N, N), the same on every face
+    columns = splat_matrix(face_size, grid_size).T.astype(np.float64)  # (N, g)
+    eye = np.eye(3)
+    ops = np.stack([np.kron(omega[i][:, None] * columns, eye) for i in range(face_size)]).astype(np.float32)
+    ops.setflags(write=False)
+    return ops
+
+
+@lru_cache(maxsize=8)
+def _node_splat(grid_size: int, coarse_size: int) -> np.ndarray:
+    """Column splat of node flux from grid g to a coarser grid, kron(Bᵀ, I₃) (3g, 3g') float32."""
+    ops = np.kron(splat_matrix(grid_size, coarse_size).T, np.eye(3, dtype=np.float32)).astype(np.float32)
+    ops.setflags(write=False)
+    return ops
+
+
+def splat_flux(cubes: np.ndarray, grids: tuple[int, ...]) -> dict[int, np.ndarray]:
+    """Captures (P, 6, N, N, 3) → flux splatted onto each node grid g: {g: (6·g², 3P) float32}, rows
+    (face, row, column), columns (probe, channel) (module doc "Fit grid").
+
+    The finest grid comes from the capture in two GEMM passes (Ω and the column splat per capture row, one
+    batched matmul; then the row splat); coarser grids are splatted from the finest grid's flux (flux stays
+    exact; the coarse grids serve the wide lobes)."""
+    cubes = np.asarray(cubes, dtype=np.float32)
+    p, n = cubes.shape[0], cubes.shape[2]
+    grids = tuple(sorted(set(grids), reverse=True))
+    finest = grids[0]
+    by_rows = cubes.reshape(p * 6, n, 3 * n).transpose(1, 0, 2)  # (N rows, 6P, 3N) view
+    by_columns = np.matmul(by_rows, _column_splat(n, finest)).reshape(n, -1)  # (N, 6P·3g): Σ_j Ω_ij B_bj L_ij
+    nodes = (splat_matrix(n, finest) @ by_columns).reshape(finest, p * 6, finest * 3)  # Σ_i B_ai (…)
+    out = {}
+    for g in grids:
+        if g != finest:  # from the finest grid's flux: (g_f, 6P, 3g_f) → (g, 6P, 3g)
+            coarse = (nodes.reshape(-1, 3 * finest) @ _node_splat(finest, g)).reshape(finest, -1)
+            grid = (splat_matrix(finest, g) @ coarse).reshape(g, p * 6, 3 * g)
+        else:
+            grid = nodes
+        out[g] = np.ascontiguousarray(grid.reshape(g, p, 6, g, 3).transpose(2, 0, 3, 1, 4)).reshape(6 * g * g, 3 * p)
+    return out
+
+
+@dataclass(frozen=True)
+class WeightBlock:
+    """Rows [start, stop) of the design (whole α slabs) on node grid ``face_size``: W (rows, 6·g²) float32 =
+    f_DV(v, n, l_c, α)⟨l_c, n⟩₊ at the nodes (per steradian; Ω is in the splatted flux)."""
+
+    start: int
+    stop: int
+    face_size: int
+    weights: np.ndarray
+
+
 @dataclass(frozen=True)
 class SHExpOperators:
-    """Cached fixed operators of one settings: W (M, T) float32, A (M, K), A⁺ (K, M) float32,
-    the fast-path pieces W·Y_F (M, K_F) and the weighted basis Yᵀ Ω (K_F, T), and the per-row log-albedo
-    offset (M,) (zeros unless ``albedo_normalized``) with its image A⁺·log a (K,)."""
+    """Cached fixed operators of one settings: the W blocks, A (M, K), A⁺ (K, M) float32, the products
+    A_mi A_mj (i ≤ j) transposed (K(K+1)/2, M) float32 for the weighted normal equations, the per-row log-albedo
+    offset (M,) (zeros unless ``albedo_normalized``) with its image A⁺·log a (K,), Aᵀ (K, M) and Aᵀ diag(log a)
+    (K, M) float32."""
 
-    weights: np.ndarray
+    blocks: tuple[WeightBlock, ...]
     design: np.ndarray
     pinv: np.ndarray
-    weights_sh: np.ndarray
-    projector: np.ndarray
+    pair_products_t: np.ndarray
     log_albedo: np.ndarray
     pinv_log_albedo: np.ndarray
+    design_t: np.ndarray
+    albedo_design_t: np.ndarray
 
 
 #: Shared table resolution used by the albedo normalisation (same table as the encodings store).
@@ -181,160 +301,168 @@ def design_albedo(view: np.ndarray, normal: np.ndarray, alpha: np.ndarray) -> np
     return lookup_table(tables.albedo, nv, np.asarray(alpha, dtype=np.float64))
 
 
-def weights_key(settings: SHExpSettings) -> str:
-    """Stable identity of W: the design and fit-grid fields it depends on, and the formulation's version."""
-    return "shexp-W-v1-" + repr((settings.n_normals, settings.n_views, settings.n_alphas, settings.alpha_min,
-                                  settings.alpha_max, settings.alpha_spacing, settings.fit_face_size))
-
-
-@lru_cache(maxsize=4)
-def _design_weights(settings: SHExpSettings) -> np.ndarray:
-    """W (M, T) float32 for the design and fit grid of ``settings`` (cached on those fields only)."""
-    key = weights_key(settings)
-    cached = OperatorCache.load(key)
-    if cached is not None:
-        return cached
-    v, n, a = fit_design(settings)
-    f = settings.fit_face_size
-    dirs = cube_texel_directions(f).reshape(-1, 3)
-    omega = cube_texel_solid_angles(f).reshape(-1)
+def _kernel_at_nodes(v: np.ndarray, n: np.ndarray, a: np.ndarray, face_size: int) -> np.ndarray:
+    """f_DV⟨l, n⟩₊ (m, 6g²) float32 at the node directions of grid ``face_size`` ([SHExp] Eq. 6 per steradian)."""
+    dirs = cube_texel_directions(face_size).reshape(-1, 3)
     l_t = np.ascontiguousarray(dirs.T.astype(np.float32))
-    weights = np.empty((v.shape[0], dirs.shape[0]), dtype=np.float32)
+    ones = np.ones(dirs.shape[0], dtype=np.float32)
+    out = np.empty((v.shape[0], dirs.shape[0]), dtype=np.float32)
     rows = max(1, 1_000_000 // dirs.shape[0])
     for s in range(0, v.shape[0], rows):
         sl = slice(s, s + rows)
-        weights[sl] = _weights_float32(l_t, omega, v[sl], n[sl], a[sl])[0]  # W of [SHExp] Eq. 6 (f_DV⟨l,n⟩Ω)
-    weights = OperatorCache.save(key, weights)
-    weights.setflags(write=False)
-    return weights
+        out[sl] = _weights_float32(l_t, ones, v[sl], n[sl], a[sl])[0]
+    return out
 
 
-def _weights_key(settings: SHExpSettings) -> SHExpSettings:
-    from dataclasses import replace
-
-    return replace(settings, p_band=4, q_band=2, fast_band=12, fast_sparse=32, albedo_normalized=True)
-
-
-@lru_cache(maxsize=4)
-def build_operators(settings: SHExpSettings) -> SHExpOperators:
-    """Build W, A, A⁺ (and the fast-path operators) once per settings (cached; W is shared by settings that differ
-    only in model orders or normalisation)."""
+def _design_blocks(settings: SHExpSettings, faces: tuple[int, ...]) -> tuple[WeightBlock, ...]:
+    """W blocks for the design of ``settings`` on per-slab grids ``faces`` (cached on disk by the encoding layer)."""
     v, n, a = fit_design(settings)
-    f = settings.fit_face_size
-    dirs = cube_texel_directions(f).reshape(-1, 3)
-    omega = cube_texel_solid_angles(f).reshape(-1)
-    weights = _design_weights(_weights_key(settings))
+    per_slab = settings.n_normals * settings.n_views
+    blocks, slab = [], 0
+    while slab < len(faces):
+        last = slab
+        while last + 1 < len(faces) and faces[last + 1] == faces[slab]:
+            last += 1
+        start, stop = slab * per_slab, (last + 1) * per_slab
+        key = "shexp-W-v2-" + repr((settings.n_normals, settings.n_views, settings.n_alphas, settings.alpha_min,
+                                     settings.alpha_max, settings.alpha_spacing, slab, last, faces[slab]))
+        weights = OperatorCache.load(key)
+        if weights is None:
+            sl = slice(start, stop)
+            weights = OperatorCache.save(key, _kernel_at_nodes(v[sl], n[sl], a[sl], faces[slab]))
+        weights = np.asarray(weights)
+        weights.setflags(write=False)
+        blocks.append(WeightBlock(start, stop, faces[slab], weights))
+        slab = last + 1
+    return tuple(blocks)
+
+
+@lru_cache(maxsize=8)
+def build_operators(settings: SHExpSettings, capture_face_size: int | None = None) -> SHExpOperators:
+    """Build the W blocks, A, A⁺ and the pair products once per settings and capture face size (cached)."""
+    v, n, a = fit_design(settings)
+    blocks = _design_blocks(settings, slab_face_sizes(settings, capture_face_size))
     design = design_matrix(v, n, a, settings)
     pinv = np.linalg.pinv(design).astype(np.float32)  # A⁺ of [SHExp] Eq. 14
-    basis = evaluate_sh_basis(dirs, settings.fast_band)  # (T, K_F)
-    weights_sh = (weights @ basis.astype(np.float32)).astype(np.float32)  # W · Y_F
-    projector = (basis * omega[:, None]).T.astype(np.float32)  # Yᵀ Ω
+    i, j = np.triu_indices(design.shape[1])
+    pair_products_t = np.ascontiguousarray((design[:, i] * design[:, j]).T, dtype=np.float32)  # G = Aᵀ diag(w) A
     if settings.albedo_normalized:
         log_albedo = np.log(np.maximum(design_albedo(v, n, a), 1e-6)).astype(np.float32)
     else:
         log_albedo = np.zeros(v.shape[0], np.float32)
     pinv_log_albedo = (pinv @ log_albedo).astype(np.float32)
-    for array in (design, pinv, weights_sh, projector, log_albedo, pinv_log_albedo):
+    design_t = np.ascontiguousarray(design.T, dtype=np.float32)  # Aᵀ (K, M)
+    albedo_design_t = np.ascontiguousarray(design.T * log_albedo[None, :], dtype=np.float32)  # Aᵀ diag(log a)
+    for array in (design, pinv, pair_products_t, log_albedo, pinv_log_albedo, design_t, albedo_design_t):
         array.setflags(write=False)
-    return SHExpOperators(weights, design, pinv, weights_sh, projector, log_albedo, pinv_log_albedo)
+    return SHExpOperators(blocks, design, pinv, pair_products_t, log_albedo, pinv_log_albedo, design_t,
+                          albedo_design_t)
 
 
-@lru_cache(maxsize=2)
-def _weights_transposed(settings: SHExpSettings) -> np.ndarray:
-    """Wᵀ (T, M), contiguous rows = columns of W (fast path only; built on first use)."""
-    wt = np.ascontiguousarray(_design_weights(_weights_key(settings)).T)
-    wt.setflags(write=False)
-    return wt
-
-
-@lru_cache(maxsize=8)
-def downsample_operator(face_size: int, fit_face_size: int) -> sparse.csr_matrix:
-    """Sparse (T_fit, T) operator of the solid-angle-weighted block average from the capture grid to the fit grid
-    (flux preserving: row t_fit holds Ω_t / Σ Ω over the block)."""
-    b = face_size // fit_face_size
-    omega = cube_texel_solid_angles(face_size)  # (6, N, N)
-    face, row, col = np.meshgrid(np.arange(6), np.arange(face_size), np.arange(face_size), indexing="ij")
-    target = ((face * fit_face_size + row // b) * fit_face_size + col // b).reshape(-1)
-    area = np.bincount(target, weights=omega.reshape(-1), minlength=6 * fit_face_size**2)
-    values = (omega.reshape(-1) / area[target]).astype(np.float32)
-    return sparse.csr_matrix((values, (target, np.arange(target.size))), shape=(area.size, target.size))
-
-
-def _fit_grid_radiance(cubes: np.ndarray, settings: SHExpSettings) -> np.ndarray:
-    """Captures (P, 6, N, N, 3) → fit-grid radiance (T, 3P) float32: solid-angle-weighted block average
-    (flux preserving; N must be fit_face_size times an integer)."""
+def design_e0_samples(cubes: np.ndarray, settings: SHExpSettings) -> np.ndarray:
+    """E0 at the design rows through the splatted multi-resolution grids (module doc "Fit grid"): (M, 3P)."""
     cubes = np.asarray(cubes, dtype=np.float32)
-    p, n, f = cubes.shape[0], cubes.shape[2], settings.fit_face_size
-    if n < f or n % f:
-        raise ValueError(f"capture face size {n} must be a multiple of fit_face_size {f}")
-    flat = cubes.reshape(p, -1, 3)
-    if n > f:
-        op = downsample_operator(n, f)
-        flat = np.stack([op @ flat[i] for i in range(p)])  # per probe: sparse (T_fit, T) · (T, 3)
-    return np.ascontiguousarray(flat.transpose(1, 0, 2).reshape(-1, 3 * p), dtype=np.float32)
-
-
-def log_e0(e0: np.ndarray, p: int) -> np.ndarray:
-    """Guarded log of E0 samples (M, 3P) (module doc "Log guard")."""
-    e = e0.reshape(e0.shape[0], p, 3)
-    floor = np.maximum(EPS_REL * e.mean(axis=(0, 2), dtype=np.float64), EPS_ABS).astype(e.dtype)  # (P,)
-    return np.log(np.maximum(e, floor[None, :, None])).reshape(e0.shape[0], 3 * p)
-
-
-def solve_coefficients(log_samples: np.ndarray, operators: SHExpOperators, p: int) -> np.ndarray:
-    """[p; q] = A⁺ · (log E0 − log a) ([SHExp] Eq. 13–14; a ≡ 1 unless albedo-normalised): (M, 3P) → (P, K, 3)."""
-    coeffs = operators.pinv @ np.asarray(log_samples, dtype=np.float32)  # (K, 3P)
-    coeffs -= operators.pinv_log_albedo[:, None]
-    return coeffs.reshape(-1, p, 3).transpose(1, 0, 2).astype(np.float32)
-
-
-def _reference_e0_samples(cubes: np.ndarray, settings: SHExpSettings) -> np.ndarray:
-    """Dense E0 samples W · L: (M, 3P) float32."""
-    ops = build_operators(settings)
-    return ops.weights @ _fit_grid_radiance(cubes, settings)
-
-
-def fast_e0_samples(cubes: np.ndarray, settings: SHExpSettings) -> np.ndarray:
-    """E0 samples through truncated SH plus the sparse brightest texels (module doc "Fast path"): (M, 3P)."""
-    ops = build_operators(settings)
-    x = _fit_grid_radiance(cubes, settings)  # (T, 3P)
-    p = x.shape[1] // 3
-    t = x.shape[0]
-    lum = x.reshape(t, p, 3) @ np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)  # (T, P)
-    k = min(settings.fast_sparse, t - 1)
-    top = np.argpartition(-lum, k, axis=0)[: k + 1]  # (k+1, P) unordered
-    top_lum = np.take_along_axis(lum, top, axis=0)
-    order = np.argsort(-top_lum, axis=0)
-    top = np.take_along_axis(top, order, axis=0)
-    clamp = np.take_along_axis(lum, top[k : k + 1], axis=0)[0]  # (P,) luminance of the (k+1)-th texel
-    scale = np.minimum(1.0, clamp[None, :] / np.maximum(lum, 1e-30))  # keep chromaticity: L·min(1, c/lum)
-    smooth = (x.reshape(t, p, 3) * scale[..., None]).reshape(t, 3 * p)
-    e0 = ops.weights_sh @ (ops.projector @ smooth)  # (M, 3P)
-    residual = x.reshape(t, p, 3) - smooth.reshape(t, p, 3)
-    idx = top[:k]  # (k, P)
-    weights_t = _weights_transposed(settings)
-    for j in range(p):  # per probe (not per sample): k exact columns of W
-        cols = weights_t[idx[:, j]]  # (k, M), contiguous rows of Wᵀ
-        e0[:, 3 * j : 3 * j + 3] += cols.T @ residual[idx[:, j], j]
+    ops = build_operators(settings, int(cubes.shape[2]))
+    flux = splat_flux(cubes, tuple(b.face_size for b in ops.blocks))
+    e0 = np.empty((ops.design.shape[0], 3 * cubes.shape[0]), dtype=np.float32)
+    for block in ops.blocks:
+        np.matmul(block.weights, flux[block.face_size], out=e0[block.start : block.stop])  # W · F (GEMM)
     return e0
 
 
-def fit_shexp(cubes: np.ndarray, settings: SHExpSettings, fast: bool = False) -> np.ndarray:
-    """Fit P captures (P, 6, N, N, 3) → coefficients (P, K_p + K_q, 3) float32: GEMM → log → GEMM."""
-    cubes = np.asarray(cubes)
-    p = cubes.shape[0]
-    e0 = fast_e0_samples(cubes, settings) if fast else _reference_e0_samples(cubes, settings)
-    return solve_coefficients(log_e0(e0, p), build_operators(settings), p)
+def plain_e0_samples(cubes: np.ndarray, settings: SHExpSettings) -> np.ndarray:
+    """The plain formulation: E0 at the design rows by brute force over every capture texel (exact solid angles,
+    :func:`bakery.reflection.reference.integrate_reflection`): (M, 3P) float64. Ground truth for the fit grid."""
+    from bakery.reflection.reference import integrate_reflection
+    from bakery.sphere.grid import SphericalSamples
+
+    cubes = np.asarray(cubes, dtype=np.float32)
+    n = cubes.shape[2]
+    dirs = cube_texel_directions(n).reshape(-1, 3)
+    omega = cube_texel_solid_angles(n).reshape(-1)
+    v, nrm, a = fit_design(settings)
+    out = [integrate_reflection(SphericalSamples(dirs, omega, cube.reshape(-1, 3)), v, nrm, a)[0] for cube in cubes]
+    return np.concatenate(out, axis=1)
 
 
-def _reference_fit_shexp(cubes: np.ndarray, settings: SHExpSettings) -> np.ndarray:
-    """Per-probe dense fit with a direct least-squares solve (lstsq on A), the plain formulation."""
-    ops = build_operators(settings)
+def log_e0(e0: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
+    """Guarded log of E0 samples (M, 3P) (module doc "Log guard") and the floored samples: both (M, 3P)."""
+    e0 = np.asarray(e0)
+    column_sums = np.ones(e0.shape[0], dtype=e0.dtype) @ e0  # (3P,) GEMV
+    mean = column_sums.astype(np.float64).reshape(p, 3).sum(axis=1) / (3 * e0.shape[0])  # (P,)
+    floor = np.repeat(np.maximum(EPS_REL * mean, EPS_ABS).astype(e0.dtype), 3)  # (3P,)
+    floored = np.maximum(e0, floor[None, :])
+    return np.log(floored), floored
+
+
+def row_weights(floored: np.ndarray, p: int) -> np.ndarray:
+    """Weights (M, P) of the weighted solve: luminance / its mean over the rows, floored at ``WEIGHT_MIN``."""
+    lum = floored @ _luminance_operator(p)  # (M, P), one GEMM
+    lum /= (np.ones(lum.shape[0], dtype=lum.dtype) @ lum / lum.shape[0])[None, :]
+    return np.maximum(lum, np.float32(WEIGHT_MIN))
+
+
+@lru_cache(maxsize=8)
+def _luminance_operator(p: int) -> np.ndarray:
+    """kron(I_P, Y) (3P, P) float32: interleaved RGB columns → luminance per probe."""
+    op = np.kron(np.eye(p, dtype=np.float32), LUMINANCE[:, None]).astype(np.float32)
+    op.setflags(write=False)
+    return op
+
+
+def solve_coefficients(log_samples: np.ndarray, operators: SHExpOperators, p: int,
+                       weights: np.ndarray | None = None) -> np.ndarray:
+    """[p; q] = argmin Σ_m w_m (A_m x − (log E0 − log a)_m)² ([SHExp] Eq. 13–14; a ≡ 1 unless albedo-normalised):
+    log samples (M, 3P), weights (M, P) or None (unweighted: A⁺·(…)) → (P, K, 3)."""
+    log_samples = np.asarray(log_samples, dtype=np.float32)
+    if weights is None:
+        coeffs = operators.pinv @ log_samples  # (K, 3P)
+        coeffs -= operators.pinv_log_albedo[:, None]
+        return coeffs.reshape(-1, p, 3).transpose(1, 0, 2).astype(np.float32)
+    k = operators.design.shape[1]
+    weights = np.asarray(weights, dtype=np.float32)
+    gram_upper = (operators.pair_products_t @ weights).T.astype(np.float64)  # (P, K(K+1)/2): Aᵀ diag(w) A, i ≤ j
+    gram = np.zeros((p, k, k))
+    i, j = np.triu_indices(k)
+    gram[:, i, j] = gram_upper
+    gram[:, j, i] = gram_upper
+    weighted = np.repeat(weights, 3, axis=1)  # (M, 3P)
+    weighted *= log_samples
+    rhs = (operators.design_t @ weighted).reshape(k, p, 3)  # Aᵀ W log E0
+    rhs -= (operators.albedo_design_t @ weights)[:, :, None]  # − Aᵀ W log a
+    return np.linalg.solve(gram, rhs.transpose(1, 0, 2).astype(np.float64)).astype(np.float32)
+
+
+def solve_from_samples(e0: np.ndarray, settings: SHExpSettings, operators: SHExpOperators) -> np.ndarray:
+    """Coefficients (P, K, 3) from E0 samples (M, 3P): guarded log, then the weighted or plain solve."""
+    p = e0.shape[1] // 3
+    logs, floored = log_e0(e0, p)
+    weights = row_weights(floored, p) if settings.fit == "weighted" else None
+    return solve_coefficients(logs, operators, p, weights)
+
+
+def fit_shexp(cubes: np.ndarray, settings: SHExpSettings) -> np.ndarray:
+    """Fit P captures (P, 6, N, N, 3) → coefficients (P, K_p + K_q, 3) float32: splat → GEMM → log → GEMM."""
+    cubes = np.asarray(cubes, dtype=np.float32)
+    e0 = design_e0_samples(cubes, settings)
+    return solve_from_samples(e0, settings, build_operators(settings, int(cubes.shape[2])))
+
+
+def _reference_fit_shexp(cubes: np.ndarray, settings: SHExpSettings, plain: bool = False) -> np.ndarray:
+    """Per-probe fit with a direct least-squares solve (lstsq on √w·A, float64) of the same samples — or, with
+    ``plain``, of the plain brute-force samples (:func:`plain_e0_samples`)."""
+    cubes = np.asarray(cubes, dtype=np.float32)
+    ops = build_operators(settings, int(cubes.shape[2]))
     out = []
-    for cube in np.asarray(cubes):
-        e0 = _reference_e0_samples(cube[None], settings)
-        target = log_e0(e0, 1).astype(np.float64) - ops.log_albedo[:, None]
-        coeffs, *_ = np.linalg.lstsq(ops.design, target, rcond=None)
+    for cube in cubes:
+        e0 = plain_e0_samples(cube[None], settings) if plain else design_e0_samples(cube[None], settings)
+        logs, floored = log_e0(e0.astype(np.float32), 1)
+        target = logs.astype(np.float64) - ops.log_albedo[:, None]
+        if settings.fit == "weighted":
+            root = np.sqrt(row_weights(floored, 1).astype(np.float64))  # (M, 1)
+            coeffs, *_ = np.linalg.lstsq(ops.design * root, target * root, rcond=None)
+        else:
+            coeffs, *_ = np.linalg.lstsq(ops.design, target, rcond=None)
         out.append(coeffs.astype(np.float32))
     return np.stack(out)
 
