@@ -62,7 +62,8 @@ def test_cube_mapping_round_trip(v):
 def test_equirect_mapping_round_trip(v):
     d = np.array(v) / np.linalg.norm(v)
     rows, cols = direction_to_equirect(d[None], 64, 128)
-    np.testing.assert_allclose(equirect_directions(rows, cols, 64, 128)[0], d, atol=1e-9)
+    # the latitude goes through acos(y): within ~1e-8 rad of a pole, y = cos θ rounds to 1 (error ~ √ε ≈ 1.5e-8)
+    np.testing.assert_allclose(equirect_directions(rows, cols, 64, 128)[0], d, atol=1e-7)
 
 
 def test_equirect_orientation_matches_openexr():

@@ -12,7 +12,8 @@ Protocol
 
     SH-exp is scored three ways: the default (albedo-normalised, luminance-weighted solve), the unweighted
     log-space solve (``fit="log"``, to measure the weighting against the plain fit) and the paper's formulation
-    (unweighted, not albedo-normalised).
+    (unweighted, not albedo-normalised); and ``shexp_lights`` (SH-exp of the capture without its brightest texel
+    clusters + those clusters as analytic lights) is scored against the same split-sum.
 
 Speed (``speed=True``): single process, captures 6×N² (N = ``face_size``), batches of 64 probes (a bake's batch size).
     SH-exp fit: ms/probe and probes/s of the default (splatted multi-resolution grid, weighted solve), of the
@@ -31,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bakery.encodings.reflection import SHExp, SplitSum
+from bakery.encodings.reflection import SHExp, SHExpLights, SplitSum
 from bakery.environment import environment_samples, resample_to_cube
 from bakery.environment.io import read_environment
 from bakery.probe import ProbeBatch
@@ -109,6 +110,7 @@ def run_reflection_bench(
     shexp, split = SHExp(), SplitSum(face_size=face_size)
     paper = SHExp(fit="log", albedo_normalized=False)
     unweighted = SHExp(fit="log")
+    lights = SHExpLights()
     t0 = time.perf_counter()
     fields_shexp = shexp.encode(batch)
     t1 = time.perf_counter()
@@ -116,6 +118,9 @@ def run_reflection_bench(
     t2 = time.perf_counter()
     fields_paper = paper.encode(batch)
     fields_log = unweighted.encode(batch)
+    t3 = time.perf_counter()
+    fields_lights = lights.encode(batch)
+    t4 = time.perf_counter()
     plain_levels = None
     if plain_splitsum:  # the paper's split-sum: 1024-sample plain IS chain, stored as float16 like the encoding
         chains = [ss._reference_prefilter_chain(c, split.chain, 1024) for c in cubes]
@@ -133,6 +138,8 @@ def run_reflection_bench(
             est_paper = paper.evaluate_reflection(one(fields_paper), paper.shared_tables(), view, normal, alpha, f0s)[0]
             est_log = unweighted.evaluate_reflection(one(fields_log), unweighted.shared_tables(), view, normal, alpha,
                                                      f0s)[0]
+            est_lights = lights.evaluate_reflection(one(fields_lights), lights.shared_tables(), view, normal, alpha,
+                                                    f0s)[0]
             est_plain = None
             if plain_levels is not None:
                 est_plain = split.evaluate_reflection({f"level{k}": lv[i : i + 1] for k, lv in enumerate(plain_levels)},
@@ -143,6 +150,7 @@ def run_reflection_bench(
                 mse_split = float(np.mean((est_split[sl] - ref) ** 2))
                 mse_paper = float(np.mean((est_paper[sl] - ref) ** 2))
                 mse_log = float(np.mean((est_log[sl] - ref) ** 2))
+                mse_lights = float(np.mean((est_lights[sl] - ref) ** 2))
                 mse_plain = float(np.mean((est_plain[sl] - ref) ** 2)) if est_plain is not None else float("nan")
                 power = float(np.mean(ref**2))
                 rows.append({
@@ -153,6 +161,9 @@ def run_reflection_bench(
                     "ratio": mse_shexp / mse_split if mse_split > 0 else float("inf"),
                     "ratio_paper": mse_paper / mse_split if mse_split > 0 else float("inf"),
                     "mse_shexp_unweighted": mse_log,
+                    "mse_shexp_lights": mse_lights,
+                    "ratio_lights": mse_lights / mse_split if mse_split > 0 else float("inf"),
+                    "ratio_lights_vs_plain": mse_lights / mse_plain if mse_plain > 0 else float("nan"),
                     "ratio_unweighted": mse_log / mse_split if mse_split > 0 else float("inf"),
                     "mse_splitsum_plain": mse_plain,
                     "ratio_vs_plain": mse_shexp / mse_plain if mse_plain > 0 else float("nan"),
@@ -164,6 +175,7 @@ def run_reflection_bench(
             "face_size": face_size, "sphere_resolution": sphere_resolution, "alphas": [float(a) for a in ALPHAS],
             "materials": MATERIALS, "views": {k: v.tolist() for k, v in VIEWS.items()},
             "shexp_settings": shexp.settings, "splitsum_settings": split.settings,
+            "shexp_lights_settings": lights.settings,
             "reference": "brute-force Eq. 1 over the full-resolution image (exact texel solid angles)",
         },
         "rows": rows,
@@ -178,19 +190,27 @@ def run_reflection_bench(
             "unweighted_geometric_mean_ratio": float(np.exp(np.mean(np.log(np.maximum(
                 [r["ratio_unweighted"] for r in rows], 1e-30))))),
             "weighted_beats_unweighted": float(np.mean([r["mse_shexp"] < r["mse_shexp_unweighted"] for r in rows])),
+            "lights_wins": int(sum(r["ratio_lights"] < 1.0 for r in rows)),
+            "lights_win_share": float(np.mean([r["ratio_lights"] < 1.0 for r in rows])),
+            "lights_win_share_vs_plain_splitsum": float(np.mean([r["ratio_lights_vs_plain"] < 1.0 for r in rows])),
+            "lights_geometric_mean_ratio": float(np.exp(np.mean(np.log(np.maximum(
+                [r["ratio_lights"] for r in rows], 1e-30))))),
+            "lights_memory_ratio": split.bytes_per_probe() / lights.bytes_per_probe(),
             "wins_at_alpha_ge_0.36": float(np.mean([r["ratio"] < 1.0 for r in rows if r["alpha"] > 0.3])),
             "wins_at_alpha_ge_0.49": float(np.mean([r["ratio"] < 1.0 for r in rows if r["alpha"] > 0.4])),
             "win_share_vs_plain_splitsum": float(np.mean([r["ratio_vs_plain"] < 1.0 for r in rows])),
             "paper_formulation_win_share_vs_plain": float(np.mean([
                 r["mse_shexp_paper"] < r["mse_splitsum_plain"] for r in rows])),
             "geometric_mean_ratio": float(np.exp(np.mean(np.log(np.maximum(ratios, 1e-30))))),
-            "bytes_per_probe": {"shexp": shexp.bytes_per_probe(), "splitsum": split.bytes_per_probe()},
+            "bytes_per_probe": {"shexp": shexp.bytes_per_probe(), "splitsum": split.bytes_per_probe(),
+                                "shexp_lights": lights.bytes_per_probe()},
             "memory_ratio": split.bytes_per_probe() / shexp.bytes_per_probe(),
             "losses_by_environment": _count(losses, "environment"),
             "losses_by_alpha": _count(losses, "alpha"),
             "losses_by_material": _count(losses, "material"),
             "encode_ms_per_probe": {"shexp": 1e3 * (t1 - t0) / len(names),
-                                    "splitsum_fast": 1e3 * (t2 - t1) / len(names)},
+                                    "splitsum_fast": 1e3 * (t2 - t1) / len(names),
+                                    "shexp_lights": 1e3 * (t4 - t3) / len(names)},
         },
     }
     if speed:
@@ -229,6 +249,8 @@ def run_speed(cubes: np.ndarray, names: list[str], batch_size: int = 64, plain_p
     build_seconds = time.perf_counter() - start
     big = np.ascontiguousarray(cubes[np.arange(batch_size) % len(cubes)], dtype=np.float32)
     ms = {k: 1e3 * _time(lambda st=st: fit_shexp(big, st), repeat=5) / batch_size for k, st in variants.items()}
+    lights_encoding, lights_batch = SHExpLights(), ProbeBatch(big)
+    lights_ms = 1e3 * _time(lambda: lights_encoding.encode(lights_batch), repeat=5) / batch_size
     ops = build_operators(default, n)
     grids = tuple(b.face_size for b in ops.blocks)
     flux = splat_flux(big, grids)
@@ -265,6 +287,7 @@ def run_speed(cubes: np.ndarray, names: list[str], batch_size: int = 64, plain_p
         "shexp_grids": {k: list(slab_face_sizes(st, n)) for k, st in variants.items()},
         "shexp_ms_per_probe": ms, "shexp_probes_per_s": {k: 1e3 / v for k, v in ms.items()},
         "shexp_breakdown_ms_per_probe": breakdown,
+        "shexp_lights_ms_per_probe": lights_ms,
         "shexp_plain_ms_per_probe": plain_ms,
         "shexp_vs_plain_rel_rms": vs_plain,
     }
@@ -326,19 +349,28 @@ def format_table(result: dict) -> str:
         f"IS chain): {100 * s['win_share_vs_plain_splitsum']:.1f}% (paper formulation "
         f"{100 * s['paper_formulation_win_share_vs_plain']:.1f}%).",
         f"Bytes per probe: shexp {s['bytes_per_probe']['shexp']}, splitsum {s['bytes_per_probe']['splitsum']} "
-        f"(ratio {s['memory_ratio']:.0f}×).", "",
+        f"(ratio {s['memory_ratio']:.0f}×).",
+        f"shexp_lights ({s['bytes_per_probe']['shexp_lights']} bytes, {s['lights_memory_ratio']:.0f}× less than "
+        f"split-sum): lower MSE in {s['lights_wins']}/{s['cases']} ({100 * s['lights_win_share']:.1f}%), geometric "
+        f"mean ratio {s['lights_geometric_mean_ratio']:.3g}; vs the plain 1024-sample chain "
+        f"{100 * s['lights_win_share_vs_plain_splitsum']:.1f}%.", "",
         "| environment | " + " | ".join(f"α={a:.3g}" for a in ALPHAS) + " |",
         "|---|" + "---|" * len(ALPHAS),
     ]
     envs = sorted({r["environment"] for r in result["rows"]})
-    for env in envs:
-        cells = []
-        for a in ALPHAS:
-            rr = [r["ratio"] for r in result["rows"] if r["environment"] == env and abs(r["alpha"] - a) < 1e-9]
-            wins = sum(x < 1 for x in rr)
-            cells.append(f"{np.exp(np.mean(np.log(np.maximum(rr, 1e-30)))):.3g} ({wins}/{len(rr)})")
-        lines.append(f"| {env} | " + " | ".join(cells) + " |")
-    lines += ["", "Cells: geometric-mean MSE ratio shexp/splitsum over materials × views (wins/cases).", ""]
+    for key, label in (("ratio", "shexp"), ("ratio_lights", "shexp_lights")):
+        if key != "ratio":
+            lines += ["", "| environment | " + " | ".join(f"α={a:.3g}" for a in ALPHAS) + " |",
+                      "|---|" + "---|" * len(ALPHAS)]
+        for env in envs:
+            cells = []
+            for a in ALPHAS:
+                rr = [r[key] for r in result["rows"] if r["environment"] == env and abs(r["alpha"] - a) < 1e-9]
+                wins = sum(x < 1 for x in rr)
+                cells.append(f"{np.exp(np.mean(np.log(np.maximum(rr, 1e-30)))):.3g} ({wins}/{len(rr)})")
+            lines.append(f"| {env} | " + " | ".join(cells) + " |")
+        lines += ["", f"Cells: geometric-mean MSE ratio {label}/splitsum over materials × views (wins/cases)."]
+    lines += [""]
     if "speed" in result:
         sp = result["speed"]
         lines += [
@@ -350,6 +382,7 @@ def format_table(result: dict) -> str:
               for k, v in sp["shexp_ms_per_probe"].items()],
             "- default breakdown (ms/probe): " + ", ".join(
                 f"{k} {v:.3f}" for k, v in sp["shexp_breakdown_ms_per_probe"].items()),
+            f"- shexp_lights (light extraction + fit): {sp['shexp_lights_ms_per_probe']:.3f} ms/probe",
             f"- plain fit (brute-force design samples): {sp['shexp_plain_ms_per_probe']:.0f} ms/probe",
             f"- split-sum chain: fast {sp['splitsum_fast_ms_per_probe']:.0f} ms/probe, plain 1024-sample IS "
             f"{sp['splitsum_plain_ms_per_probe']:.0f} ms/probe", "",

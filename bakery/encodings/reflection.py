@@ -14,6 +14,7 @@ import numpy as np
 
 from bakery.encodings.registry import Encoding, FieldSpec, register
 from bakery.probe import ProbeBatch
+from bakery.reflection.lights import evaluate_lights, extract_lights
 from bakery.reflection.shexp import SHExpSettings, evaluate_shexp, fit_shexp
 from bakery.reflection.splitsum import SplitSumSettings, evaluate_split_sum, prefilter_batch, resize_cube
 from bakery.reflection.tables import compute_dfg_tables
@@ -162,3 +163,50 @@ class SHExp(ReflectionEncoding):
         if table is None:
             table = self.shared_tables()[self._table_name()]
         return evaluate_shexp(coeffs, table, view, normal, alpha, f0, self.model)
+
+
+@register
+class SHExpLights(SHExp):
+    """SH exponentials of the capture without its brightest texels, plus those texels as ``max_lights`` analytic
+    directional lights (:mod:`bakery.reflection.lights`; beyond the paper)."""
+
+    name = "shexp_lights"
+    version = "1.0.0"
+    description = ("SH exponentials (albedo-normalised) of the capture minus its brightest texel clusters, plus "
+                   "the clusters as directional lights (direction, RGB flux) evaluated with the same GGX BRDF")
+
+    _KEYS = SHExp._KEYS + ("max_lights", "light_threshold", "light_radius_deg")
+
+    def __init__(self, **settings: Any) -> None:
+        light_defaults = {"max_lights": 8, "light_threshold": 10.0, "light_radius_deg": 3.0}
+        lights = {k: settings.get(k, v) for k, v in light_defaults.items()}
+        super().__init__(**{k: v for k, v in settings.items() if k not in light_defaults})
+        if int(lights["max_lights"]) < 0 or not float(lights["light_threshold"]) > 0 or \
+                not 0 < float(lights["light_radius_deg"]) < 90:
+            raise ValueError(f"shexp_lights: need max_lights >= 0, light_threshold > 0, 0 < light_radius_deg < 90; "
+                             f"got {lights}")
+        self.settings.update(max_lights=int(lights["max_lights"]), light_threshold=float(lights["light_threshold"]),
+                             light_radius_deg=float(lights["light_radius_deg"]))
+
+    def field_specs(self) -> tuple[FieldSpec, ...]:
+        k = self.settings["max_lights"]
+        return super().field_specs() + (
+            FieldSpec("light_direction", (k, 3), "float32",
+                      "unit direction towards each light in the bake frame (unused slots: +Y with zero flux)"),
+            FieldSpec("light_flux", (k, 3), "float32",
+                      "RGB flux of each light: sum of radiance x solid angle over its texels (radiance x sr)"),
+        )
+
+    def encode(self, batch: ProbeBatch) -> dict[str, np.ndarray]:
+        directions, flux, removed = extract_lights(batch.cubes, self.settings["max_lights"],
+                                                   self.settings["light_threshold"],
+                                                   self.settings["light_radius_deg"])
+        coeffs = fit_shexp(batch.cubes, self.model, removed)  # the remainder, without copying the captures
+        k = self.model.p_count
+        return {"p": np.ascontiguousarray(coeffs[:, :k]), "q": np.ascontiguousarray(coeffs[:, k:]),
+                "light_direction": directions, "light_flux": flux}
+
+    def evaluate_reflection(self, fields, shared, view, normal, alpha, f0):
+        environment = super().evaluate_reflection(fields, shared, view, normal, alpha, f0)
+        a = np.broadcast_to(np.asarray(alpha, dtype=np.float64).reshape(-1), (np.asarray(view).reshape(-1, 3).shape[0],))
+        return environment + evaluate_lights(fields["light_direction"], fields["light_flux"], view, normal, a, f0)

@@ -234,13 +234,15 @@ def _node_splat(grid_size: int, coarse_size: int) -> np.ndarray:
     return ops
 
 
-def splat_flux(cubes: np.ndarray, grids: tuple[int, ...]) -> dict[int, np.ndarray]:
+def splat_flux(cubes: np.ndarray, grids: tuple[int, ...],
+               removed: tuple[np.ndarray, np.ndarray] | None = None) -> dict[int, np.ndarray]:
     """Captures (P, 6, N, N, 3) → flux splatted onto each node grid g: {g: (6·g², 3P) float32}, rows
     (face, row, column), columns (probe, channel) (module doc "Fit grid").
 
     The finest grid comes from the capture in two GEMM passes (Ω and the column splat per capture row, one
     batched matmul; then the row splat); coarser grids are splatted from the finest grid's flux (flux stays
-    exact; the coarse grids serve the wide lobes)."""
+    exact; the coarse grids serve the wide lobes). ``removed`` = (probe index (R,), flat texel index (R,) into
+    6·N·N): texels treated as black (their splatted flux is subtracted — the capture is not copied)."""
     cubes = np.asarray(cubes, dtype=np.float32)
     p, n = cubes.shape[0], cubes.shape[2]
     grids = tuple(sorted(set(grids), reverse=True))
@@ -248,6 +250,8 @@ def splat_flux(cubes: np.ndarray, grids: tuple[int, ...]) -> dict[int, np.ndarra
     by_rows = cubes.reshape(p * 6, n, 3 * n).transpose(1, 0, 2)  # (N rows, 6P, 3N) view
     by_columns = np.matmul(by_rows, _column_splat(n, finest)).reshape(n, -1)  # (N, 6P·3g): Σ_j Ω_ij B_bj L_ij
     nodes = (splat_matrix(n, finest) @ by_columns).reshape(finest, p * 6, finest * 3)  # Σ_i B_ai (…)
+    if removed is not None and len(removed[0]):
+        nodes -= _removed_flux(cubes, removed, finest)
     out = {}
     for g in grids:
         if g != finest:  # from the finest grid's flux: (g_f, 6P, 3g_f) → (g, 6P, 3g)
@@ -257,6 +261,33 @@ def splat_flux(cubes: np.ndarray, grids: tuple[int, ...]) -> dict[int, np.ndarra
             grid = nodes
         out[g] = np.ascontiguousarray(grid.reshape(g, p, 6, g, 3).transpose(2, 0, 3, 1, 4)).reshape(6 * g * g, 3 * p)
     return out
+
+
+def _removed_flux(cubes: np.ndarray, removed: tuple[np.ndarray, np.ndarray], grid_size: int) -> np.ndarray:
+    """The splatted flux of the ``removed`` texels on grid g, laid out like :func:`splat_flux`'s intermediate
+    (g, 6P, 3g): each texel's Ω·L lands on its 2 × 2 nodes with the bilinear splat weights (scatter-add)."""
+    p, n = cubes.shape[0], cubes.shape[2]
+    probe, texel = (np.asarray(x, dtype=np.int64) for x in removed)
+    face, row, col = texel // (n * n), (texel // n) % n, texel % n
+    flux = cube_texel_solid_angles(n)[0][row, col, None] * cubes[probe, face, row, col]  # (R, 3) Ω L
+
+    def taps(index: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+        x = (index + 0.5) * grid_size / n - 0.5  # same positions as splat_matrix
+        x0 = np.floor(x)
+        frac = x - x0
+        x0 = x0.astype(np.int64)
+        return (np.clip(x0, 0, grid_size - 1), np.clip(x0 + 1, 0, grid_size - 1)), (1.0 - frac, frac)
+
+    (r0, r1), (wr0, wr1) = taps(row)
+    (c0, c1), (wc0, wc1) = taps(col)
+    out = np.zeros(grid_size * p * 6 * grid_size * 3)
+    q = probe * 6 + face
+    for a, wa in ((r0, wr0), (r1, wr1)):
+        for b, wb in ((c0, wc0), (c1, wc1)):
+            base = ((a * (p * 6) + q) * grid_size + b) * 3
+            for c in range(3):
+                out += np.bincount(base + c, weights=wa * wb * flux[:, c], minlength=out.size)
+    return out.reshape(grid_size, p * 6, 3 * grid_size).astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -359,11 +390,13 @@ def build_operators(settings: SHExpSettings, capture_face_size: int | None = Non
                           albedo_design_t)
 
 
-def design_e0_samples(cubes: np.ndarray, settings: SHExpSettings) -> np.ndarray:
-    """E0 at the design rows through the splatted multi-resolution grids (module doc "Fit grid"): (M, 3P)."""
+def design_e0_samples(cubes: np.ndarray, settings: SHExpSettings,
+                      removed: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """E0 at the design rows through the splatted multi-resolution grids (module doc "Fit grid"): (M, 3P);
+    ``removed`` texels count as black (:func:`splat_flux`)."""
     cubes = np.asarray(cubes, dtype=np.float32)
     ops = build_operators(settings, int(cubes.shape[2]))
-    flux = splat_flux(cubes, tuple(b.face_size for b in ops.blocks))
+    flux = splat_flux(cubes, tuple(b.face_size for b in ops.blocks), removed)
     e0 = np.empty((ops.design.shape[0], 3 * cubes.shape[0]), dtype=np.float32)
     for block in ops.blocks:
         np.matmul(block.weights, flux[block.face_size], out=e0[block.start : block.stop])  # W · F (GEMM)
@@ -441,10 +474,12 @@ def solve_from_samples(e0: np.ndarray, settings: SHExpSettings, operators: SHExp
     return solve_coefficients(logs, operators, p, weights)
 
 
-def fit_shexp(cubes: np.ndarray, settings: SHExpSettings) -> np.ndarray:
-    """Fit P captures (P, 6, N, N, 3) → coefficients (P, K_p + K_q, 3) float32: splat → GEMM → log → GEMM."""
+def fit_shexp(cubes: np.ndarray, settings: SHExpSettings,
+              removed: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """Fit P captures (P, 6, N, N, 3) → coefficients (P, K_p + K_q, 3) float32: splat → GEMM → log → GEMM.
+    ``removed`` = (probe index, flat texel index) arrays of texels fitted as black (:func:`splat_flux`)."""
     cubes = np.asarray(cubes, dtype=np.float32)
-    e0 = design_e0_samples(cubes, settings)
+    e0 = design_e0_samples(cubes, settings, removed)
     return solve_from_samples(e0, settings, build_operators(settings, int(cubes.shape[2])))
 
 
