@@ -41,6 +41,9 @@ class _Group(click.Group):
 @click.version_option(package_name="bakery")
 def main() -> None:
     """bakery: bake irradiance and reflection light probes from environments and USD scenes."""
+    from bakery.allocator import tune_allocator
+
+    tune_allocator()  # large batch temporaries stay in the heap (bakery/allocator.py)
 
 
 def _settings_from(recipe_name: str | None, encodings: tuple[str, ...], face_size: int | None, no_reference: bool,

@@ -1,6 +1,7 @@
-"""On-disk cache of environment-independent operators (the SH-exponential fit's W, 16384 × 6144 float32 = 400 MB at
-default settings, ≈ 8 s to build; the DFG/Fresnel-tail quadrature, ≈ 4 s), memory-mapped so that every worker process of a bake — and every later bake
-on the machine — shares one physical copy instead of rebuilding it (≈ 8 s) per process.
+"""On-disk cache of environment-independent operators (the SH-exponential fit's W blocks, 4096 × 1536 and
+12288 × 384 float32 = 44 MB at default settings, ≈ 1–2 s to build; the DFG/Fresnel-tail quadrature, ≈ 4 s),
+memory-mapped so that every worker process of a bake — and every later bake on the machine — shares one physical
+copy instead of rebuilding it per process.
 
 Location: ``$BAKERY_CACHE_DIR`` or ``~/.cache/bakery/operators``. Files are named by the sha256 of the operator's
 key (which encodes every setting it depends on and its formulation version) and bakery's version, written

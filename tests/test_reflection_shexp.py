@@ -243,3 +243,19 @@ def test_sh_exp_tracks_the_reference_on_a_smooth_sky():
     ref, _ = integrate_reflection(samples, v, n, a)
     est = sx.evaluate_e0(coeffs, v, n, a, SMALL)[0]
     assert np.sqrt(np.mean((est - ref) ** 2)) / ref.mean() < 0.1
+
+
+def test_gram_from_the_flux_equals_the_gram_over_the_rows():
+    """fit_shexp builds Aᵀ diag(w) A from the splatted luminance flux through fixed operators; the generic solve
+    builds it from the weights row by row — same coefficients to float32 rounding (see the batch test)."""
+    cubes = np.stack([sky_cube(), sky_cube(sun=False)])
+    e0 = sx.design_e0_samples(cubes, SMALL)
+    np.testing.assert_allclose(sx.fit_shexp(cubes, SMALL),
+                               sx.solve_from_samples(e0, SMALL, sx.build_operators(SMALL, FACE)), rtol=1e-3, atol=1e-3)
+
+
+def test_allocator_tuning_is_idempotent():
+    from bakery.allocator import tune_allocator
+
+    first = tune_allocator()
+    assert tune_allocator() is first

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from bakery.allocator import tune_allocator
 from bakery.bake import BakeSettings, EncodedBatch, encode_batch, sanitize_diagnostics, select_encodings
 from bakery.environment.sanitize import SanitizeReport
 from bakery.errors import BakeryError
@@ -37,6 +38,7 @@ def run_batch(task: BatchTask) -> BatchOutcome:
     """Capture every probe of ``task`` and encode them together. A probe whose capture raises is reported in
     ``failures`` and left out; the others are encoded."""
     start = time.perf_counter()
+    tune_allocator()
     settings = _settings(task)
     cubes, references, reports, probes, failures = [], [], [], [], {}
     capture_stats: dict[str, float] = {}

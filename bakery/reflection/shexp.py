@@ -86,7 +86,7 @@ from bakery.sphere.fibonacci import GOLDEN_ANGLE, fibonacci_directions
 
 EPS_REL = 1e-4
 EPS_ABS = 1e-12
-#: Weighted solve: row weights are floored at this fraction of the mean weight (module doc "Weighted solve").
+#: Weighted solve: every row weight gets this fraction of the mean weight added (module doc "Weighted solve").
 WEIGHT_MIN = 1e-2
 #: Luminance used for the row weights (Rec. 709 / sRGB primaries, the bake's working space).
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
@@ -316,6 +316,8 @@ class SHExpOperators:
     pinv_log_albedo: np.ndarray
     design_t: np.ndarray
     albedo_design_t: np.ndarray
+    gram_operators: tuple[np.ndarray, ...]
+    design_gram_upper: np.ndarray
 
 
 #: Shared table resolution used by the albedo normalisation (same table as the encodings store).
@@ -384,23 +386,35 @@ def build_operators(settings: SHExpSettings, capture_face_size: int | None = Non
     pinv_log_albedo = (pinv @ log_albedo).astype(np.float32)
     design_t = np.ascontiguousarray(design.T, dtype=np.float32)  # Aᵀ (K, M)
     albedo_design_t = np.ascontiguousarray(design.T * log_albedo[None, :], dtype=np.float32)  # Aᵀ diag(log a)
-    for array in (design, pinv, pair_products_t, log_albedo, pinv_log_albedo, design_t, albedo_design_t):
+    # The luminance weights are linear in the flux (w = Y(W·F)/mean + w_min), so the batch Gram is
+    # Σ_blocks [(A ⊙ A)ᵀ_rows · W_block] · Y(F_block) / mean + w_min · AᵀA: fixed (K(K+1)/2, 6g²) operators.
+    products = design[:, i] * design[:, j]  # (M, K(K+1)/2) float64
+    gram_operators = tuple((products[b.start : b.stop].T @ b.weights.astype(np.float64)).astype(np.float32)
+                           for b in blocks)
+    design_gram_upper = products.sum(axis=0)  # AᵀA, i ≤ j
+    for array in (design, pinv, pair_products_t, log_albedo, pinv_log_albedo, design_t, albedo_design_t,
+                  design_gram_upper, *gram_operators):
         array.setflags(write=False)
     return SHExpOperators(blocks, design, pinv, pair_products_t, log_albedo, pinv_log_albedo, design_t,
-                          albedo_design_t)
+                          albedo_design_t, gram_operators, design_gram_upper)
 
 
 def design_e0_samples(cubes: np.ndarray, settings: SHExpSettings,
                       removed: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """E0 at the design rows through the splatted multi-resolution grids (module doc "Fit grid"): (M, 3P);
     ``removed`` texels count as black (:func:`splat_flux`)."""
+    return _samples_and_flux(cubes, settings, removed)[0]
+
+
+def _samples_and_flux(cubes: np.ndarray, settings: SHExpSettings,
+                      removed: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, dict[int, np.ndarray]]:
     cubes = np.asarray(cubes, dtype=np.float32)
     ops = build_operators(settings, int(cubes.shape[2]))
     flux = splat_flux(cubes, tuple(b.face_size for b in ops.blocks), removed)
     e0 = np.empty((ops.design.shape[0], 3 * cubes.shape[0]), dtype=np.float32)
     for block in ops.blocks:
         np.matmul(block.weights, flux[block.face_size], out=e0[block.start : block.stop])  # W · F (GEMM)
-    return e0
+    return e0, flux
 
 
 def plain_e0_samples(cubes: np.ndarray, settings: SHExpSettings) -> np.ndarray:
@@ -428,11 +442,14 @@ def log_e0(e0: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
     return np.log(floored), floored
 
 
-def row_weights(floored: np.ndarray, p: int) -> np.ndarray:
-    """Weights (M, P) of the weighted solve: luminance / its mean over the rows, floored at ``WEIGHT_MIN``."""
-    lum = floored @ _luminance_operator(p)  # (M, P), one GEMM
-    lum /= (np.ones(lum.shape[0], dtype=lum.dtype) @ lum / lum.shape[0])[None, :]
-    return np.maximum(lum, np.float32(WEIGHT_MIN))
+def row_weights(e0: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
+    """Weights (M, P) of the weighted solve, w = Y(E0) / mean_m Y(E0) + ``WEIGHT_MIN``, and the means (P,)
+    (an additive floor keeps w linear in the flux, so the batch Gram is a fixed operator; module doc)."""
+    lum = np.asarray(e0, dtype=np.float32) @ _luminance_operator(p)  # (M, P), one GEMM
+    mean = np.maximum(np.ones(lum.shape[0], dtype=lum.dtype) @ lum / lum.shape[0], np.float32(EPS_ABS))
+    lum /= mean[None, :]
+    lum += np.float32(WEIGHT_MIN)
+    return lum, mean
 
 
 @lru_cache(maxsize=8)
@@ -444,9 +461,10 @@ def _luminance_operator(p: int) -> np.ndarray:
 
 
 def solve_coefficients(log_samples: np.ndarray, operators: SHExpOperators, p: int,
-                       weights: np.ndarray | None = None) -> np.ndarray:
+                       weights: np.ndarray | None = None, gram_upper: np.ndarray | None = None) -> np.ndarray:
     """[p; q] = argmin Σ_m w_m (A_m x − (log E0 − log a)_m)² ([SHExp] Eq. 13–14; a ≡ 1 unless albedo-normalised):
-    log samples (M, 3P), weights (M, P) or None (unweighted: A⁺·(…)) → (P, K, 3)."""
+    log samples (M, 3P), weights (M, P) or None (unweighted: A⁺·(…)) → (P, K, 3). ``gram_upper`` (P, K(K+1)/2):
+    Aᵀ diag(w) A if already known (:func:`fit_shexp` gets it from the flux), else one GEMM over the rows."""
     log_samples = np.asarray(log_samples, dtype=np.float32)
     if weights is None:
         coeffs = operators.pinv @ log_samples  # (K, 3P)
@@ -454,7 +472,8 @@ def solve_coefficients(log_samples: np.ndarray, operators: SHExpOperators, p: in
         return coeffs.reshape(-1, p, 3).transpose(1, 0, 2).astype(np.float32)
     k = operators.design.shape[1]
     weights = np.asarray(weights, dtype=np.float32)
-    gram_upper = (operators.pair_products_t @ weights).T.astype(np.float64)  # (P, K(K+1)/2): Aᵀ diag(w) A, i ≤ j
+    if gram_upper is None:
+        gram_upper = (operators.pair_products_t @ weights).T.astype(np.float64)  # (P, K(K+1)/2): Aᵀ diag(w) A
     gram = np.zeros((p, k, k))
     i, j = np.triu_indices(k)
     gram[:, i, j] = gram_upper
@@ -467,10 +486,10 @@ def solve_coefficients(log_samples: np.ndarray, operators: SHExpOperators, p: in
 
 
 def solve_from_samples(e0: np.ndarray, settings: SHExpSettings, operators: SHExpOperators) -> np.ndarray:
-    """Coefficients (P, K, 3) from E0 samples (M, 3P): guarded log, then the weighted or plain solve."""
+    """Coefficients (P, K, 3) from E0 samples (M, 3P) alone: guarded log, then the weighted or plain solve."""
     p = e0.shape[1] // 3
-    logs, floored = log_e0(e0, p)
-    weights = row_weights(floored, p) if settings.fit == "weighted" else None
+    logs, _ = log_e0(e0, p)
+    weights = row_weights(e0, p)[0] if settings.fit == "weighted" else None
     return solve_coefficients(logs, operators, p, weights)
 
 
@@ -479,8 +498,17 @@ def fit_shexp(cubes: np.ndarray, settings: SHExpSettings,
     """Fit P captures (P, 6, N, N, 3) → coefficients (P, K_p + K_q, 3) float32: splat → GEMM → log → GEMM.
     ``removed`` = (probe index, flat texel index) arrays of texels fitted as black (:func:`splat_flux`)."""
     cubes = np.asarray(cubes, dtype=np.float32)
-    e0 = design_e0_samples(cubes, settings, removed)
-    return solve_from_samples(e0, settings, build_operators(settings, int(cubes.shape[2])))
+    ops = build_operators(settings, int(cubes.shape[2]))
+    e0, flux = _samples_and_flux(cubes, settings, removed)
+    p = cubes.shape[0]
+    logs, _ = log_e0(e0, p)
+    if settings.fit != "weighted":
+        return solve_coefficients(logs, ops, p)
+    weights, mean = row_weights(e0, p)
+    luminance = _luminance_operator(p)
+    gram = sum(g @ (flux[b.face_size] @ luminance) for g, b in zip(ops.gram_operators, ops.blocks, strict=True))
+    gram_upper = (gram / mean[None, :]).T.astype(np.float64) + WEIGHT_MIN * ops.design_gram_upper[None, :]
+    return solve_coefficients(logs, ops, p, weights, gram_upper)
 
 
 def _reference_fit_shexp(cubes: np.ndarray, settings: SHExpSettings, plain: bool = False) -> np.ndarray:
@@ -491,10 +519,10 @@ def _reference_fit_shexp(cubes: np.ndarray, settings: SHExpSettings, plain: bool
     out = []
     for cube in cubes:
         e0 = plain_e0_samples(cube[None], settings) if plain else design_e0_samples(cube[None], settings)
-        logs, floored = log_e0(e0.astype(np.float32), 1)
+        logs, _ = log_e0(e0.astype(np.float32), 1)
         target = logs.astype(np.float64) - ops.log_albedo[:, None]
         if settings.fit == "weighted":
-            root = np.sqrt(row_weights(floored, 1).astype(np.float64))  # (M, 1)
+            root = np.sqrt(row_weights(e0.astype(np.float32), 1)[0].astype(np.float64))  # (M, 1)
             coeffs, *_ = np.linalg.lstsq(ops.design * root, target * root, rcond=None)
         else:
             coeffs, *_ = np.linalg.lstsq(ops.design, target, rcond=None)
