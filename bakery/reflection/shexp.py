@@ -56,11 +56,13 @@ Weighted solve (beyond the paper; ``fit = "weighted"``, default)
     The log-space fit is a proxy for linear MSE (paper Sec. 5.3): a linear error δE ≈ E·δlog E, so a plain log fit
     gives a dark row as much say as a bright one. We weight each row by its luminance (the IRLS weight halfway
     between the log fit, weight 1, and first-order linear MSE, weight E²; measured: E¹ beats both):
-        [p; q] = argmin Σ_m w_m (A_m x − log E0_m)²,  w_m = max(Y(E0_m) / mean_m Y(E0_m), w_min)         (Eq. 13–14)
-    solved per probe by the normal equations G x = Aᵀ W y. G_p = Aᵀ diag(w_p) A for a whole batch is one GEMM
-    with the fixed matrix of products A_mi A_mj (i ≤ j), so the solve stays GEMM → log → GEMM. w_min = 1e-2
-    keeps G well conditioned when a sun makes a few rows dominate. ``fit = "log"`` is the paper's unweighted fit
-    (A⁺ · log E0).
+        [p; q] = argmin Σ_m w_m (A_m x − log E0_m)²,  w_m = Y(E0_m) / mean_m Y(E0_m) + w_min            (Eq. 13–14)
+    solved per probe by the normal equations G x = Aᵀ W y. w_min = 1e-2 keeps G well conditioned when a sun makes
+    a few rows dominate; as an *additive* floor it keeps w linear in the flux, w = Y(W·F)/mean + w_min, so the
+    batch's Gram matrices are fixed operators applied to the splatted luminance flux,
+        G_p = Σ_blocks [(A ⊙ A)ᵀ_rows · W_block] · Y(F_block,p) / mean_p + w_min · AᵀA    ((A ⊙ A): products
+    A_mi A_mj, i ≤ j), ~1 M multiply-adds per probe instead of 9 M over the rows; the solve stays
+    GEMM → log → GEMM. ``fit = "log"`` is the paper's unweighted fit (A⁺ · log E0).
 
 Notation
     M design rows, T fit-grid texels, P probes, C = 3 channels, K_p = (p_band+1)², K_q = (q_band+1)² − 1.
