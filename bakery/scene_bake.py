@@ -26,7 +26,6 @@ Writer
 
 from __future__ import annotations
 
-import hashlib
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -248,11 +247,11 @@ def plan_scene_bake(
         if spec.kind == "reflection":
             alpha_range = fit_alpha_range(visible_roughness(spec.position, spec.influence or {}, reading.scene.meshes))
             if alpha_range is not None:
-                probe_settings["encoding_settings"] = {"shexp": {"alpha_min": alpha_range[0],
-                                                                 "alpha_max": alpha_range[1]}}
+                fit_range = {"alpha_min": alpha_range[0], "alpha_max": alpha_range[1]}
+                probe_settings["encoding_settings"] = {"shexp": fit_range, "shexp_lights": dict(fit_range)}
                 roughness_notes.append({"probe": spec.name, "reason": (
-                    f"shexp fitted over α ∈ [{alpha_range[0]:g}, {alpha_range[1]:g}] (materials in its influence "
-                    f"volume) instead of the default range")})
+                    f"shexp, shexp_lights fitted over α ∈ [{alpha_range[0]:g}, {alpha_range[1]:g}] (materials in its "
+                    f"influence volume) instead of the default range")})
         probe = Probe(spec.name, (spec.kind,), spec.position, probe_settings)
         inputs = (scene_hash, file_digest(spec.image)) if spec.image else (scene_hash,)
         capture = CaptureSpec(

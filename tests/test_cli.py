@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 import OpenImageIO as oiio
-import pytest
 
 import bakery
 

@@ -16,7 +16,7 @@ import pytest
 
 import bakery
 from bakery.errors import ConfigError
-from bakery.pipeline.recipe import load_recipe, validate_recipe
+from bakery.pipeline.recipe import load_recipe
 from bakery.store.format import migrate_store, read_store
 
 ENV = {**os.environ, "SOURCE_DATE_EPOCH": "1700000000"}

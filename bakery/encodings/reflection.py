@@ -111,10 +111,9 @@ class SHExp(ReflectionEncoding):
     """SH exponentials ([SHExp] Sec. 4): p (bands 0..p_band) and q (bands 1..q_band) float32 + Fresnel tail."""
 
     name = "shexp"
+    version = "1.1.0"  # 1.1.0: multi-resolution splatted fit grid and the weighted solve (same stored layout)
     description = ("SH exponentials PQ = exp(<vMF(1/a).Y(r), p>) exp(<vMF(1/a).Y(h_r), q>); E = PQ (F0 A + B) with "
                    "the DFG table (albedo-normalised) or PQ (F0 + (1-F0) tau) (paper)")
-
-    version = "1.1.0"  # 1.1.0: multi-resolution splatted fit grid and the weighted solve (same stored layout)
 
     _KEYS = ("p_band", "q_band", "n_normals", "n_views", "n_alphas", "alpha_min", "alpha_max", "fit_face_size",
              "min_fit_face_size", "fit", "albedo_normalized")
@@ -153,7 +152,10 @@ class SHExp(ReflectionEncoding):
         return {"dfg": tables.dfg} if self.model.albedo_normalized else {"fresnel_tail": tables.fresnel_tail}
 
     def encode(self, batch: ProbeBatch) -> dict[str, np.ndarray]:
-        coeffs = fit_shexp(batch.cubes, self.model)
+        return self._coefficient_fields(fit_shexp(batch.cubes, self.model))
+
+    def _coefficient_fields(self, coeffs: np.ndarray) -> dict[str, np.ndarray]:
+        """(P, K_p + K_q, 3) → the stored ``p`` and ``q`` fields."""
         k = self.model.p_count
         return {"p": np.ascontiguousarray(coeffs[:, :k]), "q": np.ascontiguousarray(coeffs[:, k:])}
 
@@ -201,10 +203,8 @@ class SHExpLights(SHExp):
         directions, flux, removed = extract_lights(batch.cubes, self.settings["max_lights"],
                                                    self.settings["light_threshold"],
                                                    self.settings["light_radius_deg"])
-        coeffs = fit_shexp(batch.cubes, self.model, removed)  # the remainder, without copying the captures
-        k = self.model.p_count
-        return {"p": np.ascontiguousarray(coeffs[:, :k]), "q": np.ascontiguousarray(coeffs[:, k:]),
-                "light_direction": directions, "light_flux": flux}
+        fields = self._coefficient_fields(fit_shexp(batch.cubes, self.model, removed))  # remainder, not copied
+        return {**fields, "light_direction": directions, "light_flux": flux}
 
     def evaluate_reflection(self, fields, shared, view, normal, alpha, f0):
         environment = super().evaluate_reflection(fields, shared, view, normal, alpha, f0)

@@ -198,19 +198,26 @@ def slab_face_sizes(settings: SHExpSettings, capture_face_size: int | None = Non
     return tuple(sizes)
 
 
-@lru_cache(maxsize=16)
-def splat_matrix(face_size: int, grid_size: int) -> np.ndarray:
-    """1-D bilinear splat (grid_size, face_size) float32 in face coordinates: fine texel i at coarse position
-    x = (i + ½)·g/n − ½ goes to nodes ⌊x⌋ and ⌊x⌋ + 1 with weights 1 − {x}, {x} (clamped at the face edge);
-    every column sums to 1, so the splat preserves flux exactly."""
-    x = (np.arange(face_size) + 0.5) * grid_size / face_size - 0.5
+def splat_taps(face_size: int, grid_size: int, index: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The 1-D bilinear splat in face coordinates: fine texel i sits at coarse position x = (i + ½)·g/n − ½ and
+    goes to nodes ⌊x⌋ and ⌊x⌋ + 1 (clamped at the face edge) with weights 1 − {x} and {x}.
+    index (R,) → lower node (R,), upper node (R,), upper weight {x} (R,)."""
+    x = (np.asarray(index) + 0.5) * grid_size / face_size - 0.5
     x0 = np.floor(x)
     frac = x - x0
     x0 = x0.astype(np.int64)
-    b = np.zeros((grid_size, face_size))
+    return np.clip(x0, 0, grid_size - 1), np.clip(x0 + 1, 0, grid_size - 1), frac
+
+
+@lru_cache(maxsize=16)
+def splat_matrix(face_size: int, grid_size: int) -> np.ndarray:
+    """1-D bilinear splat (grid_size, face_size) float32 (:func:`splat_taps`); every column sums to 1, so the
+    splat preserves flux exactly."""
     cols = np.arange(face_size)
-    np.add.at(b, (np.clip(x0, 0, grid_size - 1), cols), 1.0 - frac)
-    np.add.at(b, (np.clip(x0 + 1, 0, grid_size - 1), cols), frac)
+    lower, upper, frac = splat_taps(face_size, grid_size, cols)
+    b = np.zeros((grid_size, face_size))
+    np.add.at(b, (lower, cols), 1.0 - frac)
+    np.add.at(b, (upper, cols), frac)
     b = b.astype(np.float32)
     b.setflags(write=False)
     return b
@@ -273,15 +280,9 @@ def _removed_flux(cubes: np.ndarray, removed: tuple[np.ndarray, np.ndarray], gri
     face, row, col = texel // (n * n), (texel // n) % n, texel % n
     flux = cube_texel_solid_angles(n)[0][row, col, None] * cubes[probe, face, row, col]  # (R, 3) Ω L
 
-    def taps(index: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
-        x = (index + 0.5) * grid_size / n - 0.5  # same positions as splat_matrix
-        x0 = np.floor(x)
-        frac = x - x0
-        x0 = x0.astype(np.int64)
-        return (np.clip(x0, 0, grid_size - 1), np.clip(x0 + 1, 0, grid_size - 1)), (1.0 - frac, frac)
-
-    (r0, r1), (wr0, wr1) = taps(row)
-    (c0, c1), (wc0, wc1) = taps(col)
+    r0, r1, fr = splat_taps(n, grid_size, row)
+    c0, c1, fc = splat_taps(n, grid_size, col)
+    wr0, wr1, wc0, wc1 = 1.0 - fr, fr, 1.0 - fc, fc
     out = np.zeros(grid_size * p * 6 * grid_size * 3)
     q = probe * 6 + face
     for a, wa in ((r0, wr0), (r1, wr1)):
