@@ -28,6 +28,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from bakery.conventions import LUMINANCE_WEIGHTS
 from bakery.reflection.reference import fdv_cosine_weights
 from bakery.sphere.cubemap import cube_texel_directions, cube_texel_solid_angles
 
@@ -35,8 +36,6 @@ from bakery.sphere.cubemap import cube_texel_directions, cube_texel_solid_angles
 #: light under a mirror is a measure-zero spike; below ~0.1 the lobe is narrower than a cluster and the delta
 #: approximation is coarse anyway (the SH exponential has the same lower limit, [SHExp] Sec. 5.4).
 MIN_ALPHA = 0.002
-#: Rec. 709 / sRGB luminance (the bake's working space).
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 
 
 @lru_cache(maxsize=4)
@@ -63,7 +62,7 @@ def extract_lights(
     directions = np.zeros((p, max_lights, 3), np.float32)
     directions[:, :, 1] = 1.0  # unused slots: +Y with zero flux
     flux = np.zeros((p, max_lights, 3), np.float32)
-    lum = (radiance.reshape(-1, 3) @ LUMINANCE.astype(np.float32)).reshape(p, -1)  # (P, T), one GEMV
+    lum = (radiance.reshape(-1, 3) @ LUMINANCE_WEIGHTS.astype(np.float32)).reshape(p, -1)  # (P, T), one GEMV
     mean = (lum @ omega.astype(np.float32)).astype(np.float64) / (4.0 * np.pi)  # (P,)
     removed_probe, removed_texel = [], []
     for i in range(p):

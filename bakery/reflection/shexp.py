@@ -79,6 +79,7 @@ from functools import lru_cache
 import numpy as np
 
 from bakery.brdf.ggx import reflect
+from bakery.conventions import LUMINANCE_WEIGHTS
 from bakery.brdf.sampling import to_world
 from bakery.reflection.reference import _weights_float32
 from bakery.reflection.tables import OperatorCache
@@ -90,8 +91,8 @@ EPS_REL = 1e-4
 EPS_ABS = 1e-12
 #: Weighted solve: every row weight gets this fraction of the mean weight added (module doc "Weighted solve").
 WEIGHT_MIN = 1e-2
-#: Luminance used for the row weights (Rec. 709 / sRGB primaries, the bake's working space).
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+#: Luminance used for the row weights (the bake's working space, :mod:`bakery.conventions`).
+LUMINANCE = LUMINANCE_WEIGHTS.astype(np.float32)
 #: Rows with α < 2·FINEST_GRID_ALPHA use the finest fit grid; it halves per doubling of α beyond (module doc).
 FINEST_GRID_ALPHA = 0.2
 FIT_MODES = ("weighted", "log")
