@@ -1,7 +1,7 @@
 """The ``bakery`` command line (click). Thin: parses arguments, calls the library, prints, maps errors to exit codes.
 
 Exit codes: 0 success; 1 unexpected failure; 2 bad input (missing/corrupt file, bad scene); 3 bad settings;
-4 an encoding failed; 5 ``check`` found errors.
+4 an encoding failed; 5 ``check`` found errors; 6 the store was written but some probes failed.
 """
 
 from __future__ import annotations
@@ -15,9 +15,7 @@ import click
 from rich.console import Console
 from rich.table import Table
 
-from bakery.errors import BakeryError, BakeryWarning, ImageError
-
-SCENE_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
+from bakery.errors import BakeryError, BakeryWarning
 console = Console(stderr=True, soft_wrap=True)
 out = Console(soft_wrap=True)
 
@@ -44,24 +42,6 @@ def main() -> None:
     from bakery.allocator import tune_allocator
 
     tune_allocator()  # large batch temporaries stay in the heap (bakery/allocator.py)
-
-
-def _settings_from(recipe_name: str | None, encodings: tuple[str, ...], face_size: int | None, no_reference: bool,
-                   default_face_size: int):
-    """BakeSettings and pipeline options from a recipe plus command-line overrides (flags win)."""
-    from bakery.bake import BakeSettings
-    from bakery.pipeline.recipe import load_recipe
-
-    recipe = load_recipe(recipe_name) if recipe_name else None
-    bake_options = dict(recipe.bake) if recipe else {}
-    settings = BakeSettings(
-        face_size=face_size if face_size is not None else bake_options.get("face_size", default_face_size),
-        encodings=encodings or (recipe.encodings if recipe else ()),
-        encoding_settings=recipe.encoding_settings if recipe else {},
-        quality_directions=bake_options.get("quality_directions", 1024),
-        reference_errors=(not no_reference) and bake_options.get("reference_errors", True),
-    )
-    return settings, (recipe.pipeline if recipe else {})
 
 
 class _Progress:
@@ -100,57 +80,54 @@ class _Progress:
 @click.option("-o", "--output", type=click.Path(path_type=Path), help="Store (.h5). Default: SOURCE with .h5.")
 @click.option("--recipe", "-r", help="Recipe preset (mobile, console, pc-high, reference) or TOML path.")
 @click.option("--encodings", "-e", multiple=True, help="Encodings to bake (repeatable); overrides the recipe.")
-@click.option("--face-size", type=int, default=None, help="Bake-grid cube face size (default 64 images, 32 scenes).")
+@click.option("--face-size", type=int, default=None,
+              help="Bake-grid cube face size (default 64 images, 32 scenes).")
 @click.option("--layout", type=click.Choice(["equirect", "cube", "angular"]), help="Force the image layout.")
 @click.option("--layer", type=click.Path(path_type=Path),
-              help="USD layer of baked attributes (scenes; default <store stem>.bake.usda).")
-@click.option("--jobs", "-j", type=int, default=None, help="Worker processes (default: number of cores).")
+              help="USD layer of baked attributes, .usda or .usdc (scenes; default <store stem>.bake.usda).")
+@click.option("--samples", type=click.IntRange(min=1), default=None, help="Rays per cube texel (scenes; default 4).")
+@click.option("--bounces", type=click.IntRange(min=0), default=None, help="Diffuse bounces (scenes; default 1).")
+@click.option("--seed", type=int, default=None, help="Base seed of the per-probe capture seeds (scenes).")
+@click.option("--jobs", "-j", type=click.IntRange(min=1), default=None,
+              help="Worker processes (default: number of cores).")
 @click.option("--scheduler", help="Dask scheduler address (tcp://host:port) to bake on a farm.")
 @click.option("--dask-local", is_flag=True, help="Use a local Dask cluster of --jobs workers.")
 @click.option("--dry-run", is_flag=True, help="Print the plan (probes, reuse, batches) and exit.")
-@click.option("--no-resume", is_flag=True, help="Ignore checkpoints of an interrupted bake.")
+@click.option("--no-resume", is_flag=True, help="Ignore checkpoints of an interrupted bake and the existing store.")
 @click.option("--no-reference", is_flag=True, help="Skip error-vs-reference diagnostics.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 def bake(sources: tuple[Path, ...], output: Path | None, recipe: str | None, encodings: tuple[str, ...],
-         face_size: int | None, layout: str | None, layer: Path | None, jobs: int | None, scheduler: str | None,
-         dask_local: bool, dry_run: bool, no_resume: bool, no_reference: bool, as_json: bool) -> None:
+         face_size: int | None, layout: str | None, layer: Path | None, samples: int | None, bounces: int | None,
+         seed: int | None, jobs: int | None, scheduler: str | None, dask_local: bool, dry_run: bool,
+         no_resume: bool, no_reference: bool, as_json: bool) -> None:
     """Bake SOURCES: environment images (one distant probe each) or one USD scene (its probes).
 
     Exit codes: 0 all probes baked; 6 the store was written but some probes failed (listed); 2/3 bad input or
     settings (nothing written).
     """
     from bakery.pipeline.executors import make_executor
-    from bakery.pipeline.run import execute_plan, load_previous, plan_environment_bake
+    from bakery.pipeline.run import bake as run_bake
+    from bakery.pipeline.run import check_output_paths, load_previous, plan_bake
+    from bakery.pipeline.settings import request_from
+    from bakery.sources import source_for
 
-    output = output or sources[0].with_suffix(".h5")
-    is_scene = sources[0].suffix.lower() in SCENE_SUFFIXES
-    if is_scene and len(sources) > 1:
-        raise click.UsageError("bake one USD scene at a time")
-    settings, pipeline = _settings_from(recipe, encodings, face_size, no_reference, 32 if is_scene else 64)
-    previous = None if no_resume else load_previous(output)
-    if is_scene:
-        from bakery.scene_bake import plan_scene_bake
-
-        plan, scene_context = plan_scene_bake(sources[0], settings, previous, pipeline.get("batch_size", 64))
-    else:
-        from bakery.environment.io import read_environment
-
-        missing = [s for s in sources if not s.is_file()]
-        if missing:
-            raise ImageError(f"{missing[0]}: environment image not found")
-        for source in sources:  # validate headers/layouts up front: bad input fails before any work
-            read_environment(source, layout=layout) if dry_run else None
-        plan = plan_environment_bake(list(sources), settings, previous, layout, pipeline.get("batch_size", 16))
-        scene_context = None
+    request = request_from(
+        sources, output, recipe=recipe, encodings=encodings, face_size=face_size, layer=layer, layout=layout,
+        samples=samples, bounces=bounces, seed=seed, resume=not no_resume,
+        reference_errors=False if no_reference else None,
+    )
     if dry_run:
-        info = {"store": str(output), "probes": len(plan.tasks), "reused": len(plan.reused),
-                "to_bake": sum(len(b.probes) for b in plan.batches), "batches": len(plan.batches),
-                "skipped": plan.skipped, "settings_hash": settings.hash(),
+        source = source_for(request.sources, request.layout, request.capture)
+        check_output_paths(request, source)
+        _, plan = plan_bake(request, source, load_previous(request.output) if request.resume else None)
+        info = {"store": str(request.output), "probes": len(plan.tasks), "reused": len(plan.reused),
+                "to_bake": plan.to_bake, "batches": len(plan.batches), "skipped": plan.skipped,
+                "settings_hash": request.settings.hash(),
                 "encodings": sorted({e for t in plan.tasks for e in t.encodings})}
         if as_json:
             out.print_json(json.dumps(info))
         else:
-            out.print(f"plan for {output}: {info['probes']} probes, {info['reused']} unchanged (reused), "
+            out.print(f"plan for {request.output}: {info['probes']} probes, {info['reused']} unchanged (reused), "
                       f"{info['to_bake']} to bake in {info['batches']} batches; encodings: "
                       + ", ".join(info["encodings"]))
             for skip in plan.skipped:
@@ -159,24 +136,16 @@ def bake(sources: tuple[Path, ...], output: Path | None, recipe: str | None, enc
     executor = make_executor(jobs, scheduler, dask_local)
     try:
         with _Progress(console.is_terminal and not as_json) as progress:
-            extra = {"sources": json.dumps([str(s) for s in sources])}
-            if scene_context is not None:
-                summary = scene_context.execute(plan, settings, output, executor, previous, not no_resume,
-                                                progress, layer, band_energy_tolerance=None if encodings
-                                                else pipeline.get("band_energy_tolerance", 1e-6))
-            else:
-                summary = execute_plan(plan, settings, output, executor, previous, resume=not no_resume,
-                                       progress=progress, attributes=extra,
-                                       band_energy_tolerance=None if encodings
-                                       else pipeline.get("band_energy_tolerance", 1e-6))
+            summary = run_bake(request, executor, progress)
     finally:
         executor.close()
     if as_json:
         out.print_json(json.dumps(summary.as_dict(), default=str))
     else:
-        console.print(f"{output}: {summary.baked} probes baked, {summary.reused} unchanged, "
+        console.print(f"{request.output}: {summary.baked} probes baked, {summary.reused} unchanged, "
                       f"{len(summary.failed)} failed in {summary.seconds:.1f} s "
-                      f"({summary.probes_per_second:.1f} probes/s, {summary.workers} {summary.executor} workers)")
+                      f"({summary.probes_per_second:.1f} probes/s, {summary.workers} {summary.executor} workers)"
+                      + (f"; layer {summary.layer}" if summary.layer else ""))
         for name, message in summary.failed.items():
             console.print(f"[red]failed[/red] {name}: {message}")
     if summary.failed:

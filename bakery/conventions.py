@@ -36,9 +36,6 @@ import numpy as np
 #: Rec.709 luminance weights for linear RGB.
 LUMINANCE_WEIGHTS = np.array([0.2126, 0.7152, 0.0722])
 
-#: Cube face names in storage order.
-CUBE_FACES = ("+X", "-X", "+Y", "-Y", "+Z", "-Z")
-
 #: The table above as data, recorded in every store (root attribute ``conventions``, a JSON object).
 CONVENTIONS: dict[str, str] = {
     "frame": "right-handed, +Y up",
@@ -63,8 +60,3 @@ def convention_attributes() -> dict[str, str]:
     attributes = {f"convention.{key}": value for key, value in CONVENTIONS.items()}
     attributes["conventions"] = json.dumps(CONVENTIONS, sort_keys=True)
     return attributes
-
-
-def luminance(rgb: np.ndarray) -> np.ndarray:
-    """Rec.709 luminance of linear RGB along the last axis. ``rgb``: (..., 3) → (...)."""
-    return np.asarray(rgb) @ LUMINANCE_WEIGHTS

@@ -11,13 +11,13 @@ set ``BAKERY_CACHE_DIR=off`` to keep operators in memory only.
 
 from __future__ import annotations
 
-import hashlib
 import os
 from pathlib import Path
 
 import numpy as np
 
 import bakery
+from bakery.files import atomic_replace, sha256_bytes
 
 
 def cache_directory() -> Path | None:
@@ -31,7 +31,7 @@ def _path(key: str) -> Path | None:
     directory = cache_directory()
     if directory is None:
         return None
-    digest = hashlib.sha256(f"{key}|{bakery.__version__}".encode()).hexdigest()[:32]
+    digest = sha256_bytes(f"{key}|{bakery.__version__}".encode())[:32]
     return directory / f"{digest}.npy"
 
 
@@ -51,10 +51,8 @@ def save(key: str, array: np.ndarray) -> np.ndarray:
         return array
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-        with open(tmp, "wb") as handle:
+        with atomic_replace(path) as tmp, open(tmp, "wb") as handle:
             np.save(handle, np.ascontiguousarray(array))
-        os.replace(tmp, path)
         return np.load(path, mmap_mode="r")
     except OSError:
         return array  # a read-only home or full disk only costs the rebuild next time

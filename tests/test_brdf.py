@@ -10,7 +10,6 @@ from bakery.brdf import (
     fresnel_schlick,
     ggx_distribution,
     ggx_ndf_pdf,
-    orthonormal_frame,
     reflection_pdf_from_half_pdf,
     sample_ggx_ndf,
     sample_ggx_vndf,
@@ -21,6 +20,7 @@ from bakery.brdf import (
     vndf_pdf,
 )
 from bakery.sphere.cubemap import cube_texel_directions, cube_texel_solid_angles
+from bakery.sphere.sampling import orthonormal_frame
 
 ALPHAS = [0.05, 0.2, 0.5, 1.0]
 
@@ -155,6 +155,7 @@ def test_frame_round_trip(x, y, z):
         return
     n /= np.linalg.norm(n)
     t, b = orthonormal_frame(n)
+    np.testing.assert_allclose([t @ t, b @ b, t @ b, t @ n, b @ n], [1, 1, 0, 0, 0], atol=1e-12)
     np.testing.assert_allclose(np.cross(t, b), n, atol=1e-9)
     w = np.array([0.3, -0.5, 0.81])
     np.testing.assert_allclose(to_local(to_world(w, n), n), w, atol=1e-9)

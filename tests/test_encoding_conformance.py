@@ -1,30 +1,37 @@
-"""Conformance suite: every registered encoding, picked up from the registry (a new encoding is tested here
-without editing this file)."""
+"""Conformance suite: every registered encoding, picked up from the registry (a new encoding is tested here without
+editing this file), baked through the one bake path (``bakery.bake``) in-process and with two worker processes,
+and through the CLI, then evaluated through the public API."""
 
+import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from harness import bake_cubes
 
 import bakery
-from bakery.bake import BakeSettings, bake_probes
 from bakery.encodings import ENCODINGS
+from bakery.environment.io import write_exr
 from bakery.probe import PROBE_KINDS, Probe, ProbeBatch
 from bakery.sphere.cubemap import cube_texel_directions
 from bakery.sphere.fibonacci import fibonacci_directions
 
 SPEC_FILES = sorted((Path(__file__).resolve().parents[1] / "schemas").glob("store*.md"))
 FACE = 16
+SMALL = {"splitsum": {"min_face_size": 8}}  # keeps the chain small at FACE
 
 
-def _batch() -> ProbeBatch:
+def _cubes() -> np.ndarray:
     d = cube_texel_directions(FACE)
     sun = np.array([0.3, 0.8, 0.52])
     sun /= np.linalg.norm(sun)
     lobe = np.exp(40.0 * (d @ sun - 1.0))[..., None] * np.array([50.0, 40.0, 30.0])
     sky = (0.5 + 0.5 * d[..., 1:2]) * np.array([0.2, 0.3, 0.6])
     constant = np.full_like(lobe, 0.7)
-    return ProbeBatch(np.stack([lobe + sky, constant, sky]).astype(np.float32))
+    return np.stack([lobe + sky, constant, sky]).astype(np.float32)
 
 
 def _view_normal(count=64):
@@ -34,52 +41,78 @@ def _view_normal(count=64):
     return view, normal
 
 
+def _settings(name):
+    return {k: v for k, v in SMALL.get(name, {}).items() if k in ENCODINGS[name].Params.__dataclass_fields__}
+
+
+PROBES = [Probe(f"/probe_{i}", PROBE_KINDS) for i in range(3)]
+
+
 @pytest.fixture(scope="module")
 def baked(tmp_path_factory):
-    probes = [Probe(f"/probe_{i}", PROBE_KINDS) for i in range(3)]
-    path = tmp_path_factory.mktemp("conformance") / "store.h5"
-    result = bake_probes(probes, _batch(), BakeSettings(face_size=FACE, encodings=tuple(ENCODINGS)), path)
-    return result, bakery.open_store(path)
+    """The same captures baked in-process and by two worker processes (with the cubes snapshot workers map)."""
+    folder = tmp_path_factory.mktemp("conformance")
+    os.environ.setdefault("SOURCE_DATE_EPOCH", "1700000000")
+    settings = {n: _settings(n) for n in ENCODINGS if _settings(n)}
+    serial = bake_cubes(folder / "serial.h5", PROBES, _cubes(), encodings=tuple(ENCODINGS), jobs=1,
+                        encoding_settings=settings)
+    processes = bake_cubes(folder / "processes.h5", PROBES, _cubes(), encodings=tuple(ENCODINGS), jobs=2,
+                           encoding_settings=settings)
+    return serial, processes
+
+
+def test_worker_count_does_not_change_the_store(baked):
+    serial, processes = baked
+    assert serial.summary.executor == "serial" and processes.summary.executor == "processes"
+    assert serial.path.read_bytes() == processes.path.read_bytes()
+    assert not Path(f"{processes.path}.partial").exists()
 
 
 @pytest.mark.parametrize("name", list(ENCODINGS))
 def test_fields_match_declared_specs(name, baked):
-    result, _ = baked
-    encoding = result.encodings[name]
+    stored, _ = baked
+    encoding = stored.encoding(name)
+    fields = stored.fields(name)
+    assert set(fields) == {s.name for s in encoding.field_specs()}
     for spec in encoding.field_specs():
-        array = result.encoded[name][spec.name]
+        array = fields[spec.name]
         assert array.shape == (3, *spec.shape) and array.dtype == np.dtype(spec.dtype)
         assert np.all(np.isfinite(array.astype(np.float64)))
 
 
 @pytest.mark.parametrize("name", list(ENCODINGS))
 def test_memory_accounting_matches_stored_arrays(name, baked):
-    result, store = baked
-    fields = store.fields(name)
-    stored = sum(fields[s.name].nbytes for s in result.encodings[name].field_specs()) // 3
-    assert store.encodings[name].bytes_per_probe == stored == result.encodings[name].bytes_per_probe()
+    stored, _ = baked
+    encoding = stored.encoding(name)
+    fields = stored.fields(name)
+    per_probe = sum(fields[s.name].nbytes for s in encoding.field_specs()) // 3
+    assert stored.store.encodings[name].bytes_per_probe == per_probe == encoding.bytes_per_probe()
 
 
 @pytest.mark.parametrize("name", list(ENCODINGS))
-def test_store_round_trip_evaluates_identically(name, baked):
-    result, store = baked
-    encoding = result.encodings[name]
-    stored = store.fields(name)
-    for key, array in result.encoded[name].items():
-        assert stored[key].tobytes() == array.tobytes() and stored[key].dtype == array.dtype
+def test_pipeline_stores_what_the_encoding_computes(name, baked):
+    """The bake path adds nothing: the stored arrays are the encoding's own output for the same captures, and the
+    API evaluates them exactly as the encoding built from the stored settings does."""
+    stored, _ = baked
+    encoding = stored.encoding(name)
+    direct = encoding.encode(ProbeBatch(_cubes()))
+    for key, array in stored.fields(name).items():
+        assert array.tobytes() == direct[key].tobytes() and array.dtype == direct[key].dtype, key
     view, normal = _view_normal()
     if encoding.kind == "irradiance":
-        direct = encoding.evaluate_irradiance(result.encoded[name], normal)
-        np.testing.assert_allclose(store.evaluate_irradiance(name, normal), direct, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(stored.store.evaluate_irradiance(name, normal),
+                                   encoding.evaluate_irradiance(direct, normal), rtol=1e-12, atol=1e-12)
     else:
         alpha, f0 = np.full(len(normal), 0.5), np.full(len(normal), 0.04)
-        direct = encoding.evaluate_reflection(result.encoded[name], encoding.shared_tables(), view, normal, alpha, f0)
-        np.testing.assert_allclose(store.evaluate_reflection(name, view, normal, alpha, f0), direct, rtol=1e-6)
+        np.testing.assert_allclose(stored.store.evaluate_reflection(name, view, normal, alpha, f0),
+                                   encoding.evaluate_reflection(direct, encoding.shared_tables(), view, normal, alpha,
+                                                                f0), rtol=1e-6)
 
 
 @pytest.mark.parametrize("name", list(ENCODINGS))
 def test_constant_in_constant_out(name, baked):
-    result, store = baked
+    stored, _ = baked
+    store = stored.store
     c = 0.7
     view, normal = _view_normal()
     if store.encodings[name].kind == "irradiance":
@@ -101,7 +134,100 @@ def test_encoding_is_documented_in_the_store_specification(name):
 
 @pytest.mark.parametrize("name", list(ENCODINGS))
 def test_encoding_is_deterministic(name):
-    first = ENCODINGS[name]().encode(_batch())
-    second = ENCODINGS[name]().encode(_batch())
+    first = ENCODINGS[name]().encode(ProbeBatch(_cubes()))
+    second = ENCODINGS[name]().encode(ProbeBatch(_cubes()))
     for key in first:
         assert first[key].tobytes() == second[key].tobytes()
+
+
+# ----------------------------------------------------------------------------------------- stores the CLI writes
+#: Parameters that change what is stored, each baked by the CLI from a recipe and evaluated through the API.
+STORED_VARIANTS = {
+    "zh3_hallucinated": {"curve": "fit"},
+    "zh3_quantized": {"sqrt_companding": False},
+    "sh3_quantized": {"sqrt_companding": False},
+    "splitsum": {"n_levels": 4, "min_face_size": 4},
+    "shexp": {"p_band": 3, "albedo_normalized": False},
+    "shexp_lights": {"max_lights": 2},
+}
+
+
+def _write_environments(folder: Path, count: int = 5) -> list[Path]:
+    rng = np.random.default_rng(7)
+    paths = []
+    for i in range(count):
+        h = 16
+        rows = (np.arange(h) + 0.5) / h
+        sky = np.broadcast_to((np.array([0.2, 0.3, 0.6]) * (1.5 - rows)[:, None])[:, None, :], (h, 2 * h, 3)).copy()
+        sky[rng.integers(0, h // 2), rng.integers(0, 2 * h)] = rng.uniform(20, 200, size=3)  # a sun
+        paths.append(folder / f"env{i}.exr")
+        write_exr(paths[-1], sky.astype(np.float32), half=False)
+    return paths
+
+
+def _toml_value(value):
+    return json.dumps(value) if not isinstance(value, bool) else str(value).lower()
+
+
+@pytest.fixture(scope="module")
+def cli_store(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("cli")
+    envs = _write_environments(folder)
+    recipe = folder / "variants.toml"
+    lines = ['name = "variants"', "[targets]",
+             "irradiance = " + json.dumps([n for n, e in ENCODINGS.items() if e.kind == "irradiance"]),
+             "reflection = " + json.dumps([n for n, e in ENCODINGS.items() if e.kind == "reflection"]),
+             "[bake]", "face_size = 16"]
+    for name, values in STORED_VARIANTS.items():
+        if name in ENCODINGS:
+            lines.append(f"[encoding_settings.{name}]")
+            lines += [f"{k} = {_toml_value(v)}" for k, v in values.items()]
+    recipe.write_text("\n".join(lines) + "\n")
+    store = folder / "variants.h5"
+    result = subprocess.run([sys.executable, "-m", "bakery.cli", "bake", *envs, "-o", store, "--recipe", recipe,
+                             "--jobs", "2", "--json"], capture_output=True, text=True,
+                            env={**os.environ, "SOURCE_DATE_EPOCH": "1700000000"})
+    assert result.returncode == 0, result.stderr
+    return bakery.open_store(store), json.loads(result.stdout)
+
+
+@pytest.mark.parametrize("name", list(ENCODINGS))
+def test_every_encoding_of_a_cli_store_evaluates_through_the_api(name, cli_store):
+    store, summary = cli_store
+    if name not in store.encodings:
+        skipped = {s.get("encoding"): s["reason"] for s in summary["skipped"]}
+        assert name in skipped, f"{name} neither stored nor reported as skipped"
+        pytest.skip(f"{name} skipped by the bake: {skipped[name]}")
+    stored = store.encodings[name].settings
+    for key, value in STORED_VARIANTS.get(name, {}).items():
+        if key == "curve":
+            continue  # resolved by finalize (next test)
+        assert stored[key] == value, (key, stored[key])
+    view, normal = _view_normal()
+    if store.encodings[name].kind == "irradiance":
+        values = store.evaluate_irradiance(name, normal)
+    else:
+        values = store.evaluate_reflection(name, view, normal, np.full(len(normal), 0.4), np.full(len(normal), 0.04))
+    assert values.shape == (5, len(normal), 3) and np.all(np.isfinite(values))
+
+
+def test_fitted_hallucination_curve_is_stored_and_evaluates(cli_store):
+    """``curve = "fit"`` is fitted once over every probe of the bake (finalize) and stored as numbers: a reader of
+    the spec evaluates Listing 1 with the stored (c2, c1)."""
+    from bakery.irradiance.sh_irradiance import evaluate_sh_irradiance
+    from bakery.irradiance.zh3 import evaluate_zh3_irradiance, fit_hallucination_curve, hallucinate_zonal_l2
+
+    store, _ = cli_store
+    curve = store.encodings["zh3_hallucinated"].settings["curve"]
+    assert isinstance(curve, list) and len(curve) == 2 and all(isinstance(c, float) for c in curve)
+    # Independent of bakery's encoder: the curve fitted to the probes' full radiance SH (the sh3 encoding's field).
+    expected, used, fitted = fit_hallucination_curve(store.fields("sh3")["radiance_sh"].astype(np.float64))
+    assert fitted and used == 15
+    np.testing.assert_allclose(curve, expected, rtol=1e-5)
+    # Listing 1 (hallucinate_zonal_l2) with the stored curve on the stored linear SH is what the API evaluates.
+    linear = store.fields("zh3_hallucinated")["radiance_sh"].astype(np.float64)
+    normal = fibonacci_directions(32)
+    values = store.evaluate_irradiance("zh3_hallucinated", normal)
+    np.testing.assert_allclose(values, evaluate_zh3_irradiance(linear, hallucinate_zonal_l2(linear, tuple(curve)),
+                                                               normal), rtol=1e-12)
+    assert not np.allclose(values, evaluate_sh_irradiance(linear, normal))  # the zonal term is applied

@@ -5,8 +5,9 @@ import json
 import numpy as np
 import pytest
 
-import bakery.encodings.reflection as refl
 from bakery.encodings.registry import ENCODINGS
+from bakery.encodings.shexp import SHExp
+from bakery.encodings.splitsum import SplitSum
 from bakery.probe import ProbeBatch
 from bakery.reflection.reference import integrate_reflection, reflected_radiance
 from bakery.sphere.cubemap import cube_texel_directions, cube_texel_solid_angles
@@ -25,9 +26,9 @@ def _batch():
 
 
 ENCODERS = {
-    "splitsum": lambda: refl.SplitSum(face_size=FACE, n_levels=4, min_face_size=4),
-    "shexp": lambda: refl.SHExp(n_normals=16, n_views=16, fit_face_size=8),
-    "shexp_paper": lambda: refl.SHExp(n_normals=16, n_views=16, fit_face_size=8, albedo_normalized=False, fit="log"),
+    "splitsum": lambda: SplitSum(face_size=FACE, n_levels=4, min_face_size=4),
+    "shexp": lambda: SHExp(n_normals=16, n_views=16, fit_face_size=8),
+    "shexp_paper": lambda: SHExp(n_normals=16, n_views=16, fit_face_size=8, albedo_normalized=False, fit="log"),
 }
 
 
@@ -42,8 +43,8 @@ def encoded():
 
 
 def test_registered_as_reflection_encodings():
-    assert ENCODINGS["splitsum"] is refl.SplitSum and ENCODINGS["shexp"] is refl.SHExp
-    assert refl.SplitSum.kind == refl.SHExp.kind == "reflection"
+    assert ENCODINGS["splitsum"] is SplitSum and ENCODINGS["shexp"] is SHExp
+    assert SplitSum.kind == SHExp.kind == "reflection"
 
 
 @pytest.mark.parametrize("key", list(ENCODERS))
@@ -61,12 +62,12 @@ def test_fields_match_specs_and_memory_accounting(key, encoded):
 
 
 def test_shexp_default_memory_is_33_coefficients_per_channel():
-    enc = refl.SHExp()
+    enc = SHExp()
     assert enc.bytes_per_probe() == 33 * 3 * 4
     assert [s.shape for s in enc.field_specs()] == [(25, 3), (8, 3)]
-    levels = refl.SplitSum(face_size=128).field_specs()
+    levels = SplitSum(face_size=128).field_specs()
     assert [s.shape[1] for s in levels] == [128, 64, 32, 32, 32, 32]
-    assert refl.SplitSum(face_size=128).bytes_per_probe() == 6 * 3 * 2 * (128**2 + 64**2 + 4 * 32**2)
+    assert SplitSum(face_size=128).bytes_per_probe() == 6 * 3 * 2 * (128**2 + 64**2 + 4 * 32**2)
 
 
 @pytest.mark.parametrize("key", list(ENCODERS))
@@ -102,4 +103,4 @@ def test_constant_radiance_reflects_c_times_albedo(key, encoded):
 
 def test_bad_settings_are_rejected():
     with pytest.raises(ValueError):
-        refl.SHExp(fit="magic")
+        SHExp(fit="magic")

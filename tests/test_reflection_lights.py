@@ -4,7 +4,7 @@ brute-force integral of its texels, and SH-exp + lights beats SH-exp alone on a 
 import numpy as np
 import pytest
 
-from bakery.encodings.reflection import SHExp, SHExpLights
+from bakery.encodings.shexp import SHExp, SHExpLights
 from bakery.probe import ProbeBatch
 from bakery.reflection import shexp as sx
 from bakery.reflection.lights import evaluate_lights, extract_lights, remove_texels

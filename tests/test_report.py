@@ -15,15 +15,14 @@ import numpy as np
 import pytest
 
 import bakery
-from bakery.bake import BakeSettings, bake_environment, bake_probes
-from bakery.encodings import ENCODINGS
-from bakery.encodings.registry import Encoding, FieldSpec, register
+from bakery.encodings import ENCODINGS, Encoding, FieldSpec, NoParams, register
 from bakery.environment.io import write_exr
 from bakery.errors import StoreFormatError
-from bakery.probe import Probe, ProbeBatch
+from bakery.probe import Probe
 from bakery.report import build_report, write_report
 from bakery.report.memory import ChainSettings, chain_bytes
 from bakery.report.png import encode_png
+from harness import bake_cubes, bake_image
 
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                   "--disable-background-networking", "--disable-component-update", "--disable-sync"]
@@ -44,8 +43,8 @@ def sun_environment(path: Path, height: int = 32, sun: float = 200.0) -> Path:
 def image_store(tmp_path_factory):
     d = tmp_path_factory.mktemp("report_image")
     env = sun_environment(d / "sun.exr")
-    bake_environment(env, d / "sun.h5", BakeSettings(face_size=8,
-                                                     encodings=tuple(n for n, c in ENCODINGS.items() if c.kind == "irradiance")))
+    bake_image(env, d / "sun.h5", face_size=8,
+               encodings=tuple(n for n, c in ENCODINGS.items() if c.kind == "irradiance"))
     return d / "sun.h5"
 
 
@@ -60,7 +59,7 @@ def scene_store(tmp_path_factory):
     probes = [Probe(f"/World/Probes/probe_{i}", kinds=("irradiance",), position=(float(i), 1.0, 0.0))
               for i in range(10)]
     irradiance = tuple(n for n, c in ENCODINGS.items() if c.kind == "irradiance")
-    bake_probes(probes, ProbeBatch(cubes), BakeSettings(face_size=n, encodings=irradiance), d / "scene.h5")
+    bake_cubes(d / "scene.h5", probes, cubes, face_size=n, encodings=irradiance)
     return d / "scene.h5"
 
 
@@ -132,7 +131,7 @@ def test_report_of_a_multi_probe_store_names_worst_probes(scene_store, tmp_path)
 
 def test_report_with_a_single_encoding_and_no_reference_diagnostics(tmp_path):
     env = sun_environment(tmp_path / "e.exr", height=16)
-    bake_environment(env, tmp_path / "s.h5", BakeSettings(face_size=4, encodings=("sh2",), reference_errors=False))
+    bake_image(env, tmp_path / "s.h5", face_size=4, encodings=("sh2",), reference_errors=False)
     data, html = build_report(tmp_path / "s.h5")
     # errors computed from the capture when the store has no diagnostics
     assert list(data["errors"]) == ["sh2"] and data["errors"]["sh2"]["summary"]["count"] == 1
@@ -160,6 +159,7 @@ def toy_reflection_encoding():
         name = "test_mean_radiance"
         kind = "reflection"
         description = "test only: mean radiance times F0"
+        Params = NoParams
 
         def field_specs(self):
             return (FieldSpec("mean", (3,), "float32", "mean radiance"),)
@@ -178,7 +178,7 @@ def toy_reflection_encoding():
 
 def test_report_includes_registered_reflection_encodings(toy_reflection_encoding, tmp_path):
     env = sun_environment(tmp_path / "e.exr", height=16)
-    bake_environment(env, tmp_path / "s.h5", BakeSettings(face_size=4, encodings=("sh2", toy_reflection_encoding)))
+    bake_image(env, tmp_path / "s.h5", face_size=4, encodings=("sh2", toy_reflection_encoding))
     data, html = build_report(tmp_path / "s.h5")
     curves = data["reflection_alpha_curves"]
     assert toy_reflection_encoding in curves["encodings"]
@@ -200,8 +200,7 @@ def test_report_with_every_registered_reflection_encoding(tmp_path):
     for name in REFLECTION:
         defaults = ENCODINGS[name]().settings
         settings[name] = {k: v for k, v in SMALL_SETTINGS.items() if k in defaults}
-    bake_environment(env, tmp_path / "s.h5", BakeSettings(face_size=8, encodings=("sh2", *REFLECTION),
-                                                          encoding_settings=settings))
+    bake_image(env, tmp_path / "s.h5", face_size=8, encodings=("sh2", *REFLECTION), encoding_settings=settings)
     data, html = build_report(tmp_path / "s.h5")
     for name in REFLECTION:
         curve = data["reflection_alpha_curves"]["encodings"][name]

@@ -12,9 +12,12 @@ from bakery.environment.layouts import (
 )
 from bakery.sphere.cubemap import (
     cube_face_uv_to_direction,
+    cube_mean_texel_solid_angle,
+    cube_texel_density,
     cube_texel_directions,
     cube_texel_solid_angles,
     direction_to_cube_face_uv,
+    resample_cube,
 )
 from bakery.sphere.fibonacci import fibonacci_directions
 
@@ -78,3 +81,46 @@ def test_fibonacci_directions_are_unit_and_balanced():
     d = fibonacci_directions(4096)
     np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0)
     assert np.abs(d.mean(axis=0)).max() < 1e-3
+
+
+def cube_flux(cube):
+    return np.einsum("fijc,fij->c", cube.astype(np.float64), cube_texel_solid_angles(cube.shape[1]))
+
+
+def test_cube_texel_density_integrates_to_the_texel_solid_angles():
+    n, fine = 4, 512
+    t = (np.arange(n * fine) + 0.5) / (n * fine) * 2.0 - 1.0
+    v, u = np.meshgrid(t, t, indexing="ij")
+    omega = cube_texel_density(u, v, n * fine).reshape(n, fine, n, fine).sum(axis=(1, 3))
+    np.testing.assert_allclose(omega, cube_texel_solid_angles(n)[0], rtol=1e-5)
+    assert cube_mean_texel_solid_angle(n) == pytest.approx(cube_texel_solid_angles(n).mean(), rel=1e-12)
+
+
+@pytest.mark.parametrize("m,n", [(32, 16), (32, 8), (48, 32), (16, 40), (20, 7), (8, 32), (5, 5)])
+def test_resample_cube_preserves_flux(m, n):
+    cube = np.random.default_rng(m * 100 + n).lognormal(size=(6, m, m, 3)).astype(np.float32)
+    out = resample_cube(cube, n)
+    assert out.shape == (6, n, n, 3) and out.dtype == np.float32
+    np.testing.assert_allclose(cube_flux(out), cube_flux(cube), rtol=1e-6)
+
+
+@pytest.mark.parametrize("m,n", [(32, 16), (48, 32), (16, 40), (8, 32)])
+def test_resample_cube_keeps_a_constant(m, n):
+    out = resample_cube(np.full((6, m, m, 2), 1.75, dtype=np.float32), n)
+    np.testing.assert_allclose(out, 1.75, rtol=1e-6)
+
+
+def test_solid_angle_weighting_matters():
+    # A plain 2x2 mean loses flux because texel solid angles differ (more near face centres).
+    cube = np.random.default_rng(1).lognormal(size=(6, 16, 16, 1))
+    plain = cube.reshape(6, 8, 2, 8, 2, 1).mean(axis=(2, 4))
+    assert abs(cube_flux(plain)[0] / cube_flux(cube)[0] - 1) > 1e-4
+    np.testing.assert_allclose(cube_flux(resample_cube(cube, 8)), cube_flux(cube), rtol=1e-6)
+
+
+@pytest.mark.parametrize("m,k", [(8, 2), (8, 4), (6, 3)])
+def test_downsampling_an_upsampled_cube_returns_it(m, k):
+    cube = np.random.default_rng(m + k).lognormal(size=(6, m, m, 3)).astype(np.float32)
+    up = resample_cube(cube, k * m)
+    np.testing.assert_allclose(resample_cube(up, m), cube, rtol=1e-5)
+

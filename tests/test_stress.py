@@ -43,7 +43,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from bakery.bake import BakeSettings, bake_environment, bake_probes, encode_batch
+from bakery.pipeline.encode import encode_batch
+from bakery.pipeline.settings import BakeSettings
 from bakery.encodings import ENCODINGS, get_encoding
 from bakery.environment.io import write_exr
 from bakery.errors import BakeryWarning, ConfigError, DegenerateInputWarning
@@ -55,6 +56,7 @@ from bakery.sh.basis import evaluate_sh_basis
 from bakery.sh.convolution import cosine_lobe_band_factors
 from bakery.sphere.cubemap import cube_texel_directions, cube_texel_solid_angles
 from bakery.sphere.fibonacci import fibonacci_directions
+from harness import bake_cubes, bake_image
 
 pytestmark = pytest.mark.stress
 
@@ -139,7 +141,7 @@ def test_black_environment_bake_warns_and_stores_zeros(tmp_path):
     path = tmp_path / "black.exr"
     write_exr(path, np.zeros((8, 16, 3), dtype=np.float32), half=False)
     with pytest.warns(DegenerateInputWarning, match="black"):
-        result = bake_environment(path, tmp_path / "black.h5", BakeSettings(face_size=4, encodings=tuple(IRRADIANCE)))
+        result = bake_image(path, tmp_path / "store.h5", face_size=4, encodings=tuple(IRRADIANCE))
     for name, fields in result.encoded.items():
         for array in fields.values():
             assert np.all(np.isfinite(array.astype(np.float64)))
@@ -227,7 +229,7 @@ def test_overflow_clamps_in_narrow_storage_are_warned_and_counted(name):
     probes = [Probe("/hot", kinds=(ENCODINGS[name].kind,))]
     result = encode_batch(probes, ProbeBatch(constant_cube([1e6, 2e5, 1e5])), BakeSettings(face_size=4, encodings=(name,)),
                           encodings={name: encoding(name)})
-    assert any("clamp" in w.lower() for w in result.warnings), result.warnings
+    assert any("clamp" in w.message.lower() for w in result.warnings), result.warnings
 
 
 # ------------------------------------------------------------------------------------------------ sanitised input
@@ -241,7 +243,7 @@ def test_nan_inf_negative_texels_are_counted_and_every_encoding_finite(tmp_path)
     write_exr(path, pixels, half=False)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BakeryWarning)
-        result = bake_environment(path, tmp_path / "s.h5", BakeSettings(face_size=4, encodings=tuple(IRRADIANCE)))
+        result = bake_image(path, tmp_path / "s.h5", face_size=4, encodings=tuple(IRRADIANCE))
     assert result.diagnostics["input/sanitized_texels"].tolist() == [[4, 3, 2, 5]]
     for name, fields in result.encoded.items():
         for array in fields.values():
@@ -255,8 +257,8 @@ def test_non_finite_captures_are_sanitised_or_refused_by_bake_probes(tmp_path):
     from bakery.errors import BakeryError
 
     try:
-        result = bake_probes([Probe("/p", kinds=("irradiance",))], ProbeBatch(cube),
-                             BakeSettings(face_size=4, encodings=tuple(IRRADIANCE)), tmp_path / "s.h5")
+        result = bake_cubes(tmp_path / "s.h5", [Probe("/p", kinds=("irradiance",))], cube, face_size=4,
+                            encodings=tuple(IRRADIANCE))
     except BakeryError:
         return  # refusing with a clear error is acceptable
     for fields in result.encoded.values():
@@ -269,8 +271,8 @@ def test_coincident_probes_get_identical_rows(tmp_path):
     rng = np.random.default_rng(5)
     cube = rng.uniform(0, 2, size=(1, 6, 4, 4, 3)).astype(np.float32)
     probes = [Probe(f"/P/p{i}", kinds=("irradiance",), position=(1.0, 2.0, 3.0)) for i in range(3)]
-    result = bake_probes(probes, ProbeBatch(np.repeat(cube, 3, axis=0)),
-                         BakeSettings(face_size=4, encodings=tuple(IRRADIANCE)), tmp_path / "s.h5")
+    result = bake_cubes(tmp_path / "s.h5", probes, np.repeat(cube, 3, axis=0), face_size=4,
+                        encodings=tuple(IRRADIANCE))
     for fields in result.encoded.values():
         for array in fields.values():
             assert np.array_equal(array[0], array[1]) and np.array_equal(array[0], array[2])
@@ -278,15 +280,15 @@ def test_coincident_probes_get_identical_rows(tmp_path):
 
 def test_duplicate_probe_names_are_refused(tmp_path):
     with pytest.raises(ConfigError, match="unique"):
-        bake_probes([Probe("/p"), Probe("/p")], ProbeBatch(constant_cube(1.0).repeat(2, axis=0)),
-                    BakeSettings(face_size=4, encodings=("sh2",)), tmp_path / "s.h5")
+        bake_cubes(tmp_path / "s.h5", [Probe("/p"), Probe("/p")], constant_cube(1.0).repeat(2, axis=0),
+                   face_size=4, encodings=("sh2",))
 
 
 @pytest.mark.parametrize("position", [(np.nan, 0.0, 0.0), (np.inf, 0.0, 0.0)])
 def test_degenerate_probe_positions_are_refused(tmp_path, position):
     with pytest.raises(ConfigError):
-        bake_probes([Probe("/p", position=position)], ProbeBatch(constant_cube(1.0)),
-                    BakeSettings(face_size=4, encodings=("sh2",)), tmp_path / "s.h5")
+        bake_cubes(tmp_path / "s.h5", [Probe("/p", position=position)], constant_cube(1.0), face_size=4,
+                   encodings=("sh2",))
 
 
 @pytest.mark.parametrize("name", IRRADIANCE)

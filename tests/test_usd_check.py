@@ -9,8 +9,8 @@ import sys
 import pytest
 from usd_scenes import box_mesh, header, material, probe, write
 
+import bakery
 from bakery.errors import CHECK_FAILED_EXIT_CODE, SceneError
-from bakery.scene_bake import bake_scene
 from bakery.usd.check import check_exit_code, check_scene
 
 CLEAN = header() + material("M", diffuse=(0.5, 0.5, 0.5)) + box_mesh("Box", 1.0, "/M") + probe("P", (0, 3, 0))
@@ -96,7 +96,7 @@ def test_bake_refuses_scenes_with_errors(tmp_path, case):
     text, _, prim, _ = BAD[case]
     path = write(tmp_path / f"{case}.usda", text)
     with pytest.raises(SceneError, match=prim if prim != "/" else "no probes"):
-        bake_scene(path, tmp_path / "out.h5", face_size=8, samples=1)
+        bakery.bake(path, tmp_path / "out.h5", face_size=8, samples=1)
     assert not (tmp_path / "out.h5").exists()
 
 

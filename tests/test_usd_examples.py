@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from bakery.scene_bake import bake_scene
+import bakery
 from bakery.usd.check import check_scene
 from bakery.usd.scene import read_scene
 
@@ -30,8 +30,8 @@ def test_example_checks_clean_and_bakes(tmp_path, scene):
     kinds = {p.kind for p in reading.scene.probes}
     assert kinds == {"irradiance", "reflection"}
     assert any(p.volume for p in reading.scene.probes)
-    summary = bake_scene(scene, tmp_path / "out.h5", face_size=8, encodings=["sh3"], samples=1)
+    summary = bakery.bake(scene, tmp_path / "out.h5", face_size=8, encodings=["sh3"], samples=1)
     irradiance = [p for p in reading.scene.probes if p.kind == "irradiance"]
-    assert summary["probes"] == len(irradiance) and not summary["failed"]
-    assert len(summary["skipped"]) == len(reading.scene.probes) - len(irradiance)  # reflection: no sh3
-    assert Path(summary["layer"]).is_file() and Path(summary["store"]).is_file()
+    assert (summary.baked + summary.reused) == len(irradiance) and not summary.failed
+    assert len(summary.skipped) == len(reading.scene.probes) - len(irradiance)  # reflection: no sh3
+    assert Path(summary.layer).is_file() and Path(summary.store).is_file()

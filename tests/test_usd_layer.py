@@ -10,11 +10,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+import bakery
 from pxr import Sdf, Usd
 from usd_scenes import box_mesh, header, material, probe, write
 
 from bakery.errors import SceneError
-from bakery.scene_bake import bake_scene
 from bakery.store.format import read_store
 from bakery.usd.layer import attribute_name, content_hash, read_baked_values
 from bakery.usd.plugin import FALLBACKS, PLUGIN_DIR, PROBE_TYPES, schemas_registered
@@ -37,7 +38,7 @@ def baked(tmp_path_factory):
     tmp_path = tmp_path_factory.mktemp("bake")
     scene = _scene(tmp_path)
     before = {p.name: p.read_bytes() for p in tmp_path.glob("*.usda")}
-    summary = bake_scene(scene, tmp_path / "scene.h5", face_size=8, encodings=["sh3", "sh2"], samples=1)
+    summary = bakery.bake(scene, tmp_path / "scene.h5", face_size=8, encodings=["sh3", "sh2"], samples=1)
     return tmp_path, scene, before, summary
 
 
@@ -45,16 +46,16 @@ def test_user_layers_are_untouched(baked):
     tmp_path, _, before, summary = baked
     for name, data in before.items():
         assert (tmp_path / name).read_bytes() == data
-    assert Path(summary["layer"]).name == "scene.bake.usda"
+    assert Path(summary.layer).name == "scene.bake.usda"
     # irradiance encodings only were requested: the reflection probe is planned but skipped, and reported
-    assert summary["probes"] == 1 + 4 and summary["rays"] > 0 and summary["rays_per_second"] > 0
-    assert [s["probe"] for s in summary["skipped"]] == ["/Refl"]
+    assert (summary.baked + summary.reused) == 1 + 4 and summary.timings["capture_rays"] > 0 and summary.timings["rays_per_second"] > 0
+    assert [s["probe"] for s in summary.skipped] == ["/Refl"]
 
 
 def test_layer_round_trips_the_store_through_a_composed_stage(baked):
     tmp_path, scene, _, summary = baked
     session = Sdf.Layer.CreateAnonymous(".usda")
-    session.subLayerPaths = [summary["layer"], str(scene)]
+    session.subLayerPaths = [summary.layer, str(scene)]
     stage = Usd.Stage.Open(session)
     # the engine's view: typed probes carrying their coefficients
     for path, type_name in [("/Irr", "BakeryIrradianceProbe"), ("/Vol", "BakeryIrradianceProbeVolume")]:
@@ -64,7 +65,7 @@ def test_layer_round_trips_the_store_through_a_composed_stage(baked):
     assert stage.GetPrimAtPath("/Refl").GetTypeName() == "BakeryReflectionProbe"
     assert "BakeryBakedProbeAPI" not in stage.GetPrimAtPath("/Refl").GetAppliedSchemas()  # skipped: not baked
     values = read_baked_values(stage)
-    store = read_store(summary["store"])
+    store = read_store(summary.store)
     names = list(store.probe_names)
     for encoding in ("sh2", "sh3"):
         fields = store.encodings[encoding]["fields"]
@@ -77,11 +78,11 @@ def test_layer_round_trips_the_store_through_a_composed_stage(baked):
         np.testing.assert_array_equal(vol, stored[[rows[n] for n in order]])
     # bookkeeping attributes
     irr = stage.GetPrimAtPath("/Irr")
-    assert irr.GetAttribute("bakery:baked:settingsHash").Get() == summary["settings_hash"]
+    assert irr.GetAttribute("bakery:baked:settingsHash").Get() == summary.settings_hash
     assert irr.GetAttribute("bakery:baked:probeCount").Get() == 1
     assert stage.GetPrimAtPath("/Vol").GetAttribute("bakery:baked:probeCount").Get() == 4
     store_asset = irr.GetAttribute("bakery:baked:store").Get()
-    assert Path(store_asset.resolvedPath).resolve() == Path(summary["store"]).resolve()
+    assert Path(store_asset.resolvedPath).resolve() == Path(summary.store).resolve()
     assert irr.GetAttribute("bakery:baked:contentHash").Get() == content_hash(values["/Irr"])
     assert json.loads(irr.GetAttribute("bakery:baked:conventions").Get())["frame"] == "right-handed, +Y up"
 
@@ -99,9 +100,9 @@ def test_content_hash_is_sha256_of_names_shapes_and_bytes():
 def test_layer_may_not_overwrite_the_scene(tmp_path):
     scene = _scene(tmp_path)
     with pytest.raises(SceneError, match="refusing"):
-        bake_scene(scene, tmp_path / "out.h5", layer_path=scene, face_size=8, encodings=["sh2"], samples=1)
+        bakery.bake(scene, tmp_path / "out.h5", layer=scene, face_size=8, encodings=["sh2"], samples=1)
     with pytest.raises(SceneError, match="refusing"):
-        bake_scene(scene, tmp_path / "out.h5", layer_path=tmp_path / "probes.usda", face_size=8,
+        bakery.bake(scene, tmp_path / "out.h5", layer=tmp_path / "probes.usda", face_size=8,
                    encodings=["sh2"], samples=1)
 
 
@@ -149,9 +150,9 @@ def test_per_probe_capture_resolution_and_constant_radiance_dc(tmp_path):
     c = np.array([0.5, 1.0, 2.0])
     text = header() + material("M", diffuse=(0.0, 0.0, 0.0), emissive=tuple(c)) + box_mesh("Box", 2.0, "/M")
     text += probe("P", (0.2, 0.1, -0.3), body="int bakery:capture:resolution = 16")
-    summary = bake_scene(write(tmp_path / "box.usda", text), tmp_path / "box.h5", face_size=8, encodings=["sh3"],
+    summary = bakery.bake(write(tmp_path / "box.usda", text), tmp_path / "box.h5", face_size=8, encodings=["sh3"],
                          samples=1)
-    values = read_baked_values(summary["layer"])["/P"]["bakery:irradiance:sh3:radiance_sh"][0]
+    values = read_baked_values(summary.layer)["/P"]["bakery:irradiance:sh3:radiance_sh"][0]
     np.testing.assert_allclose(values[0], 2 * np.sqrt(np.pi) * c, rtol=1e-5)
     np.testing.assert_allclose(values[1:], 0.0, atol=1e-5)
 
@@ -161,13 +162,13 @@ def test_scene_bake_is_identical_with_one_or_two_worker_processes(tmp_path):
     from bakery.pipeline.executors import ProcessExecutor
 
     scene = _scene(tmp_path)
-    serial = bake_scene(scene, tmp_path / "a.h5", face_size=8, encodings=["sh3"], samples=1)
+    serial = bakery.bake(scene, tmp_path / "a.h5", face_size=8, encodings=["sh3"], samples=1)
     executor = ProcessExecutor(2)
     try:
-        parallel = bake_scene(scene, tmp_path / "b.h5", face_size=8, encodings=["sh3"], samples=1,
+        parallel = bakery.bake(scene, tmp_path / "b.h5", face_size=8, encodings=["sh3"], samples=1,
                               executor=executor)
     finally:
         executor.close()
-    a = Path(serial["layer"]).read_text().replace("a.h5", "X")
-    b = Path(parallel["layer"]).read_text().replace("b.h5", "X")
+    a = Path(serial.layer).read_text().replace("a.h5", "X")
+    b = Path(parallel.layer).read_text().replace("b.h5", "X")
     assert a == b

@@ -32,7 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bakery.encodings.reflection import SHExp, SHExpLights, SplitSum
+from bakery.encodings.shexp import SHExp, SHExpLights
+from bakery.encodings.splitsum import SplitSum
 from bakery.environment import environment_samples, resample_to_cube
 from bakery.environment.io import read_environment
 from bakery.probe import ProbeBatch
@@ -57,6 +58,8 @@ from bakery.reflection.shexp import (
 from bakery.sphere.fibonacci import fibonacci_directions
 
 IMAGE_SUFFIXES = (".hdr", ".exr")
+#: Result keys of the encodings (their registered names; the JSON keys stay the store's group names).
+SHEXP, SPLITSUM, SHEXP_LIGHTS = SHExp.name, SplitSum.name, SHExpLights.name
 PERCEPTUAL = np.linspace(0.5, 1.0, 6)
 ALPHAS = PERCEPTUAL**2
 MATERIALS = {"chrome": 1.0, "glass": 0.04}
@@ -204,15 +207,15 @@ def run_reflection_bench(
             "paper_formulation_win_share_vs_plain": float(np.mean([
                 r["mse_shexp_paper"] < r["mse_splitsum_plain"] for r in rows])),
             "geometric_mean_ratio": float(np.exp(np.mean(np.log(np.maximum(ratios, 1e-30))))),
-            "bytes_per_probe": {"shexp": shexp.bytes_per_probe(), "splitsum": split.bytes_per_probe(),
-                                "shexp_lights": lights.bytes_per_probe()},
+            "bytes_per_probe": {SHEXP: shexp.bytes_per_probe(), SPLITSUM: split.bytes_per_probe(),
+                                SHEXP_LIGHTS: lights.bytes_per_probe()},
             "memory_ratio": split.bytes_per_probe() / shexp.bytes_per_probe(),
             "losses_by_environment": _count(losses, "environment"),
             "losses_by_alpha": _count(losses, "alpha"),
             "losses_by_material": _count(losses, "material"),
-            "encode_ms_per_probe": {"shexp": 1e3 * (t1 - t0) / len(names),
-                                    "splitsum_fast": 1e3 * (t2 - t1) / len(names),
-                                    "shexp_lights": 1e3 * (t4 - t3) / len(names)},
+            "encode_ms_per_probe": {SHEXP: 1e3 * (t1 - t0) / len(names),
+                                    f"{SPLITSUM}_fast": 1e3 * (t2 - t1) / len(names),
+                                    SHEXP_LIGHTS: 1e3 * (t4 - t3) / len(names)},
         },
     }
     if speed:
@@ -357,9 +360,9 @@ def format_table(result: dict) -> str:
         f"({100 * s['paper_formulation_win_share']:.1f}%). Against the paper's split-sum setting (plain 1024-sample "
         f"IS chain): {100 * s['win_share_vs_plain_splitsum']:.1f}% (paper formulation "
         f"{100 * s['paper_formulation_win_share_vs_plain']:.1f}%).",
-        f"Bytes per probe: shexp {s['bytes_per_probe']['shexp']}, splitsum {s['bytes_per_probe']['splitsum']} "
+        f"Bytes per probe: {SHEXP} {s['bytes_per_probe'][SHEXP]}, {SPLITSUM} {s['bytes_per_probe'][SPLITSUM]} "
         f"(ratio {s['memory_ratio']:.0f}×).",
-        f"shexp_lights ({s['bytes_per_probe']['shexp_lights']} bytes, {s['lights_memory_ratio']:.0f}× less than "
+        f"{SHEXP_LIGHTS} ({s['bytes_per_probe'][SHEXP_LIGHTS]} bytes, {s['lights_memory_ratio']:.0f}× less than "
         f"split-sum): lower MSE in {s['lights_wins']}/{s['cases']} ({100 * s['lights_win_share']:.1f}%), geometric "
         f"mean ratio {s['lights_geometric_mean_ratio']:.3g}; vs the plain 1024-sample chain "
         f"{100 * s['lights_win_share_vs_plain_splitsum']:.1f}%.", "",
@@ -367,7 +370,7 @@ def format_table(result: dict) -> str:
         "|---|" + "---|" * len(ALPHAS),
     ]
     envs = sorted({r["environment"] for r in result["rows"]})
-    for key, label in (("ratio", "shexp"), ("ratio_lights", "shexp_lights")):
+    for key, label in (("ratio", SHEXP), ("ratio_lights", SHEXP_LIGHTS)):
         if key != "ratio":
             lines += ["", "| environment | " + " | ".join(f"α={a:.3g}" for a in ALPHAS) + " |",
                       "|---|" + "---|" * len(ALPHAS)]
@@ -378,7 +381,7 @@ def format_table(result: dict) -> str:
                 wins = sum(x < 1 for x in rr)
                 cells.append(f"{np.exp(np.mean(np.log(np.maximum(rr, 1e-30)))):.3g} ({wins}/{len(rr)})")
             lines.append(f"| {env} | " + " | ".join(cells) + " |")
-        lines += ["", f"Cells: geometric-mean MSE ratio {label}/splitsum over materials × views (wins/cases)."]
+        lines += ["", f"Cells: geometric-mean MSE ratio {label}/{SPLITSUM} over materials × views (wins/cases)."]
     lines += [""]
     if "speed" in result:
         sp = result["speed"]

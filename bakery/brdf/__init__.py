@@ -13,7 +13,6 @@ from bakery.brdf.ggx import (
 )
 from bakery.brdf.sampling import (
     ggx_ndf_pdf,
-    orthonormal_frame,
     reflection_pdf_from_half_pdf,
     sample_ggx_ndf,
     sample_ggx_vndf,
@@ -21,6 +20,7 @@ from bakery.brdf.sampling import (
     to_world,
     vndf_pdf,
 )
+from bakery.sphere.sampling import orthonormal_frame  # re-exported: the frame lives in bakery.sphere
 
 __all__ = [
     "fresnel_schlick",

@@ -17,18 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from bakery.brdf.ggx import ggx_distribution, smith_g1
-
-
-def orthonormal_frame(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Tangent t and bitangent b (..., 3) with (t, b, n) right-handed orthonormal (Duff et al. 2017)."""
-    n = np.asarray(n, dtype=np.float64)
-    x, y, z = n[..., 0], n[..., 1], n[..., 2]
-    s = np.where(z >= 0.0, 1.0, -1.0)
-    a = -1.0 / (s + z)
-    b = x * y * a
-    t = np.stack([1.0 + s * x * x * a, s * b, -s * x], axis=-1)
-    bt = np.stack([b, s + y * y * a, -y], axis=-1)
-    return t, bt
+from bakery.sphere.sampling import orthonormal_frame
 
 
 def to_local(w: np.ndarray, n: np.ndarray) -> np.ndarray:

@@ -28,7 +28,12 @@ from bakery.environment.layouts import (
     equirect_texel_solid_angles,
 )
 from bakery.environment.resample import resample_to_cube
-from bakery.sphere.cubemap import cube_face_uv_to_direction, cube_texel_solid_angles, direction_to_cube_face_uv
+from bakery.sphere.cubemap import (
+    cube_face_uv_to_direction,
+    cube_texel_density,
+    cube_texel_solid_angles,
+    direction_to_cube_face_uv,
+)
 
 
 class DomeSampler:
@@ -80,8 +85,7 @@ class DomeSampler:
         face, u, v = direction_to_cube_face_uv(local)
         col = np.clip(((u + 1.0) * 0.5 * n).astype(np.int64), 0, n - 1)
         row = np.clip(((v + 1.0) * 0.5 * n).astype(np.int64), 0, n - 1)
-        density = (1.0 + u * u + v * v) ** -1.5 * (2.0 / n) ** 2
-        return (face * n + row) * n + col, density
+        return (face * n + row) * n + col, cube_texel_density(u, v, n)
 
     def radiance(self, directions: np.ndarray) -> np.ndarray:
         """Dome radiance (M, 3) seen along bake-frame directions (M, 3)."""
@@ -119,6 +123,6 @@ class DomeSampler:
             uu = 2.0 * (col + u[:, 2]) / n - 1.0
             vv = 2.0 * (row - face * n + u[:, 1]) / n - 1.0
             local = cube_face_uv_to_direction(face, uu, vv)
-            density = (1.0 + uu * uu + vv * vv) ** -1.5 * (2.0 / n) ** 2
+            density = cube_texel_density(uu, vv, n)
         directions = local @ self.rotation.T
         return directions, self.probability[k] / np.maximum(density, 1e-300)

@@ -18,16 +18,7 @@ import numpy as np
 
 from bakery.capture.scene import Light
 from bakery.capture.tracer import FAR
-
-
-def _frame(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit vectors (M, 3) completing unit w (M, 3) to an orthonormal basis [Duff et al. 2017]."""
-    sign = np.where(w[:, 2] >= 0, 1.0, -1.0)
-    a = -1.0 / (sign + w[:, 2])
-    b = w[:, 0] * w[:, 1] * a
-    t = np.stack([1.0 + sign * w[:, 0] ** 2 * a, sign * b, -sign * w[:, 0]], axis=-1)
-    s = np.stack([b, sign + w[:, 1] ** 2 * a, -w[:, 1]], axis=-1)
-    return t, s
+from bakery.sphere.sampling import orthonormal_frame
 
 
 def sample_cone(axis: np.ndarray, one_minus_cos_max: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -36,7 +27,7 @@ def sample_cone(axis: np.ndarray, one_minus_cos_max: np.ndarray, u: np.ndarray) 
     cos_t = 1.0 - one_minus_cos
     sin_t = np.sqrt(np.maximum(0.0, one_minus_cos * (2.0 - one_minus_cos)))
     phi = 2.0 * np.pi * u[:, 1]
-    t, s = _frame(axis)
+    t, s = orthonormal_frame(axis)
     return (sin_t * np.cos(phi))[:, None] * t + (sin_t * np.sin(phi))[:, None] * s + cos_t[:, None] * axis
 
 

@@ -24,27 +24,29 @@ Randomness comes from ``numpy.random.default_rng(seed)`` with the seed derived f
 
 from __future__ import annotations
 
-import hashlib
 import time
 from dataclasses import dataclass
 
 import numpy as np
 
 from bakery.capture.dome import DomeSampler
-from bakery.capture.lights import _frame, intersect_light_shapes, sample_light
+from bakery.capture.lights import intersect_light_shapes, sample_light
 from bakery.capture.scene import CaptureScene, Light
 from bakery.capture.tracer import FAR, SceneTracer
+from bakery.files import sha256_bytes
 from bakery.sphere.cubemap import (
     cube_face_uv_to_direction,
+    cube_mean_texel_solid_angle,
     cube_texel_solid_angles,
     direction_to_cube_texel,
 )
+from bakery.sphere.sampling import orthonormal_frame
 
 
 def probe_seed(name: str, base_seed: int = 0) -> int:
     """Stable 63-bit seed from a probe identity (SHA-256 of the name, mixed with ``base_seed``)."""
-    digest = hashlib.sha256(f"{base_seed}:{name}".encode()).digest()
-    return int.from_bytes(digest[:8], "little") & ((1 << 63) - 1)
+    digest = bytes.fromhex(sha256_bytes(f"{base_seed}:{name}".encode())[:16])
+    return int.from_bytes(digest, "little") & ((1 << 63) - 1)
 
 
 @dataclass(frozen=True)
@@ -215,18 +217,15 @@ class ProbeRenderer:
         phi = 2.0 * np.pi * u[:, 1]
         x, y = r * np.cos(phi), r * np.sin(phi)
         z = np.sqrt(np.maximum(0.0, 1.0 - u[:, 0]))
-        t, s = _frame(normals)
+        t, s = orthonormal_frame(normals)
         return x[:, None] * t + y[:, None] * s + z[:, None] * normals
 
     # ------------------------------------------------------------------------------------------------------------
-    def _texel_solid_angle(self, face_size: int) -> float:
-        return 4.0 * np.pi / (6.0 * face_size * face_size)
-
     def _splat_distant(self, light: Light, face_size: int) -> bool:
         """Whether a distant light is splatted into one texel (disc smaller than a texel) rather than ray-seen."""
         alpha = np.radians(0.5 * light.angle)
         disc = 2.0 * np.pi * (1.0 - np.cos(alpha))
-        return disc < self._texel_solid_angle(face_size)
+        return disc < cube_mean_texel_solid_angle(face_size)
 
     def _add_distant_lights(self, cube: np.ndarray, position: np.ndarray) -> np.ndarray:
         n = cube.shape[1]

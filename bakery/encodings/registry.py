@@ -1,106 +1,70 @@
-"""The encoding registry: one class per encoding, declared once, picked up by store, API and conformance tests.
+"""The encoding registry: name → class, filled by :func:`register` at the bottom of every encoding module.
 
-An encoding module defines a subclass of :class:`Encoding` and decorates it with :func:`register`. Everything else
-(the store writer and reader, ``bakery inspect``, the public API, the memory report and the conformance test suite
-in ``tests/test_encoding_conformance.py``) works from the declaration:
-
-- ``name``: the store group ``/encodings/<name>``; ``version``: semantic version of its stored layout (bump it when
-  the layout or meaning changes and keep a reader for the old one); ``kind``: ``"irradiance"`` or ``"reflection"``.
-- ``field_specs()``: the per-probe arrays it stores (shape after the probe axis, dtype, meaning); the store writes
-  each as a dataset (P, *shape) in ``/encodings/<name>/``.
-- ``shared_tables()``: arrays stored once per store (e.g. the DFG table) in ``/encodings/<name>/shared/``.
-- ``settings``: JSON-able parameters, stored as the group attribute ``settings``; ``from_settings`` rebuilds the
-  encoding from them so that a store can be evaluated without the bake's settings.
-- ``encode(batch)`` → {field: (P, *shape) array}; ``evaluate_irradiance`` / ``evaluate_reflection`` reconstruct
-  what an engine would, from stored fields only.
+Registration is loud: a duplicate name, an unknown kind, a missing or malformed ``Params``, an abstract class or an
+inconsistent capability declaration raise ValueError at import time, so a broken encoding module fails the import
+of :mod:`bakery.encodings` instead of silently disappearing.
 """
 
 from __future__ import annotations
 
-import json
-from dataclasses import dataclass
-from typing import Any, ClassVar
+import dataclasses
+import inspect
 
-import numpy as np
+from bakery.encodings.base import Encoding, EncodingParams
 
-from bakery.probe import ProbeBatch
-
-
-@dataclass(frozen=True)
-class FieldSpec:
-    """One stored per-probe array: ``shape`` excludes the leading probe axis."""
-
-    name: str
-    shape: tuple[int, ...]
-    dtype: str
-    description: str
-
-    @property
-    def nbytes(self) -> int:
-        return int(np.prod(self.shape, dtype=np.int64)) * np.dtype(self.dtype).itemsize
-
-
-class Encoding:
-    """Base class of every encoding; see the module docstring for the contract."""
-
-    name: ClassVar[str]
-    version: ClassVar[str] = "1.0.0"
-    kind: ClassVar[str]
-    description: ClassVar[str] = ""
-
-    def __init__(self, **settings: Any) -> None:
-        self.settings: dict[str, Any] = dict(settings)
-
-    @classmethod
-    def from_settings(cls, settings: dict[str, Any]) -> Encoding:
-        return cls(**settings)
-
-    def field_specs(self) -> tuple[FieldSpec, ...]:
-        raise NotImplementedError
-
-    def shared_tables(self) -> dict[str, np.ndarray]:
-        return {}
-
-    def bytes_per_probe(self) -> int:
-        """Bytes an engine stores per probe: the sum of the per-probe fields (shared tables excluded)."""
-        return sum(spec.nbytes for spec in self.field_specs())
-
-    def encode(self, batch: ProbeBatch) -> dict[str, np.ndarray]:
-        raise NotImplementedError
-
-    def evaluate_irradiance(self, fields: dict[str, np.ndarray], normals: np.ndarray) -> np.ndarray:
-        """Irradiance (P, N, 3) at unit normals (N, 3) from stored fields {name: (P, *shape)}."""
-        raise NotImplementedError(f"{self.name} is not an irradiance encoding")
-
-    def evaluate_reflection(
-        self,
-        fields: dict[str, np.ndarray],
-        shared: dict[str, np.ndarray],
-        view: np.ndarray,
-        normal: np.ndarray,
-        alpha: np.ndarray,
-        f0: np.ndarray,
-    ) -> np.ndarray:
-        """Specular radiance E (P, N, 3) for (N,) batches of view v (N, 3) (towards the viewer), normal n (N, 3),
-        GGX α (N,) and F0 (N,) or (N, 3), from stored fields and shared tables."""
-        raise NotImplementedError(f"{self.name} is not a reflection encoding")
-
-    def settings_json(self) -> str:
-        return json.dumps(self.settings, sort_keys=True)
-
+#: The kinds of probe an encoding can be for.
+KINDS = ("irradiance", "reflection")
 
 #: name → encoding class, in registration order.
 ENCODINGS: dict[str, type[Encoding]] = {}
 
 
-def register(cls: type[Encoding]) -> type[Encoding]:
-    """Class decorator adding an encoding to :data:`ENCODINGS`."""
-    if cls.name in ENCODINGS and ENCODINGS[cls.name] is not cls:
-        raise ValueError(f"encoding name {cls.name!r} registered twice")
-    if cls.kind not in ("irradiance", "reflection"):
-        raise ValueError(f"encoding {cls.name!r} has unknown kind {cls.kind!r}")
-    ENCODINGS[cls.name] = cls
-    return cls
+def _check(cls: type) -> None:
+    label = getattr(cls, "__qualname__", repr(cls))
+    if not (isinstance(cls, type) and issubclass(cls, Encoding)):
+        raise ValueError(f"{label} is not an Encoding subclass")
+    name = cls.__dict__.get("name")
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"encoding {label} does not declare its own name")
+    if getattr(cls, "kind", None) not in KINDS:
+        kind = getattr(cls, "kind", None)
+        raise ValueError(f"encoding {name!r} has unknown kind {kind!r}; kinds: {', '.join(KINDS)}")
+    params = cls.__dict__.get("Params")
+    if not (isinstance(params, type) and issubclass(params, EncodingParams)):
+        raise ValueError(f"encoding {name!r} does not declare Params (an EncodingParams dataclass, e.g. NoParams)")
+    if "__dataclass_fields__" not in params.__dict__ or not params.__dataclass_params__.frozen:
+        raise ValueError(f"encoding {name!r}: {params.__qualname__} must be decorated @dataclass(frozen=True)")
+    if inspect.isabstract(cls):
+        missing = ", ".join(sorted(cls.__abstractmethods__))
+        raise ValueError(f"encoding {name!r} does not implement {missing}")
+    fields = {f.name: f for f in dataclasses.fields(params)}
+    if cls.kind == "irradiance" and not (isinstance(cls.max_band, int) and cls.max_band >= 0):
+        raise ValueError(f"irradiance encoding {name!r} must declare max_band (the highest SH band it stores)")
+    if cls.kind == "reflection" and cls.max_band is not None:
+        raise ValueError(f"reflection encoding {name!r} must have max_band None")
+    if cls.accepts_alpha_range and not {"alpha_min", "alpha_max"} <= set(fields):
+        raise ValueError(f"encoding {name!r} accepts_alpha_range but its Params lack alpha_min/alpha_max")
+    if cls.follows_bake_face_size and ("face_size" not in fields or fields["face_size"].default is not None):
+        raise ValueError(f"encoding {name!r} follows_bake_face_size but its Params lack face_size = None")
+    worse = cls.worse_than
+    if worse is not None and not (isinstance(worse, tuple) and len(worse) == 2 and isinstance(worse[0], str)
+                                  and isinstance(worse[1], type) and issubclass(worse[1], Encoding)):
+        raise ValueError(f"encoding {name!r}: worse_than must be (diagnostic name, Encoding class), got {worse!r}")
+
+
+def register(*classes: type[Encoding]) -> type[Encoding] | tuple[type[Encoding], ...]:
+    """Add encoding classes to :data:`ENCODINGS` (all or none). Returns the class when given one (so it also works
+    as a decorator), else the tuple."""
+    seen: dict[str, type[Encoding]] = {}
+    for cls in classes:
+        _check(cls)
+        previous = seen.get(cls.name) or ENCODINGS.get(cls.name)
+        if previous is not None and previous is not cls:
+            raise ValueError(f"encoding name {cls.name!r} registered twice ({previous.__module__}."
+                             f"{previous.__qualname__} and {cls.__module__}.{cls.__qualname__})")
+        seen[cls.name] = cls
+    ENCODINGS.update(seen)
+    return classes[0] if len(classes) == 1 else classes
 
 
 def get_encoding(name: str) -> type[Encoding]:

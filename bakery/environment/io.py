@@ -1,4 +1,5 @@
-"""Reading environment images through OpenImageIO (the only module here that touches files).
+"""Reading images through OpenImageIO: environment maps and textures (the only module of bakery that imports
+OpenImageIO, and the only one here that touches files).
 
 Supported: equirect ``.hdr``/``.exr`` (and any format OpenImageIO reads), OpenEXR cube maps (``envmap=cube``,
 OpenImageIO's ``textureformat = "CubeFace Environment"``, six faces stacked vertically), and Debevec angular maps.
@@ -9,6 +10,9 @@ be forced.
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +21,7 @@ import OpenImageIO as oiio
 from bakery.environment.layouts import LAYOUTS, EnvironmentImage
 from bakery.environment.sanitize import SanitizeReport, sanitize_radiance
 from bakery.errors import ImageError
+from bakery.files import atomic_replace
 
 #: Refuse images whose header claims more pixels than this (a corrupt or hostile header), before allocating.
 MAX_PIXELS = 1 << 28
@@ -41,15 +46,29 @@ def detect_layout(width: int, height: int, texture_format: str = "") -> str:
     )
 
 
-def read_environment(path: str | os.PathLike[str], layout: str | None = None) -> tuple[EnvironmentImage, SanitizeReport]:
-    """Read an environment image as linear RGB radiance, sanitised (see :mod:`bakery.environment.sanitize`).
+@dataclass(frozen=True)
+class ImagePixels:
+    """The pixels of one image file as OpenImageIO decodes them.
 
-    Raises:
-        ImageError: the file is missing, unreadable, truncated, absurdly large or of an unknown layout.
+    Attributes:
+        pixels: (H, W, C) float32, C = min(the file's channels, the channels asked for); integer formats are
+            normalised to [0, 1] (no colour decoding).
+        is_8bit: the file stores 8-bit integer channels (by convention sRGB-encoded, as Hydra assumes).
+        texture_format: OpenImageIO's ``textureformat`` metadata ("" when absent), e.g. ``CubeFace Environment``.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise ImageError(f"{path}: environment image not found")
+
+    pixels: np.ndarray
+    is_8bit: bool
+    texture_format: str = ""
+
+
+def _is_8bit(spec: oiio.ImageSpec) -> bool:
+    return spec.format.basetype in (oiio.UINT8, oiio.INT8)
+
+
+@contextmanager
+def _opened(path: Path) -> Iterator[tuple[oiio.ImageInput, oiio.ImageSpec]]:
+    """An open ImageInput and its spec, after the header checks (empty image, more than :data:`MAX_PIXELS`)."""
     image_input = oiio.ImageInput.open(str(path))
     if image_input is None:
         raise ImageError(f"{path}: OpenImageIO cannot open it: {oiio.geterror() or 'unknown format'}")
@@ -61,22 +80,62 @@ def read_environment(path: str | os.PathLike[str], layout: str | None = None) ->
         if width * height > MAX_PIXELS:
             raise ImageError(
                 f"{path}: header claims {width}x{height} = {width * height:,} pixels, more than the {MAX_PIXELS:,} "
-                f"bakery accepts; the file is corrupt or not an environment map"
+                f"bakery accepts; the file is corrupt"
             )
-        try:
-            chosen = layout or detect_layout(width, height, str(spec.getattribute("textureformat") or ""))
-        except ImageError as error:
-            raise ImageError(f"{path}: {error}") from None
-        if chosen not in LAYOUTS:
-            raise ImageError(f"{path}: unknown layout {chosen!r}; expected one of {LAYOUTS}")
-        if chosen == "cube" and height != 6 * width:
-            raise ImageError(f"{path}: a stacked cube map must be N x 6N, got {width}x{height}")
-        pixels = image_input.read_image(0, 0, 0, min(channels, 3), oiio.FLOAT)
-        if pixels is None:
-            raise ImageError(f"{path}: reading pixels failed (truncated or corrupt file?): {image_input.geterror()}")
+        yield image_input, spec
     finally:
         image_input.close()
-    pixels = np.asarray(pixels, dtype=np.float32).reshape(height, width, -1)
+
+
+def read_image(path: str | os.PathLike[str], channels: int = 4) -> ImagePixels:
+    """Pixels of any image OpenImageIO reads, the first ``channels`` channels as float32 (see :class:`ImagePixels`).
+
+    Raises:
+        ImageError: the file is missing, unreadable, truncated or its header claims an empty or absurdly large image.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ImageError(f"{path}: image not found")
+    with _opened(path) as (image_input, spec):
+        pixels = image_input.read_image(0, 0, 0, min(spec.nchannels, channels), oiio.FLOAT)
+        if pixels is None:
+            raise ImageError(f"{path}: reading pixels failed (truncated or corrupt file?): {image_input.geterror()}")
+        return ImagePixels(
+            pixels=np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, -1),
+            is_8bit=_is_8bit(spec),
+            texture_format=str(spec.getattribute("textureformat") or ""),
+        )
+
+
+def is_8bit_image(path: str | os.PathLike[str]) -> bool:
+    """Whether an image file stores 8-bit integer channels (header only; False when it cannot be opened)."""
+    try:
+        with _opened(Path(path)) as (_, spec):
+            return _is_8bit(spec)
+    except ImageError:
+        return False
+
+
+def read_environment(path: str | os.PathLike[str], layout: str | None = None) -> tuple[EnvironmentImage, SanitizeReport]:
+    """Read an environment image as linear RGB radiance, sanitised (see :mod:`bakery.environment.sanitize`).
+
+    Raises:
+        ImageError: the file is missing, unreadable, truncated, absurdly large or of an unknown layout.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ImageError(f"{path}: environment image not found")
+    if layout is not None and layout not in LAYOUTS:
+        raise ImageError(f"{path}: unknown layout {layout!r}; expected one of {LAYOUTS}")
+    image = read_image(path, channels=3)
+    pixels = image.pixels
+    height, width = pixels.shape[:2]
+    try:
+        chosen = layout or detect_layout(width, height, image.texture_format)
+    except ImageError as error:
+        raise ImageError(f"{path}: {error}") from None
+    if chosen == "cube" and height != 6 * width:
+        raise ImageError(f"{path}: a stacked cube map must be N x 6N, got {width}x{height}")
     if pixels.shape[2] == 1:
         pixels = np.repeat(pixels, 3, axis=2)
     elif pixels.shape[2] == 2:
@@ -88,17 +147,16 @@ def read_environment(path: str | os.PathLike[str], layout: str | None = None) ->
 def write_exr(path: str | os.PathLike[str], pixels: np.ndarray, half: bool = True, attributes: dict | None = None) -> None:
     """Write (H, W, C) pixels as an OpenEXR file (float16 by default), atomically (temp file + rename)."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}.exr")
     h, w, c = pixels.shape
     spec = oiio.ImageSpec(w, h, c, oiio.HALF if half else oiio.FLOAT)
     for key, value in (attributes or {}).items():
         spec.attribute(key, value)
-    out = oiio.ImageOutput.create(str(tmp))
-    if out is None or not out.open(str(tmp), spec):
-        raise ImageError(f"{path}: cannot write EXR: {oiio.geterror()}")
-    try:
-        if not out.write_image(np.ascontiguousarray(pixels, dtype=np.float32)):
-            raise ImageError(f"{path}: writing EXR failed: {out.geterror()}")
-    finally:
-        out.close()
-    os.replace(tmp, path)
+    with atomic_replace(path, suffix=".exr") as tmp:
+        out = oiio.ImageOutput.create(str(tmp))
+        if out is None or not out.open(str(tmp), spec):
+            raise ImageError(f"{path}: cannot write EXR: {oiio.geterror()}")
+        try:
+            if not out.write_image(np.ascontiguousarray(pixels, dtype=np.float32)):
+                raise ImageError(f"{path}: writing EXR failed: {out.geterror()}")
+        finally:
+            out.close()

@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bakery.sphere.cubemap import cube_texel_density
+
 LAYOUTS = ("equirect", "cube", "angular")
 
 
@@ -141,7 +143,7 @@ def exr_cube_density(rows: np.ndarray, cols: np.ndarray, face_size: int) -> np.n
     face = np.clip((rows // face_size).astype(np.int64), 0, 5)
     a = 2.0 * cols / face_size - 1.0
     b = 2.0 * (rows - face * face_size) / face_size - 1.0
-    return (1.0 + a * a + b * b) ** -1.5 * (2.0 / face_size) ** 2
+    return cube_texel_density(a, b, face_size)
 
 
 # ---------------------------------------------------------------------------------------------------------------

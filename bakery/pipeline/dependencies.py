@@ -23,56 +23,38 @@ over-estimate. Probes with no stored irradiance SH (reflection-only) are re-bake
 
 from __future__ import annotations
 
-import hashlib
-import json
 from math import pi, sqrt
 
 import numpy as np
 
 from bakery.conventions import LUMINANCE_WEIGHTS
+from bakery.encodings import ENCODINGS
+from bakery.files import sha256_file, stable_hash
 
 #: τ: a light whose change stays below 1/256 of a probe's irradiance cannot change its 8-bit output.
 LIGHT_INFLUENCE_FRACTION = 1.0 / 256.0
 
 
-def _digest(*parts) -> str:  # noqa: ANN002
-    h = hashlib.sha256()
-    for part in parts:
-        if isinstance(part, np.ndarray):
-            h.update(np.ascontiguousarray(part).tobytes())
-            h.update(str(part.shape).encode())
-        else:
-            h.update(json.dumps(part, sort_keys=True, default=str).encode())
-    return h.hexdigest()
-
-
 def file_digest(path: str) -> str:
-    h = hashlib.sha256()
+    """sha256 of a file's bytes, or a fixed marker if it cannot be read (its absence is then part of the hash)."""
     try:
-        with open(path, "rb") as handle:
-            for chunk in iter(lambda: handle.read(1 << 20), b""):
-                h.update(chunk)
+        return sha256_file(path)
     except OSError:
-        h.update(b"<unreadable>")
-    return h.hexdigest()
+        return "<unreadable>"
 
 
 def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN001 - bakery.capture.scene.CaptureScene
     """Hash of everything that can affect every probe (module docstring)."""
-    h = hashlib.sha256()
-    for mesh in scene.meshes:
-        h.update(_digest(mesh.name, mesh.material.__dict__, np.asarray(mesh.triangles, dtype=np.float32)).encode())
+    parts: list = [(mesh.name, mesh.material.__dict__, np.asarray(mesh.triangles, dtype=np.float32))
+                   for mesh in scene.meshes]
     if scene.dome is not None:
         dome = scene.dome
         pixels = np.zeros(0) if dome.pixels is None else np.asarray(dome.pixels, dtype=np.float32)
-        h.update(_digest(dome.name, dome.scale, dome.rotation, dome.layout, pixels).encode())
-    for light in scene.lights:
-        if light.kind == "distant":
-            h.update(_digest(light.__dict__).encode())
-    for asset in sorted(set(assets)):
-        h.update(file_digest(asset).encode())
-    h.update(_digest(scene.meters_per_unit, scene.up_axis).encode())
-    return h.hexdigest()
+        parts.append((dome.name, dome.scale, dome.rotation, dome.layout, pixels))
+    parts += [light.__dict__ for light in scene.lights if light.kind == "distant"]
+    parts += [file_digest(asset) for asset in sorted(set(assets))]
+    parts.append((scene.meters_per_unit, scene.up_axis))
+    return stable_hash(*parts)
 
 
 def light_table(scene) -> list[dict]:  # noqa: ANN001
@@ -86,7 +68,7 @@ def light_table(scene) -> list[dict]:  # noqa: ANN001
         else:
             radius = float(light.size[0])
         power = float(max(light.radiance)) * light.area
-        table.append({"name": light.name, "hash": _digest(light.__dict__), "position": list(map(float, light.position)),
+        table.append({"name": light.name, "hash": stable_hash(light.__dict__), "position": list(map(float, light.position)),
                       "radius": float(radius), "power": power})
     return sorted(table, key=lambda r: r["name"])
 
@@ -100,15 +82,16 @@ def irradiance_bound(record: dict, positions: np.ndarray) -> np.ndarray:
 
 
 def mean_irradiance_from_store(previous, names: list[str]) -> np.ndarray:  # noqa: ANN001 - StoreContents
-    """Ē_prev (P,) per probe name from any stored SH-family irradiance encoding; NaN where none is stored."""
+    """Ē_prev (P,) per probe name from any stored encoding with a float radiance SH field
+    (``Encoding.radiance_sh_field``); NaN where none is stored."""
     out = np.full(len(names), np.nan)
     index = {n: i for i, n in enumerate(previous.probe_names)}
-    for name in ("sh2", "sh3", "zh3", "zh3_solved", "zh3_deringed", "zh3_hallucinated"):
+    for name, encoding in ENCODINGS.items():
         entry = previous.encodings.get(name)
-        if entry is None:
+        if entry is None or encoding.radiance_sh_field is None:
             continue
         rows = {int(p): r for r, p in enumerate(entry["fields"]["probe_index"])}
-        sh = entry["fields"]["radiance_sh"]
+        sh = entry["fields"][encoding.radiance_sh_field]
         for k, probe in enumerate(names):
             i = index.get(probe)
             if i is not None and i in rows and np.isnan(out[k]):

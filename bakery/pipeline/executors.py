@@ -18,9 +18,21 @@ import os
 from collections.abc import Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
+from typing import Protocol
 
 from bakery.pipeline.plan import BatchTask
 from bakery.pipeline.worker import BatchOutcome, run_batch
+
+
+class Executor(Protocol):
+    """Runs batch tasks and yields their outcomes as they finish (any order; the merge restores plan order)."""
+
+    name: str
+    workers: int
+
+    def run(self, tasks: Iterable[BatchTask]) -> Iterator[BatchOutcome]: ...
+
+    def close(self) -> None: ...
 
 
 def _worker_init() -> None:
@@ -132,8 +144,12 @@ class DaskExecutor:
             self._cluster.close()
 
 
-def make_executor(jobs: int | None = None, scheduler: str | None = None, dask_local: bool = False):
+def make_executor(jobs: int | None = None, scheduler: str | None = None, dask_local: bool = False) -> Executor:
     """``--scheduler`` → Dask client; ``--dask-local`` → Dask LocalCluster; ``--jobs 1`` → serial; else processes."""
+    if jobs is not None and jobs < 1:
+        from bakery.errors import ConfigError
+
+        raise ConfigError(f"--jobs must be >= 1, got {jobs}")
     if scheduler or dask_local:
         return DaskExecutor(scheduler, jobs)
     if jobs == 1:

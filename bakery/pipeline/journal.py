@@ -1,6 +1,6 @@
 """Checkpoint journal: finished batches survive a killed bake.
 
-Layout: ``<store>.partial/<batch key>.pkl``, one pickled :class:`~bakery.pipeline.worker.BatchOutcome` per finished
+Layout: ``<store>.partial/<batch key>.pkl`` (beside the source's snapshot for workers), one pickled :class:`~bakery.pipeline.worker.BatchOutcome` per finished
 batch, each written atomically (temp file + fsync + rename), so a SIGKILL at any moment leaves only whole files. A
 batch key is the hash of its probes' content hashes (which include the settings and code version), so a journal
 entry is reused only by a bake that would compute exactly the same batch. The journal is deleted after the store
@@ -14,6 +14,7 @@ import pickle
 import shutil
 from pathlib import Path
 
+from bakery.files import atomic_replace
 from bakery.pipeline.worker import BatchOutcome
 
 
@@ -41,13 +42,8 @@ class Journal:
 
     def save(self, outcome: BatchOutcome) -> None:
         self.directory.mkdir(parents=True, exist_ok=True)
-        path = self.directory / f"{outcome.key}.pkl"
-        tmp = self.directory / f".{outcome.key}.tmp-{os.getpid()}"
-        with open(tmp, "wb") as handle:
+        with atomic_replace(self.directory / f"{outcome.key}.pkl") as tmp, open(tmp, "wb") as handle:
             pickle.dump(outcome, handle, protocol=pickle.HIGHEST_PROTOCOL)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
 
     def remove(self) -> None:
         shutil.rmtree(self.directory, ignore_errors=True)

@@ -1,45 +1,37 @@
-"""Planning a bake: probes, their capture specs, content hashes, and batches (plain picklable data).
+"""Planning a bake: the probes of a source, their content hashes, reuse decisions, and batches (plain picklable
+data; nothing here reads or writes files).
 
 Content hash (incremental bakes)
     A probe's hash covers everything its result depends on: the probe's identity, kinds, position and per-probe
-    settings; its capture spec (capture kind, inputs' content hashes — e.g. the image bytes, or the hashes of the
-    scene parts that can affect it — and capture parameters); the bake settings and the encodings selected for it;
-    and bakery's version (the code). Equal hash ⇒ the stored result is reused without re-baking.
+    settings; its source kind, its typed capture spec and the content hashes of what the capture reads (e.g. the
+    image bytes, or the hash of the scene parts that can affect it); the bake settings and the encodings selected for
+    it; and bakery's version (the code). Equal hash ⇒ the stored result is reused without re-baking.
+
+Batches
+    Probes with the same encodings and the same per-probe encoding overrides are batched together in plan order, at
+    most ``batch_size`` per batch: composition depends only on the plan, never on the number of workers, so stores
+    are bit-identical for any executor.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
 from dataclasses import dataclass, field
 from typing import Any
 
+from bakery.encodings import get_encoding
+from bakery.files import stable_hash
+from bakery.pipeline.settings import BakeSettings, default_encodings
 from bakery.probe import Probe
-
-
-def stable_hash(*parts: Any) -> str:
-    """sha256 hex of the canonical JSON of ``parts``."""
-    return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()
-
-
-@dataclass(frozen=True)
-class CaptureSpec:
-    """How to obtain one probe's radiance cube. ``kind`` selects a registered capture function
-    (:mod:`bakery.pipeline.capture`); ``inputs`` are content hashes of what it reads; ``params`` its parameters."""
-
-    kind: str
-    source: str
-    inputs: tuple[str, ...] = ()
-    params: tuple[tuple[str, Any], ...] = ()
-
-    def param(self, key: str, default: Any = None) -> Any:
-        return dict(self.params).get(key, default)
+from bakery.sources.base import PlannedProbe, SourceHandle, SourcePlan
 
 
 @dataclass(frozen=True)
 class ProbeTask:
+    """One probe to bake: identity, the source's capture spec, the encodings it gets, its content hash."""
+
     probe: Probe
-    capture: CaptureSpec
+    capture: Any
     encodings: tuple[str, ...]
     content_hash: str
 
@@ -51,6 +43,7 @@ class BatchTask:
     key: str
     probes: tuple[ProbeTask, ...]
     settings_json: str
+    source: SourceHandle | None = None
 
 
 @dataclass
@@ -62,24 +55,40 @@ class Plan:
     reused: list[str] = field(default_factory=list)
     skipped: list[dict[str, str]] = field(default_factory=list)
     attributes: dict[str, Any] = field(default_factory=dict)
+    layers: str = ""
+    issues: list[str] = field(default_factory=list)
 
     @property
     def order(self) -> list[str]:
         return [t.probe.name for t in self.tasks]
 
+    def pending_tasks(self) -> list[ProbeTask]:
+        """Tasks of the probes that are not reused, in plan order."""
+        reused = set(self.reused)
+        return [t for t in self.tasks if t.probe.name not in reused]
 
-def probe_content_hash(probe: Probe, capture: CaptureSpec, encodings: tuple[str, ...], settings_hash: str) -> str:
+    @property
+    def to_bake(self) -> int:
+        return sum(len(b.probes) for b in self.batches)
+
+
+def encodings_for(probe: Probe, settings: BakeSettings) -> tuple[str, ...]:
+    """Encodings a probe gets: the per-probe override, else the settings' list, else every registered one of its
+    kinds; always restricted to the probe's kinds (skip what the probe kind does not need)."""
+    requested = tuple(probe.settings.get("encodings", ())) or settings.encodings or default_encodings(probe.kinds)
+    return tuple(n for n in requested if get_encoding(n).kind in probe.kinds)
+
+
+def probe_content_hash(source_kind: str, planned: PlannedProbe, encodings: tuple[str, ...], settings_hash: str) -> str:
     """The content hash of the module docstring."""
-    return stable_hash(
-        probe.name, probe.kinds, probe.position, probe.settings, capture.kind, capture.inputs, capture.params,
-        sorted(encodings), settings_hash,
-    )
+    probe = planned.probe
+    return stable_hash(probe.name, probe.kinds, probe.position, probe.settings, source_kind, planned.capture,
+                       planned.inputs, sorted(encodings), settings_hash)
 
 
 def make_batches(tasks: list[ProbeTask], batch_size: int, settings_json: str) -> list[BatchTask]:
-    """Split tasks into batches of ≤ batch_size with one encoding set and one set of per-probe encoding-setting
-    overrides (``probe.settings["encoding_settings"]``) each, in plan order (deterministic: batch composition
-    depends only on the plan, never on the number of workers)."""
+    """Batches of ≤ batch_size probes with one encoding set and one set of per-probe encoding overrides each
+    (module docstring)."""
     groups: dict[tuple, list[ProbeTask]] = {}
     for task in tasks:
         overrides = json.dumps(task.probe.settings.get("encoding_settings", {}), sort_keys=True)
@@ -91,3 +100,33 @@ def make_batches(tasks: list[ProbeTask], batch_size: int, settings_json: str) ->
             key = stable_hash([t.content_hash for t in members])[:32]
             batches.append(BatchTask(key, members, settings_json))
     return batches
+
+
+def plan_tasks(source_kind: str, source_plan: SourcePlan, settings: BakeSettings, previous: Any,
+               batch_size: int) -> Plan:
+    """Content hashes, reuse decisions against ``previous`` (a StoreContents or None) and batches."""
+    tasks: list[ProbeTask] = []
+    skipped: list[dict[str, str]] = []
+    names = [p.probe.name for p in source_plan.probes]
+    if len(set(names)) != len(names):
+        from bakery.errors import ConfigError
+
+        duplicated = sorted({n for n in names if names.count(n) > 1})
+        raise ConfigError(f"probe names must be unique; repeated: {', '.join(duplicated[:5])}")
+    settings_hash = settings.hash()
+    for planned in source_plan.probes:
+        encodings = encodings_for(planned.probe, settings)
+        if not encodings:
+            skipped.append({"probe": planned.probe.name,
+                            "reason": f"no requested encoding applies to kinds {planned.probe.kinds}"})
+            continue
+        tasks.append(ProbeTask(planned.probe, planned.capture, encodings,
+                               probe_content_hash(source_kind, planned, encodings, settings_hash)))
+    reused: list[str] = []
+    if previous is not None and previous.probe_hashes is not None:
+        old = dict(zip(previous.probe_names, previous.probe_hashes))
+        reused = [t.probe.name for t in tasks if old.get(t.probe.name) == t.content_hash]
+    plan = Plan(tasks, [], reused, skipped, dict(source_plan.attributes), source_plan.layers,
+                list(source_plan.issues))
+    plan.batches = make_batches(plan.pending_tasks(), batch_size, settings.as_json())
+    return plan

@@ -2,7 +2,11 @@
 
 A recipe names the encodings to bake per probe kind (``[targets]``), the bake settings (``[bake]``), per-encoding
 parameters (``[encoding_settings.<name>]``) and pipeline options (``[pipeline]``). Unknown keys and unknown
-encoding names are errors that say where they are.
+encoding names are errors that say where they are. The JSON Schema checks the recipe's structure; each
+``[encoding_settings.<name>]`` table is checked by that encoding's typed ``Params``
+(:meth:`bakery.encodings.EncodingParams.from_mapping`: unknown keys, wrong types and out-of-range values).
+
+The schema and the presets are found in the repository the package is installed from (``pip install -e .``).
 """
 
 from __future__ import annotations
@@ -19,8 +23,8 @@ from bakery.encodings import ENCODINGS
 from bakery.errors import ConfigError
 
 REPOSITORY = Path(__file__).resolve().parents[2]
-SCHEMA_PATHS = (REPOSITORY / "schemas" / "recipe.schema.json", Path(__file__).with_name("recipe.schema.json"))
-RECIPE_DIRS = (REPOSITORY / "pipelines", Path(__file__).parent / "recipes")
+SCHEMA_PATH = REPOSITORY / "schemas" / "recipe.schema.json"
+RECIPE_DIR = REPOSITORY / "pipelines"
 
 
 @dataclass(frozen=True)
@@ -38,10 +42,9 @@ class Recipe:
 
 
 def _schema() -> dict:
-    for path in SCHEMA_PATHS:
-        if path.is_file():
-            return json.loads(path.read_text())
-    raise ConfigError("recipe JSON Schema not found (schemas/recipe.schema.json)")
+    if not SCHEMA_PATH.is_file():
+        raise ConfigError(f"recipe JSON Schema not found ({SCHEMA_PATH})")
+    return json.loads(SCHEMA_PATH.read_text())
 
 
 def validate_recipe(data: dict, source: str) -> Recipe:
@@ -58,9 +61,10 @@ def validate_recipe(data: dict, source: str) -> Recipe:
                 raise ConfigError(f"{source}: targets.{kind}: unknown encoding {name!r}; known: {', '.join(ENCODINGS)}")
             if ENCODINGS[name].kind != kind:
                 raise ConfigError(f"{source}: targets.{kind}: {name!r} is a {ENCODINGS[name].kind} encoding")
-    for name in data.get("encoding_settings", {}):
+    for name, values in data.get("encoding_settings", {}).items():
         if name not in ENCODINGS:
-            raise ConfigError(f"{source}: encoding_settings.{name}: unknown encoding")
+            raise ConfigError(f"{source}: encoding_settings.{name}: unknown encoding; known: {', '.join(ENCODINGS)}")
+        ENCODINGS[name].Params.from_mapping(values, where=f"{source}: encoding_settings.{name}")
     return Recipe(data["name"], data.get("description", ""), targets, data.get("bake", {}),
                   data.get("encoding_settings", {}), data.get("pipeline", {}))
 
@@ -69,11 +73,12 @@ def load_recipe(name_or_path: str) -> Recipe:
     """A recipe by file path or by preset name (``mobile``, ``console``, ``pc-high``, ``reference``)."""
     path = Path(name_or_path)
     if not path.is_file():
-        candidates = [d / f"{name_or_path}.toml" for d in RECIPE_DIRS]
-        path = next((c for c in candidates if c.is_file()), path)
+        preset = RECIPE_DIR / f"{name_or_path}.toml"
+        path = preset if preset.is_file() else path
     if not path.is_file():
-        presets = sorted({p.stem for d in RECIPE_DIRS if d.is_dir() for p in d.glob("*.toml")})
-        raise ConfigError(f"recipe {name_or_path!r} not found; presets: {', '.join(presets)}")
+        presets = sorted(p.stem for p in RECIPE_DIR.glob("*.toml")) if RECIPE_DIR.is_dir() else []
+        listing = ", ".join(presets) or f"none in {RECIPE_DIR}"
+        raise ConfigError(f"recipe {name_or_path!r} not found; presets: {listing}")
     try:
         data = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as error:

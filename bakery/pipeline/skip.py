@@ -11,8 +11,9 @@ Neighbour refinement (seed 002, Sec. 4.4 "Refining the ROIs")
     between adjacent probes and interpolated lighting does not pop.
 
 Encoding skips
-    An encoding whose content beyond SH2 is band 2 (``band2_encodings``) is skipped when no probe requires band 2:
-    linear SH then carries all but ε of every probe's irradiance energy.
+    An irradiance encoding whose stored information reaches band 2 (``Encoding.max_band == 2``,
+    :func:`band2_encodings`) is skipped when no probe requires band 2: linear SH then carries all but ε of every
+    probe's irradiance energy.
 """
 
 from __future__ import annotations
@@ -20,10 +21,13 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from bakery.encodings import ENCODINGS
 from bakery.sh.convolution import cosine_lobe_band_factors
 
-#: Irradiance encodings that add band-2 information to linear SH.
-BAND2_ENCODINGS = ("sh3", "zh3", "zh3_solved", "zh3_deringed", "zh3_quantized", "sh3_quantized")
+
+def band2_encodings() -> tuple[str, ...]:
+    """Irradiance encodings whose stored content beyond linear SH is band 2 (skipped when no probe needs it)."""
+    return tuple(n for n, e in ENCODINGS.items() if e.kind == "irradiance" and e.max_band == 2)
 
 
 def irradiance_band_energy(radiance_sh: np.ndarray) -> np.ndarray:
@@ -67,8 +71,9 @@ def band_skip_decisions(
     required = dilate_over_neighbours(required_bands(band_energy, tolerance), positions)
     skipped = []
     if len(required) and int(required.max()) < 2:
+        band2 = band2_encodings()
         for name in encodings:
-            if name in BAND2_ENCODINGS:
+            if name in band2:
                 skipped.append({"encoding": name, "reason": f"band 2 carries less than {tolerance:g} of the irradiance "
                                                             f"energy of every probe (seed 003 §5.1); linear SH suffices"})
     return required, skipped

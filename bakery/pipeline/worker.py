@@ -1,21 +1,27 @@
-"""Worker side: capture and encode one batch. Runs in a worker process (or in-process for ``--jobs 1``)."""
+"""Worker side: capture and encode one batch (in a worker process, or in-process for ``--jobs 1``).
+
+    run_batch(BatchTask) → BatchOutcome:   Source.capture per probe  →  ProbeBatch  →  encode_batch
+
+A probe whose capture raises is reported in ``failures`` and left out; the others are encoded. Warnings raised
+while capturing and encoding travel back in the outcome (the parent re-emits them). Nothing here imports ``pxr``.
+"""
 
 from __future__ import annotations
 
-import json
 import time
 import traceback
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from bakery.allocator import tune_allocator
-from bakery.bake import BakeSettings, EncodedBatch, encode_batch, sanitize_diagnostics, select_encodings
-from bakery.environment.sanitize import SanitizeReport
-from bakery.errors import BakeryError
-from bakery.pipeline.capture import capture_function
+from bakery.errors import BakeryError, BakeryWarning
+from bakery.pipeline.encode import BakeWarning, EncodedBatch, encode_batch, sanitize_diagnostics
 from bakery.pipeline.plan import BatchTask
+from bakery.pipeline.settings import BakeSettings, build_encodings
 from bakery.probe import ProbeBatch
+from bakery.sources.base import source_class
 
 
 @dataclass
@@ -28,55 +34,50 @@ class BatchOutcome:
     seconds: float = 0.0
 
 
-def _settings(task: BatchTask) -> BakeSettings:
-    data = json.loads(task.settings_json)
-    data["encodings"] = tuple(data.get("encodings", ()))
-    return BakeSettings(**data)
-
-
 def run_batch(task: BatchTask) -> BatchOutcome:
-    """Capture every probe of ``task`` and encode them together. A probe whose capture raises is reported in
-    ``failures`` and left out; the others are encoded."""
+    """Capture every probe of ``task`` and encode them together (module docstring)."""
     start = time.perf_counter()
     tune_allocator()
-    settings = _settings(task)
-    cubes, references, reports, probes, failures = [], [], [], [], {}
-    capture_stats: dict[str, float] = {}
-    for probe_task in task.probes:
-        try:
-            capture = capture_function(probe_task.capture.kind)
-            captured = capture(probe_task.capture, settings.face_size, probe_task.probe)
-            cube, reference, report = captured[:3]
-            for key, value in (captured[3] if len(captured) > 3 else {}).items():
-                capture_stats[key] = capture_stats.get(key, 0.0) + value
-            if not np.all(np.isfinite(cube)):
-                raise BakeryError(f"{probe_task.probe.name}: capture produced non-finite radiance")
-        except Exception as error:  # noqa: BLE001 - one failing probe must not lose the batch
-            detail = str(error) if isinstance(error, BakeryError) else traceback.format_exc(limit=3)
-            failures[probe_task.probe.name] = detail
-            continue
-        cubes.append(cube)
-        references.append(reference)
-        reports.append(report or SanitizeReport(0, 0, 0, 0, 0, 0.0, 0.0))
-        probes.append(probe_task.probe)
+    settings = BakeSettings.from_json(task.settings_json)
+    source = source_class(task.source.kind)
+    captures, probes, failures = [], [], {}
+    stats: dict[str, float] = {}
+    with warnings.catch_warnings(record=True) as recorded:
+        warnings.simplefilter("always", BakeryWarning)
+        for probe_task in task.probes:
+            try:
+                capture = source.capture(task.source, probe_task.capture, settings.face_size)
+                if not np.all(np.isfinite(capture.cube)):
+                    raise BakeryError(f"{probe_task.probe.name}: capture produced non-finite radiance")
+            except Exception as error:  # noqa: BLE001 - one failing probe must not lose the batch
+                failures[probe_task.probe.name] = (str(error) if isinstance(error, BakeryError)
+                                                   else traceback.format_exc(limit=3))
+                continue
+            for key, value in capture.stats.items():
+                stats[key] = stats.get(key, 0.0) + value
+            captures.append(capture)
+            probes.append(probe_task.probe)
+    capture_warnings = [BakeWarning(w.category.__name__, str(w.message)) for w in recorded
+                        if issubclass(w.category, BakeryWarning)]
     if not probes:
         return BatchOutcome(task.key, None, failures, time.perf_counter() - start)
-    reference = references if all(r is not None for r in references) else None
-    batch = ProbeBatch(np.stack(cubes), reference)
-    # Per-probe encoding-setting overrides (one set per batch, see make_batches), e.g. a reflection probe's fit α range.
+    references = [c.reference for c in captures]
+    batch = ProbeBatch(np.stack([c.cube for c in captures]),
+                       references if all(r is not None for r in references) else None)
+    # One encoding set and one set of per-probe overrides per batch (plan.make_batches).
     overrides = task.probes[0].probe.settings.get("encoding_settings", {})
-    base = json.loads(task.settings_json)
-    merged_settings = {name: {**base.get("encoding_settings", {}).get(name, {}), **values}
-                       for name, values in {**base.get("encoding_settings", {}), **overrides}.items()}
-    encodings = select_encodings(
-        BakeSettings(**{**base, "encodings": task.probes[0].encodings, "encoding_settings": merged_settings}),
-        {k for p in probes for k in p.kinds},
-    )
-    diagnostics = sanitize_diagnostics(reports)
-    if "shexp" in overrides:
-        alpha = overrides["shexp"]
-        diagnostics["fit_alpha_range"] = np.tile(
-            np.array([alpha["alpha_min"], alpha["alpha_max"]], dtype=np.float32), (len(probes), 1))
+    encodings = build_encodings(task.probes[0].encodings, settings, overrides)
+    diagnostics = sanitize_diagnostics([c.sanitize for c in captures])
+    for key in sorted({k for c in captures for k in c.diagnostics}):
+        template = next(c.diagnostics[key] for c in captures if key in c.diagnostics)
+        diagnostics[key] = np.stack([np.asarray(c.diagnostics.get(key, np.full_like(template, np.nan)))
+                                     for c in captures])
+    ranged = [e for e in encodings.values() if e.accepts_alpha_range and e.name in overrides]
+    if ranged:
+        alpha = ranged[0].params
+        diagnostics["fit_alpha_range"] = np.tile(np.array([alpha.alpha_min, alpha.alpha_max], dtype=np.float32),
+                                                 (len(probes), 1))
     result = encode_batch(probes, batch, settings, encodings, diagnostics)
-    result.timings.update(capture_stats)
+    result.timings.update(stats)
+    result.warnings = capture_warnings + result.warnings
     return BatchOutcome(task.key, result, failures, time.perf_counter() - start)

@@ -42,7 +42,13 @@ from scipy.special import eval_legendre, roots_legendre
 from bakery.brdf.ggx import ggx_distribution
 from bakery.brdf.sampling import sample_ggx_ndf, to_world
 from bakery.sh.basis import evaluate_sh_basis, sh_bands
-from bakery.sphere.cubemap import cube_texel_directions, cube_texel_solid_angles, sample_cube_bilinear
+from bakery.sphere.cubemap import (
+    cube_mean_texel_solid_angle,
+    cube_texel_directions,
+    cube_texel_solid_angles,
+    resample_cube,
+    sample_cube_bilinear,
+)
 
 
 @dataclass(frozen=True)
@@ -81,23 +87,6 @@ def hammersley(count: int) -> tuple[np.ndarray, np.ndarray]:
     bits = ((bits & np.uint64(0x0F0F0F0F)) << np.uint64(4)) | ((bits & np.uint64(0xF0F0F0F0)) >> np.uint64(4))
     bits = ((bits & np.uint64(0x00FF00FF)) << np.uint64(8)) | ((bits & np.uint64(0xFF00FF00)) >> np.uint64(8))
     return (np.arange(count) + 0.5) / count, bits.astype(np.float64) / 2.0**32
-
-
-def downsample_cube(cube: np.ndarray) -> np.ndarray:
-    """Solid-angle-weighted 2×2 box downsample (6, N, N, C) → (6, N/2, N/2, C) (flux preserving)."""
-    n = cube.shape[1]
-    omega = cube_texel_solid_angles(n)[..., None]
-    c = cube.shape[-1]
-    flux = (cube * omega).reshape(6, n // 2, 2, n // 2, 2, c).sum(axis=(2, 4))
-    area = omega.reshape(6, n // 2, 2, n // 2, 2, 1).sum(axis=(2, 4))
-    return (flux / area).astype(cube.dtype)
-
-
-def resize_cube(cube: np.ndarray, size: int) -> np.ndarray:
-    """Area-weighted downsample to ``size`` (a power-of-two fraction of the face size)."""
-    while cube.shape[1] > size:
-        cube = downsample_cube(cube)
-    return cube
 
 
 def _kernel_profile(t: np.ndarray, alpha: float) -> np.ndarray:
@@ -142,7 +131,7 @@ SH_PROJECTION_FACE = 128
 
 def _project_sh(cube: np.ndarray, max_band: int) -> np.ndarray:
     """Radiance SH (K, C) of a cube, from its mip of face ≤ SH_PROJECTION_FACE (one GEMM)."""
-    small = resize_cube(np.asarray(cube, dtype=np.float32), min(cube.shape[1], SH_PROJECTION_FACE))
+    small = resample_cube(cube, min(cube.shape[1], SH_PROJECTION_FACE))
     weighted = _cached_weighted_basis(small.shape[1], max_band)
     return weighted.T @ small.reshape(-1, small.shape[-1]).astype(np.float32)
 
@@ -190,7 +179,7 @@ def _reference_prefilter_level(cube: np.ndarray, alpha: float, out_size: int, sa
     "PrefilterEnvMap"). cube (6, N, N, C) → (6, out, out, C) float64."""
     normals = cube_texel_directions(out_size).reshape(-1, 3)
     if alpha <= 0.0:
-        return resize_cube(cube.astype(np.float64), out_size)
+        return resample_cube(cube, out_size).astype(np.float64)
     out = np.empty((normals.shape[0], cube.shape[-1]))
     chunk = max(1, 2_000_000 // samples)
     for s in range(0, normals.shape[0], chunk):
@@ -204,7 +193,7 @@ def _exact_prefilter_level(cube: np.ndarray, alpha: float, out_size: int) -> np.
     """Dense quadrature of the normalised kernel over every texel of ``cube`` (exact solid angles): the
     ground truth both formulations are measured against. (6, N, N, C) → (6, out, out, C) float64."""
     if alpha <= 0.0:
-        return resize_cube(cube.astype(np.float64), out_size)
+        return resample_cube(cube, out_size).astype(np.float64)
     n = cube.shape[1]
     src = cube_texel_directions(n).reshape(-1, 3)
     omega = cube_texel_solid_angles(n).reshape(-1)
@@ -228,7 +217,7 @@ def _prefilter_fis(mips: list[np.ndarray], alpha: float, out_size: int, samples:
     normals = cube_texel_directions(out_size).reshape(-1, 3)
     l_world, nl, pdf_l = _sample_directions(normals, alpha, samples)
     omega_s = 1.0 / (samples * np.maximum(pdf_l, 1e-30))
-    omega_p = 4.0 * np.pi / (6.0 * base * base)
+    omega_p = cube_mean_texel_solid_angle(base)
     lod = np.clip(0.5 * np.log2(omega_s / omega_p) + 1.0, 0.0, len(mips) - 1.0)  # [KC08] Eq. 13 (+1 bias)
     lo = np.floor(lod).astype(np.int64)
     frac = lod - lo
@@ -248,7 +237,7 @@ def build_mips(cube: np.ndarray) -> list[np.ndarray]:
     """Area-weighted mip chain of a cube map down to 1×1 faces."""
     mips = [np.asarray(cube, dtype=np.float32)]
     while mips[-1].shape[1] > 1 and mips[-1].shape[1] % 2 == 0:
-        mips.append(downsample_cube(mips[-1]))
+        mips.append(resample_cube(mips[-1], mips[-1].shape[1] // 2))
     return mips
 
 
@@ -271,7 +260,7 @@ def prefilter_chain(cube: np.ndarray, settings: SplitSumSettings) -> list[np.nda
     levels = []
     for alpha, size, kind in zip(settings.level_alphas(), settings.level_sizes(), kinds, strict=True):
         if kind == "copy":
-            level = resize_cube(cube, size)
+            level = resample_cube(cube, size)
         elif kind == "sh":
             band = sh_band_limit(float(alpha), settings.sh_tolerance)
             level = _prefilter_sh(cube, float(alpha), size, band, coeffs)

@@ -20,6 +20,7 @@ import numpy as np
 import bakery
 from bakery.api import open_store
 from bakery.errors import InputError
+from bakery.files import atomic_replace
 from bakery.report import quality, render, svg
 from bakery.report.memory import memory_summary
 from bakery.report.page import render_page
@@ -180,19 +181,12 @@ def write_report(store: str | os.PathLike[str], out_dir: str | os.PathLike[str],
         raise InputError(f"{out}: report output exists and is not a directory")
     data, page = build_report(store, environment=environment, previews=previews)
     html_path, json_path = out / "report.html", out / "report.json"
-    staged: list[tuple[Path, Path]] = []
     try:
         out.mkdir(parents=True, exist_ok=True)
-        for path, text in ((json_path, json.dumps(data, indent=1, allow_nan=False)), (html_path, page)):
-            tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-            staged.append((tmp, path))
-            tmp.write_text(text, encoding="utf-8")
-        for tmp, path in staged:  # both written before either replaces an existing file
-            os.replace(tmp, path)
+        # Both written before either replaces an existing file (the inner one, report.json, is renamed first).
+        with atomic_replace(html_path) as html_tmp, atomic_replace(json_path) as json_tmp:
+            json_tmp.write_text(json.dumps(data, indent=1, allow_nan=False), encoding="utf-8")
+            html_tmp.write_text(page, encoding="utf-8")
     except OSError as error:
         raise InputError(f"{out}: cannot write the report: {error.strerror or error}") from error
-    finally:
-        for tmp, _ in staged:
-            if tmp.exists():
-                tmp.unlink()
     return {"html": html_path, "json": json_path, "data": data}

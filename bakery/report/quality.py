@@ -15,7 +15,6 @@ Reference availability
 
 from __future__ import annotations
 
-import math
 import warnings
 from pathlib import Path
 from typing import Any
@@ -219,7 +218,3 @@ def summarise(values: np.ndarray) -> dict[str, float]:
         return {"count": 0}
     return {"count": int(v.size), "mean": float(v.mean()), "median": float(np.median(v)),
             "p90": float(np.percentile(v, 90)), "max": float(v.max()), "min": float(v.min())}
-
-
-def finite_or_none(x: float) -> float | None:
-    return float(x) if math.isfinite(x) else None

@@ -1,4 +1,5 @@
-"""Cube maps: texel directions, exact texel solid angles, direction → (face, u, v) and bilinear lookup.
+"""Cube maps: texel directions, exact texel solid angles and density, direction → (face, u, v), bilinear lookup and
+flux-preserving resampling between face sizes.
 
 Face order and orientation are the OpenGL/D3D/KTX ones recorded in :mod:`bakery.conventions`.
 
@@ -13,6 +14,8 @@ References
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -65,6 +68,55 @@ def cube_texel_solid_angles(face_size: int) -> np.ndarray:
     v1, u1 = np.meshgrid(x1, x1, indexing="ij")
     omega = _area_element(u0, v0) - _area_element(u0, v1) - _area_element(u1, v0) + _area_element(u1, v1)
     return np.broadcast_to(omega, (6, face_size, face_size)).copy()
+
+
+def cube_mean_texel_solid_angle(face_size: int) -> float:
+    """Mean texel solid angle 4π / (6N²) of a face size N (a mip level's nominal texel, e.g. [KC08]'s Ω_p)."""
+    return 4.0 * math.pi / (6.0 * face_size * face_size)
+
+
+def cube_texel_density(u: np.ndarray, v: np.ndarray, face_size: int) -> np.ndarray:
+    """Solid angle per unit texel area at face coordinates ``u, v`` of a face of ``face_size`` texels:
+    dΩ/dA = (1 + u² + v²)^(-3/2) · (2/N)² (the texel's area on the unit-distance plane is (2/N)²)."""
+    u, v = np.asarray(u), np.asarray(v)
+    return (1.0 + u * u + v * v) ** -1.5 * (2.0 / face_size) ** 2
+
+
+def resample_cube(cube: np.ndarray, face_size: int) -> np.ndarray:
+    """Flux-preserving resampling of a cube map (6, M, M, C) to (6, N, N, C) float32, N = ``face_size``.
+
+    M = k·N: solid-angle-weighted box filter, L_J = Σ L_i Ω_i / Ω_J over the k×k texels i of J (exact; a plain mean
+    would lose ~0.3 % of the flux, as texel solid angles differ). Other ratios (up- or down-sampling): every source
+    texel is split into s × s sub-texels (s = ⌈2N/M⌉, so every target texel receives ≥ 4) of exact solid angle, each
+    splatted into the target texel holding its centre, L_J = Σ L·Ω / Σ Ω; then one scale per channel makes the total
+    flux Σ L·Ω exactly the source's. Up-sampling by an integer factor is piecewise constant, so down-sampling it
+    again returns the source.
+    """
+    cube = np.asarray(cube)
+    m, n, c = cube.shape[1], int(face_size), cube.shape[-1]
+    if m == n:
+        return cube.astype(np.float32, copy=False)
+    omega = cube_texel_solid_angles(m)[0]
+    if m % n == 0:
+        k = m // n
+        flux = (cube * omega[..., None]).reshape(6, n, k, n, k, c).sum(axis=(2, 4))
+        area = omega.reshape(1, n, k, n, k, 1).sum(axis=(2, 4))
+        return (flux / area).astype(np.float32)
+    s = max(1, math.ceil(2 * n / m))
+    sub_omega = cube_texel_solid_angles(m * s)[0]  # (M·s, M·s), the same on every face
+    target = np.minimum((np.arange(m * s) + 0.5) * n // (m * s), n - 1).astype(np.int64)  # target texel per column
+    index = (target[:, None] * n + target[None, :]).reshape(-1)
+    weight = np.bincount(index, weights=sub_omega.reshape(-1), minlength=n * n)
+    out = np.empty((6, n * n, c))
+    for face in range(6):
+        fine = np.repeat(np.repeat(np.asarray(cube[face], dtype=np.float64), s, axis=0), s, axis=1).reshape(-1, c)
+        for channel in range(c):
+            out[face, :, channel] = np.bincount(index, weights=sub_omega.reshape(-1) * fine[:, channel],
+                                                minlength=n * n) / weight
+    source_flux = np.einsum("fij,fijc->c", np.broadcast_to(omega, (6, m, m)), cube, dtype=np.float64)
+    out_flux = np.einsum("j,fjc->c", cube_texel_solid_angles(n)[0].reshape(-1), out)
+    out *= np.where(out_flux != 0, source_flux / np.where(out_flux != 0, out_flux, 1.0), 1.0)
+    return out.reshape(6, n, n, c).astype(np.float32)
 
 
 def direction_to_cube_face_uv(directions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

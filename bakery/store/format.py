@@ -19,11 +19,10 @@ import h5py
 import numpy as np
 
 from bakery.errors import StoreFormatError
+from bakery.files import atomic_replace
 
 FORMAT_NAME = "bakery.probe-store"
 FORMAT_VERSION = "1.1.0"
-#: Versions this reader reads (writers write only FORMAT_VERSION; ``bakery migrate`` upgrades older files).
-READABLE_VERSIONS = ("1.0.0", "1.1.0")
 
 _STR = h5py.string_dtype("utf-8")
 
@@ -78,9 +77,8 @@ def write_store(path: str | os.PathLike[str], contents: StoreContents) -> Path:
     directory = path.parent if str(path.parent) else Path(".")
     if not directory.is_dir():
         raise StoreFormatError(f"{path}: output directory {directory} does not exist")
-    tmp = directory / f".{path.name}.tmp-{os.getpid()}"
     try:
-        with h5py.File(tmp, "w", track_order=True, libver=("earliest", "v110")) as f:
+        with atomic_replace(path) as tmp, h5py.File(tmp, "w", track_order=True, libver=("earliest", "v110")) as f:
             _write_attributes(f, {**contents.attributes, "format": FORMAT_NAME, "format_version": FORMAT_VERSION})
             probes = f.create_group("probes")
             probes.attrs["count"] = len(contents.probe_names)
@@ -118,14 +116,8 @@ def write_store(path: str | os.PathLike[str], contents: StoreContents) -> Path:
                 target = diagnostics.require_group(parent) if parent else diagnostics
                 _dataset(target, leaf, contents.diagnostics[key])
             f.flush()
-        with open(tmp, "rb+") as handle:
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
     except OSError as error:
         raise StoreFormatError(f"{path}: cannot write the store: {error.strerror or error}") from error
-    finally:
-        if tmp.exists():
-            tmp.unlink()
     return path
 
 

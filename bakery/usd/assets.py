@@ -7,12 +7,12 @@ A texture inside a package resolves to ``pkg.usdz[member.png]``, which only USD'
 
 from __future__ import annotations
 
-import hashlib
-import os
 import tempfile
 from pathlib import Path
 
 from pxr import Ar, Sdf
+
+from bakery.files import sha256_bytes, write_bytes_atomic
 
 
 def local_asset_path(asset: Sdf.AssetPath) -> str | None:
@@ -31,9 +31,7 @@ def local_asset_path(asset: Sdf.AssetPath) -> str | None:
     suffix = Path(resolved[resolved.rindex("[") + 1 : -1]).suffix
     cache = Path(tempfile.gettempdir()) / "bakery-usd-assets"
     cache.mkdir(parents=True, exist_ok=True)
-    target = cache / f"{hashlib.sha256(data).hexdigest()[:16]}{suffix}"
+    target = cache / f"{sha256_bytes(data)[:16]}{suffix}"
     if not target.is_file():
-        tmp = target.with_name(f".{target.name}.{os.getpid()}")
-        tmp.write_bytes(data)
-        os.replace(tmp, target)
+        write_bytes_atomic(target, data)
     return str(target)

@@ -27,7 +27,6 @@ scene, e.g. a session or shot layer with ``subLayers = [@scene.bake.usda@, @scen
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 from dataclasses import dataclass, field
@@ -38,6 +37,7 @@ from pxr import Sdf, Usd, UsdGeom, Vt
 
 from bakery.conventions import CONVENTIONS
 from bakery.errors import SceneError
+from bakery.files import atomic_replace, sha256_bytes
 from bakery.usd.plugin import BAKED_API
 
 
@@ -73,13 +73,13 @@ def attribute_name(kind: str, encoding: str, field_name: str) -> str:
 
 def content_hash(fields: dict[str, np.ndarray]) -> str:
     """SHA-256 over the sorted attribute names, the arrays' shapes and dtypes, and their little-endian bytes."""
-    digest = hashlib.sha256()
+    parts = []
     for name in sorted(fields):
         array = np.ascontiguousarray(fields[name])
-        digest.update(name.encode())
-        digest.update(json.dumps([list(array.shape), array.dtype.str]).encode())
-        digest.update(array.astype(array.dtype.newbyteorder("<"), copy=False).tobytes())
-    return digest.hexdigest()
+        parts.append(name.encode())
+        parts.append(json.dumps([list(array.shape), array.dtype.str]).encode())
+        parts.append(array.astype(array.dtype.newbyteorder("<"), copy=False).tobytes())
+    return sha256_bytes(b"".join(parts))
 
 
 def _usd_value(array: np.ndarray) -> tuple[Sdf.ValueTypeName, object, np.ndarray]:
@@ -99,6 +99,10 @@ def _usd_value(array: np.ndarray) -> tuple[Sdf.ValueTypeName, object, np.ndarray
     raise SceneError(f"cannot write a {array.dtype} array as a USD attribute")
 
 
+#: File formats of the baked layer: text, crate (binary), or crate under the generic extension.
+LAYER_SUFFIXES = (".usda", ".usdc", ".usd")
+
+
 def write_bake_layer(
     layer_path: str | os.PathLike[str],
     prims: list[BakedPrim],
@@ -114,8 +118,8 @@ def write_bake_layer(
     layer_path = Path(layer_path).resolve()
     if str(layer_path) in {str(Path(p).resolve()) for p in protected}:
         raise SceneError(f"{layer_path}: refusing to overwrite one of the scene's own layers; choose another --layer")
-    if layer_path.suffix != ".usda":
-        raise SceneError(f"{layer_path}: the baked layer must be a .usda file")
+    if layer_path.suffix not in LAYER_SUFFIXES:
+        raise SceneError(f"{layer_path}: the baked layer must be a {', '.join(LAYER_SUFFIXES)} file")
     store_rel = os.path.relpath(Path(store_path).resolve(), layer_path.parent)
     scene_rel = os.path.relpath(Path(scene_path).resolve(), layer_path.parent)
     layer = Sdf.Layer.CreateAnonymous(".usda")
@@ -153,10 +157,9 @@ def write_bake_layer(
             attr = Sdf.AttributeSpec(spec, name, type_name, Sdf.VariabilityVarying)
             attr.default = value
     layer_path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = layer_path.with_name(f".{layer_path.name}.tmp-{os.getpid()}.usda")
-    if not layer.Export(str(tmp)):
-        raise SceneError(f"{layer_path}: USD could not write the layer")
-    os.replace(tmp, layer_path)
+    with atomic_replace(layer_path, suffix=layer_path.suffix) as tmp:  # USD picks the file format by extension
+        if not layer.Export(str(tmp)):
+            raise SceneError(f"{layer_path}: USD could not write the layer")
     return layer_path
 
 

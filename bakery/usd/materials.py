@@ -14,10 +14,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import OpenImageIO as oiio
 from pxr import Sdf, Usd, UsdGeom, UsdShade
 
 from bakery.capture.scene import Material
+from bakery.environment.io import read_image
+from bakery.errors import ImageError
 from bakery.usd.assets import local_asset_path
 
 _T = Usd.TimeCode.EarliestTime()
@@ -150,22 +151,13 @@ class MaterialReader:
         key = f"{filename}|{color_space}"
         if key in self._textures:
             return self._textures[key]
-        image = oiio.ImageInput.open(filename)
-        if image is None:
-            self._warn_once(prim, f"texture {filename!r} cannot be read: {oiio.geterror()}")
-            self._textures[key] = None
-            return None
         try:
-            spec = image.spec()
-            pixels = image.read_image(0, 0, 0, min(spec.nchannels, 4), oiio.FLOAT)
-            is_8bit = spec.format.basetype in (oiio.UINT8, oiio.INT8)
-        finally:
-            image.close()
-        if pixels is None:
-            self._warn_once(prim, f"texture {filename!r} is unreadable")
+            image = read_image(filename, channels=4)
+        except ImageError as error:
+            self._warn_once(prim, f"texture cannot be read: {error}")
             self._textures[key] = None
             return None
-        pixels = np.asarray(pixels, dtype=np.float64).reshape(spec.height, spec.width, -1)
+        pixels, is_8bit = image.pixels.astype(np.float64), image.is_8bit
         c = pixels.shape[2]
         if c == 1:
             pixels = np.concatenate([np.repeat(pixels, 3, axis=2), np.ones_like(pixels)], axis=2)
@@ -184,17 +176,6 @@ def srgb_to_linear(values: np.ndarray) -> np.ndarray:
     """IEC 61966-2-1 sRGB decoding of values in [0, 1]."""
     values = np.asarray(values)
     return np.where(values <= 0.04045, values / 12.92, ((values + 0.055) / 1.055) ** 2.4)
-
-
-def is_8bit_image(filename: str) -> bool:
-    """Whether an image file stores 8-bit integer channels (treated as sRGB-encoded, as Hydra does)."""
-    image = oiio.ImageInput.open(filename)
-    if image is None:
-        return False
-    try:
-        return image.spec().format.basetype in (oiio.UINT8, oiio.INT8)
-    finally:
-        image.close()
 
 
 def _input4(shader: UsdShade.Shader, name: str, fallback) -> np.ndarray:

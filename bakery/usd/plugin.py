@@ -21,13 +21,14 @@ attributes by name with the schema's fallbacks (:data:`FALLBACKS`), so a late re
 from __future__ import annotations
 
 import json
-import shutil
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
 from pxr import Plug, Tf, Usd
+
+from bakery.files import write_bytes_atomic
 
 #: The packaged plugin directory (plugInfo.json + generatedSchema.usda).
 PLUGIN_DIR = Path(__file__).resolve().parent / "schema"
@@ -91,6 +92,7 @@ def sync_schemas(source_dir: Path) -> None:
         )
         _fix_plug_info(Path(tmp) / "plugInfo.json")
         for name in ("plugInfo.json", "generatedSchema.usda"):
-            shutil.copyfile(Path(tmp) / name, source_dir / name)
-            shutil.copyfile(Path(tmp) / name, PLUGIN_DIR / name)
+            data = (Path(tmp) / name).read_bytes()
+            write_bytes_atomic(source_dir / name, data)
+            write_bytes_atomic(PLUGIN_DIR / name, data)
 

@@ -31,17 +31,16 @@ import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
 
 from bakery.capture.scene import CaptureScene, Dome, Light, Mesh, ProbeSpec
-from bakery.environment.io import read_environment
+from bakery.environment.io import is_8bit_image, read_environment
 from bakery.errors import ImageError, SceneError
 from bakery.usd.assets import local_asset_path
-from bakery.usd.materials import MaterialReader, is_8bit_image, srgb_to_linear
+from bakery.usd.materials import MaterialReader, srgb_to_linear
 from bakery.usd.plugin import FALLBACKS, PROBE_TYPES
 
 _Z_UP_TO_BAKE = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 _POLE_Y_TO_Z = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # row vectors: +Y ↦ +Z
 #: Time at which the scene is read: authored defaults, else the first time sample.
 _T = Usd.TimeCode.EarliestTime()
-SEVERITIES = ("error", "warning")
 
 
 @dataclass(frozen=True)

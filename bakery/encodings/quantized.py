@@ -1,0 +1,149 @@
+"""Quantized irradiance encodings ([ZH3] App. A.1): R11G11B10F DC + SNORM8 ratios remapped by the App. A bounds.
+
+Defines
+    class          name           what
+    -------------  -------------  -----------------------------------------------------------------------------
+    ZH3Quantized   zh3_quantized  16-byte ZH3: R11G11B10F DC + 12 SNORM8 ratios (linear band + zonal L2), built
+                                  from the deringed ZH3 and deringed again after decoding
+    SH3Quantized   sh3_quantized  28-byte SH3: R11G11B10F DC + 24 SNORM8 ratios (the layout the paper compares with)
+
+Parameters
+    encoding       recipe key       type  meaning
+    -------------  ---------------  ----  --------------------------------------------------------------------
+    both           sqrt_companding  bool  store sqrt-companded ratios (App. A.1; default true)
+    zh3_quantized  dering           bool  dering before packing and after decoding so that the decoded probe is
+                                          non-negative everywhere (default true)
+
+Layouts: :mod:`bakery.irradiance.quantize` and ``schemas/store-v1.md``. Neither stores float radiance SH
+(``radiance_sh_field`` is None).
+
+References
+    [ZH3]  T. Roughton, P.-P. Sloan, A. Silvennoinen, M. Iwanicki, P. Shirley, "ZH3: Quadratic Zonal Harmonics",
+           Proc. ACM Comput. Graph. Interact. Tech. 7(1), 2024 (seed 001), App. A (bounds) and A.1 (encoding).
+    [WS22] T. Wiederien, P.-P. Sloan, "Tighter Spherical Harmonic Quantization Bound", I3D 2022 posters.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from bakery.encodings.base import Encoding, EncodingParams, FieldSpec
+from bakery.encodings.registry import register
+from bakery.errors import ClampWarning
+from bakery.irradiance import quantize
+from bakery.irradiance.dering import clamp_zonal_l2, dering_zh3
+from bakery.irradiance.sh_irradiance import evaluate_sh_irradiance, minimum_sh_irradiance
+from bakery.irradiance.zh3 import (
+    evaluate_zh3_irradiance,
+    expand_zh3_to_sh3,
+    fit_zh3_luminance,
+    luminance_axis,
+    solve_zonal_l2,
+)
+from bakery.probe import ProbeBatch
+
+#: Relative irradiance floor used when re-deringing decoded quantized ZH3 (about one SNORM8 step of the ratios).
+QUANTIZED_MARGIN = 1.0 / 127.0
+
+
+def _warn_clamps(name: str, stats: dict) -> None:
+    """Warn (counted in the store's ``warnings``) when packing clamped the DC or ratios to the layout's range."""
+    if stats["dc_clamped"] or stats["ratios_clamped"]:
+        warnings.warn(
+            f"{name}: {stats['dc_clamped']} DC values above the R11G11B10F maximum (65024) and "
+            f"{stats['ratios_clamped']} ratios outside the App. A bounds were clamped", ClampWarning, stacklevel=3,
+        )
+
+
+def _dering_quantized(packed: np.ndarray, companding: bool, rounds: int = 12) -> np.ndarray:
+    """Make decoded quantized ZH3 non-negative: re-dering the decoded values with a relative floor that starts at
+    one SNORM8 step and doubles each round, and re-pack, until the exact minimum of every decoded probe is ≥ 0.
+    A floor above π·Y00 ≈ 0.886 (relative to f0) leaves only DC, which is non-negative, so this terminates."""
+    margin = QUANTIZED_MARGIN
+    for _ in range(rounds):
+        decoded_linear, decoded_zonal = quantize.unpack_zh3(packed, companding)
+        minimum = minimum_sh_irradiance(expand_zh3_to_sh3(decoded_linear, decoded_zonal,
+                                                          luminance_axis(decoded_linear)))
+        negative = np.any(minimum < 0.0, axis=-1)
+        if not negative.any():
+            break
+        fixed_linear, fixed_zonal, _ = dering_zh3(decoded_linear[negative], decoded_zonal[negative], margin=margin)
+        repacked, _ = quantize.pack_zh3(fixed_linear, fixed_zonal, companding)
+        packed = packed.copy()
+        packed[negative] = repacked
+        margin *= 2.0
+    return packed
+
+
+class ZH3Quantized(Encoding):
+    """16-byte ZH3 ([ZH3] App. A.1): R11G11B10F DC + 12 SNORM8 ratios (layout in :mod:`bakery.irradiance.quantize`).
+
+    Built from the deringed ZH3 (``dering``, default on). The zonal coefficient is re-projected onto the axis the
+    reader will compute from the *decoded* linear band and re-clamped with the decoded DC, so that the quantized
+    probe is self-consistent.
+    """
+
+    @dataclass(frozen=True)
+    class Params(EncodingParams):
+        sqrt_companding: bool = True
+        dering: bool = True
+
+    name = "zh3_quantized"
+    kind = "irradiance"
+    description = "16-byte ZH3: R11G11B10F DC + SNORM8 ratios remapped by the App. A bounds (ZH3 paper App. A.1)"
+    max_band = 2
+
+    def field_specs(self):
+        return (FieldSpec("packed", (16,), "uint8", "16-byte ZH3 layout, see schemas/store-v1.md"),)
+
+    def encode(self, batch: ProbeBatch):
+        companding, dering = self.params.sqrt_companding, self.params.dering
+        linear, zonal = fit_zh3_luminance(batch.radiance_sh(2))
+        if dering:
+            linear, zonal, _ = dering_zh3(linear, zonal)
+        band2 = expand_zh3_to_sh3(linear, zonal, luminance_axis(linear))[:, 4:9]
+        first, stats = quantize.pack_zh3(linear, zonal, companding)
+        _warn_clamps(self.name, stats)
+        decoded_linear, _ = quantize.unpack_zh3(first, companding)
+        decoded_axis = luminance_axis(decoded_linear)
+        zonal = solve_zonal_l2(band2, decoded_axis)
+        if dering:
+            zonal = clamp_zonal_l2(decoded_linear, zonal, decoded_axis)
+        packed, _ = quantize.pack_zh3(decoded_linear, zonal, companding)
+        if dering:
+            packed = _dering_quantized(packed, companding)
+        return {"packed": packed}
+
+    def evaluate_irradiance(self, fields, normals):
+        linear, zonal = quantize.unpack_zh3(fields["packed"], self.params.sqrt_companding)
+        return evaluate_zh3_irradiance(linear, zonal, normals)
+
+
+class SH3Quantized(Encoding):
+    """28-byte SH3 ([ZH3] App. A.1, Sec. 4): R11G11B10F DC + 24 SNORM8 ratios."""
+
+    @dataclass(frozen=True)
+    class Params(EncodingParams):
+        sqrt_companding: bool = True
+
+    name = "sh3_quantized"
+    kind = "irradiance"
+    description = "28-byte SH3: R11G11B10F DC + SNORM8 ratios remapped by the App. A bounds"
+    max_band = 2
+
+    def field_specs(self):
+        return (FieldSpec("packed", (28,), "uint8", "28-byte SH3 layout, see schemas/store-v1.md"),)
+
+    def encode(self, batch: ProbeBatch):
+        packed, stats = quantize.pack_sh3(batch.radiance_sh(2), self.params.sqrt_companding)
+        _warn_clamps(self.name, stats)
+        return {"packed": packed}
+
+    def evaluate_irradiance(self, fields, normals):
+        return evaluate_sh_irradiance(quantize.unpack_sh3(fields["packed"], self.params.sqrt_companding), normals)
+
+
+register(ZH3Quantized, SH3Quantized)

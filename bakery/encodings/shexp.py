@@ -1,0 +1,201 @@
+"""SH-exponential reflection encodings ([SHExp] Sec. 4): log-space SH of P(r) and Q(h_r) per probe, with vMF
+roughness, fitted through fixed operators (:mod:`bakery.reflection.shexp`), + a DFG or Fresnel-tail table.
+
+Defines
+    class        name          what
+    -----------  ------------  ---------------------------------------------------------------------------------
+    SHExp        shexp         p (bands 0..p_band) and q (bands 1..q_band, no DC) float32 × RGB (33 × RGB = 396 bytes
+                               at the defaults); E = PQ (F0 A + B) (albedo-normalised) or PQ (F0 + (1 − F0) τ)
+    SHExpLights  shexp_lights  ``shexp`` of the capture without its ≤ ``max_lights`` brightest texel clusters, plus
+                               those clusters as analytic GGX directional lights (beyond the paper; 588 bytes)
+
+Parameters
+    encoding      recipe key         type                 meaning
+    ------------  -----------------  -------------------  ---------------------------------------------------------
+    both          p_band             int                  highest band of p (0 … 16, default 4)
+    both          q_band             int                  highest band of q (0 … 16, default 2; 0 = no Q)
+    both          n_normals          int                  design normals (≥ 1, default 64, paper Sec. 5.1)
+    both          n_views            int                  design views per normal (≥ 1, default 64)
+    both          n_alphas           int                  design roughnesses (≥ 1, default 4)
+    both          alpha_min          float                smallest design GGX α, 0 < alpha_min < alpha_max (0.2)
+    both          alpha_max          float                largest design GGX α, alpha_max ≤ 1 (1.0); the pipeline
+                                                          may override both per probe (``accepts_alpha_range``)
+    both          fit_face_size      int                  finest fit-grid face size (≥ 1, default 16)
+    both          min_fit_face_size  int                  coarsest fit-grid face size (≥ 1, default 8; clamped to
+                                                          fit_face_size)
+    both          fit                "weighted" | "log"   luminance-weighted (default) or the paper's unweighted
+                                                          log-space least squares (stored "dense"/"fast" read as "log")
+    both          albedo_normalized  bool                 fit log(E0 / albedo) and reconstruct with the DFG table
+                                                          (default true) or the paper's Fresnel-tail form
+    shexp_lights  max_lights         int                  light slots per probe (≥ 0, default 8)
+    shexp_lights  light_threshold    float                candidate texels: luminance > threshold × mean (> 0, 10)
+    shexp_lights  light_radius_deg   float                cluster radius in degrees (0 < r < 90, default 3)
+
+The design needs at least as many rows (n_alphas · n_normals · n_views) as coefficients ((p_band + 1)² +
+(q_band + 1)² − 1). Layouts in ``schemas/store-reflection.md``. Importing this module backs the reflection operator
+cache with memory-mapped files (:func:`bakery.operator_cache.install`).
+
+References
+    [SHExp] A. Silvennoinen, P.-P. Sloan, M. Iwanicki, D. Nowrouzezahrai, "Spherical Harmonic Exponentials for
+            Efficient Glossy Reflections", HPG 2025 (seed 000): Eq. 9–14 (model and fit), Sec. 5.1 (design).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from typing import Literal
+
+import numpy as np
+
+from bakery import operator_cache
+from bakery.encodings.base import Encoding, EncodingParams, FieldSpec
+from bakery.encodings.registry import register
+from bakery.probe import ProbeBatch
+from bakery.reflection.lights import evaluate_lights, extract_lights
+from bakery.reflection.shexp import TABLE_SAMPLES, TABLE_SIZE, SHExpSettings, evaluate_shexp, fit_shexp
+from bakery.reflection.tables import compute_dfg_tables
+
+operator_cache.install()
+
+#: Highest band of p and q a recipe may ask for (289 coefficients per channel; the design must still have as many rows).
+MAX_BAND = 16
+
+
+class SHExp(Encoding):
+    """SH exponentials ([SHExp] Sec. 4): p (bands 0..p_band) and q (bands 1..q_band) float32 + Fresnel tail."""
+
+    @dataclass(frozen=True)
+    class Params(EncodingParams):
+        p_band: int = 4
+        q_band: int = 2
+        n_normals: int = 64
+        n_views: int = 64
+        n_alphas: int = 4
+        alpha_min: float = 0.2
+        alpha_max: float = 1.0
+        fit_face_size: int = 16
+        min_fit_face_size: int = 8
+        fit: Literal["weighted", "log"] = "weighted"
+        albedo_normalized: bool = True
+
+        #: Fit modes of stores written before 1.1.0 (both were the unweighted log-space fit).
+        LEGACY_VALUES = {"fit": {"dense": "log", "fast": "log"}}
+
+        def normalize(self):
+            return {"min_fit_face_size": min(self.min_fit_face_size, self.fit_face_size)}
+
+        def validate(self) -> None:
+            for key in ("p_band", "q_band"):
+                if not 0 <= getattr(self, key) <= MAX_BAND:
+                    raise ValueError(f"{key} must be in [0, {MAX_BAND}], got {getattr(self, key)}")
+            for key in ("n_normals", "n_views", "n_alphas", "fit_face_size", "min_fit_face_size"):
+                if getattr(self, key) < 1:
+                    raise ValueError(f"{key} must be >= 1, got {getattr(self, key)}")
+            # GGX α range of the design: 0 < alpha_min < alpha_max <= 1
+            if not self.alpha_min > 0.0:
+                raise ValueError(f"alpha_min must be > 0 (0 < alpha_min < alpha_max <= 1), got {self.alpha_min}")
+            if not self.alpha_max <= 1.0:
+                raise ValueError(f"alpha_max must be <= 1 (0 < alpha_min < alpha_max <= 1), got {self.alpha_max}")
+            if not self.alpha_min < self.alpha_max:
+                raise ValueError(f"alpha_min must be < alpha_max (0 < alpha_min < alpha_max <= 1), got alpha_min = "
+                                 f"{self.alpha_min}, alpha_max = {self.alpha_max}")
+            rows = self.n_alphas * self.n_normals * self.n_views
+            coefficients = (self.p_band + 1) ** 2 + (self.q_band + 1) ** 2 - 1
+            if rows < coefficients:
+                raise ValueError(f"n_alphas * n_normals * n_views = {rows} design rows cannot fit {coefficients} "
+                                 f"coefficients (p_band {self.p_band}, q_band {self.q_band})")
+
+    name = "shexp"
+    kind = "reflection"
+    version = "1.1.0"  # 1.1.0: multi-resolution splatted fit grid and the weighted solve (same stored layout)
+    description = ("SH exponentials PQ = exp(<vMF(1/a).Y(r), p>) exp(<vMF(1/a).Y(h_r), q>); E = PQ (F0 A + B) with "
+                   "the DFG table (albedo-normalised) or PQ (F0 + (1-F0) tau) (paper)")
+    accepts_alpha_range = True
+
+    @cached_property
+    def model(self) -> SHExpSettings:
+        p = self.params
+        return SHExpSettings(
+            p_band=p.p_band, q_band=p.q_band, n_normals=p.n_normals, n_views=p.n_views, n_alphas=p.n_alphas,
+            alpha_min=p.alpha_min, alpha_max=p.alpha_max, fit_face_size=p.fit_face_size,
+            min_fit_face_size=p.min_fit_face_size, fit=p.fit, albedo_normalized=p.albedo_normalized,
+        )
+
+    def field_specs(self) -> tuple[FieldSpec, ...]:
+        return (
+            FieldSpec("p", (self.model.p_count, 3), "float32",
+                      "log-space SH of P(r), bands 0..p_band, index l*(l+1)+m, RGB last"),
+            FieldSpec("q", (self.model.q_count, 3), "float32",
+                      "log-space SH of Q(h_r), bands 1..q_band (no DC), index l*(l+1)+m-1, RGB last"),
+        )
+
+    def _table_name(self) -> str:
+        return "dfg" if self.model.albedo_normalized else "fresnel_tail"
+
+    def shared_tables(self) -> dict[str, np.ndarray]:
+        tables = compute_dfg_tables(TABLE_SIZE, TABLE_SAMPLES)
+        return {"dfg": tables.dfg} if self.model.albedo_normalized else {"fresnel_tail": tables.fresnel_tail}
+
+    def encode(self, batch: ProbeBatch) -> dict[str, np.ndarray]:
+        return self._coefficient_fields(fit_shexp(batch.cubes, self.model))
+
+    def _coefficient_fields(self, coeffs: np.ndarray) -> dict[str, np.ndarray]:
+        """(P, K_p + K_q, 3) → the stored ``p`` and ``q`` fields."""
+        k = self.model.p_count
+        return {"p": np.ascontiguousarray(coeffs[:, :k]), "q": np.ascontiguousarray(coeffs[:, k:])}
+
+    def evaluate_reflection(self, fields, shared, view, normal, alpha, f0):
+        coeffs = np.concatenate([np.asarray(fields["p"]), np.asarray(fields["q"])], axis=1)
+        table = shared.get(self._table_name()) if shared else None
+        if table is None:
+            table = self.shared_tables()[self._table_name()]
+        return evaluate_shexp(coeffs, table, view, normal, alpha, f0, self.model)
+
+
+class SHExpLights(SHExp):
+    """SH exponentials of the capture without its brightest texels, plus those texels as ``max_lights`` analytic
+    directional lights (:mod:`bakery.reflection.lights`; beyond the paper)."""
+
+    @dataclass(frozen=True)
+    class Params(SHExp.Params):
+        max_lights: int = 8
+        light_threshold: float = 10.0
+        light_radius_deg: float = 3.0
+
+        def validate(self) -> None:
+            super().validate()
+            if self.max_lights < 0:
+                raise ValueError(f"max_lights must be >= 0, got {self.max_lights}")
+            if not self.light_threshold > 0.0:
+                raise ValueError(f"light_threshold must be > 0, got {self.light_threshold}")
+            if not 0.0 < self.light_radius_deg < 90.0:
+                raise ValueError(f"light_radius_deg must be in (0, 90), got {self.light_radius_deg}")
+
+    name = "shexp_lights"
+    version = "1.0.0"
+    description = ("SH exponentials (albedo-normalised) of the capture minus its brightest texel clusters, plus "
+                   "the clusters as directional lights (direction, RGB flux) evaluated with the same GGX BRDF")
+
+    def field_specs(self) -> tuple[FieldSpec, ...]:
+        k = self.params.max_lights
+        return super().field_specs() + (
+            FieldSpec("light_direction", (k, 3), "float32",
+                      "unit direction towards each light in the bake frame (unused slots: +Y with zero flux)"),
+            FieldSpec("light_flux", (k, 3), "float32",
+                      "RGB flux of each light: sum of radiance x solid angle over its texels (radiance x sr)"),
+        )
+
+    def encode(self, batch: ProbeBatch) -> dict[str, np.ndarray]:
+        p = self.params
+        directions, flux, removed = extract_lights(batch.cubes, p.max_lights, p.light_threshold, p.light_radius_deg)
+        fields = self._coefficient_fields(fit_shexp(batch.cubes, self.model, removed))  # remainder, not copied
+        return {**fields, "light_direction": directions, "light_flux": flux}
+
+    def evaluate_reflection(self, fields, shared, view, normal, alpha, f0):
+        environment = super().evaluate_reflection(fields, shared, view, normal, alpha, f0)
+        a = np.broadcast_to(np.asarray(alpha, dtype=np.float64).reshape(-1), (np.asarray(view).reshape(-1, 3).shape[0],))
+        return environment + evaluate_lights(fields["light_direction"], fields["light_flux"], view, normal, a, f0)
+
+
+register(SHExp, SHExpLights)

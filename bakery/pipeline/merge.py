@@ -1,0 +1,193 @@
+"""Parent side, between the workers and the writer: merge batches (and reused probes) into store order, skip bands
+that carry no energy, and finalize encodings over every probe.
+
+    merged = merge_batches(batches + [extract_probes(previous, reused)], order)
+    skipped = apply_band_skips(merged, tolerance)          # seed 003 §5.1, seed 002 §4.4 (bakery.pipeline.skip)
+    encodings = finalize_encodings(merged, settings)       # e.g. the hallucination curve fitted over all probes
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bakery.encodings import Encoding, get_encoding
+from bakery.errors import ConfigError
+from bakery.pipeline.encode import (
+    REFERENCE_IRRADIANCE,
+    EncodedBatch,
+    aux_key,
+    full_length,
+    irradiance_diagnostics,
+    relative_rmse_per_probe,
+)
+from bakery.pipeline.settings import DEFAULT_BAND_TOLERANCE, BakeSettings, build_encodings
+from bakery.pipeline.skip import band_skip_decisions
+from bakery.probe import Probe
+from bakery.sphere.fibonacci import fibonacci_directions
+
+
+def merge_batches(batches: list[EncodedBatch], order: list[str] | None = None) -> EncodedBatch:
+    """Concatenate batches and reorder their probes to ``order`` (names; default: concatenation order)."""
+    probes = [p for b in batches for p in b.probes]
+    offsets = np.cumsum([0] + [len(b.probes) for b in batches])
+    names = [p.name for p in probes]
+    if len(set(names)) != len(names):
+        raise ConfigError("probe names must be unique")
+    position = {n: i for i, n in enumerate(order if order is not None else names)}
+    if set(position) != set(names):
+        raise ConfigError("merge order does not name the same probes as the batches")
+    permutation = np.array([position[n] for n in names], dtype=np.int64)  # concatenated row -> final row
+    final_probes: list[Probe] = [None] * len(probes)  # type: ignore[list-item]
+    for i, p in enumerate(probes):
+        final_probes[permutation[i]] = p
+    encoded: dict[str, dict[str, np.ndarray]] = {}
+    rows: dict[str, np.ndarray] = {}
+    for name in sorted({n for b in batches for n in b.encoded}):
+        parts = [(b, off) for b, off in zip(batches, offsets[:-1]) if name in b.encoded]
+        final_rows = np.concatenate([permutation[b.rows[name] + off] for b, off in parts])
+        sort = np.argsort(final_rows, kind="stable")
+        rows[name] = final_rows[sort]
+        encoded[name] = {f: np.concatenate([b.encoded[name][f] for b, _ in parts])[sort]
+                         for f in parts[0][0].encoded[name]}
+    diagnostics = _merge_per_probe([b.diagnostics for b in batches], [len(b.probes) for b in batches], permutation)
+    transient = _merge_per_probe([b.transient for b in batches], [len(b.probes) for b in batches], permutation)
+    timings: dict[str, float] = {}
+    for b in batches:
+        for k, v in b.timings.items():
+            timings[k] = timings.get(k, 0.0) + v
+    # Warnings sorted and de-duplicated: their arrival order depends on scheduling, the store must not.
+    merged_warnings = sorted({w for b in batches for w in b.warnings}, key=lambda w: (w.message, w.category))
+    return EncodedBatch(final_probes, encoded, rows, diagnostics, timings, merged_warnings, transient)
+
+
+def _merge_per_probe(parts_of: list[dict[str, np.ndarray]], counts: list[int],
+                     permutation: np.ndarray) -> dict[str, np.ndarray]:
+    """Concatenate per-probe arrays {key: (P_b, ...)} of batches (NaN where a batch lacks a key) into final order."""
+    merged: dict[str, np.ndarray] = {}
+    for key in sorted({k for part in parts_of for k in part}):
+        template = next(part[key] for part in parts_of if key in part)
+        parts = [np.asarray(part[key]) if key in part
+                 else np.full((count, *np.shape(template)[1:]), np.nan, dtype=np.float32)
+                 for part, count in zip(parts_of, counts)]
+        values = np.concatenate([np.asarray(p, dtype=np.result_type(*parts)) for p in parts])
+        out = np.empty_like(values)
+        out[permutation] = values
+        merged[key] = out
+    return merged
+
+
+def extract_probes(contents, names: list[str]) -> EncodedBatch:  # noqa: ANN001 - StoreContents
+    """The stored results of ``names`` as an :class:`EncodedBatch` (incremental reuse)."""
+    index = {n: i for i, n in enumerate(contents.probe_names)}
+    picked = np.array([index[n] for n in names], dtype=np.int64)
+    probes = [Probe(contents.probe_names[i], tuple(contents.probe_kinds[i].split(",")),
+                    tuple(map(float, contents.probe_positions[i]))) for i in picked]
+    position = {int(i): r for r, i in enumerate(picked)}
+    encoded, rows = {}, {}
+    for name, entry in contents.encodings.items():
+        probe_index = entry["fields"]["probe_index"]
+        keep = np.array([r for r, i in enumerate(probe_index) if int(i) in position], dtype=np.int64)
+        if keep.size == 0:
+            continue
+        rows[name] = np.array([position[int(probe_index[r])] for r in keep], dtype=np.int64)
+        encoded[name] = {k: v[keep] for k, v in entry["fields"].items() if k != "probe_index"}
+    diagnostics = {k: v[picked] for k, v in contents.diagnostics.items()
+                   if np.ndim(v) >= 1 and len(v) == len(contents.probe_names)}
+    return EncodedBatch(probes, encoded, rows, diagnostics)
+
+
+def apply_band_skips(merged: EncodedBatch, tolerance: float | None) -> list[dict[str, str]]:
+    """Record each probe's required band (``diagnostics/required_band``) and, unless ``tolerance`` is None
+    (encodings asked for explicitly: report, do not skip), drop the encodings no probe needs. Returns the skips."""
+    if "band_energy" not in merged.diagnostics:
+        return []
+    energy = np.asarray(merged.diagnostics["band_energy"], dtype=np.float64)
+    has = np.all(np.isfinite(energy), axis=1)
+    positions = np.array([p.position for p in merged.probes], dtype=np.float64).reshape(-1, 3)
+    required, skips = band_skip_decisions(energy[has], positions[has], tolerance or DEFAULT_BAND_TOLERANCE,
+                                          list(merged.encoded))
+    if tolerance is None:
+        skips = []
+    required_all = np.full(len(merged.probes), np.nan, dtype=np.float32)
+    required_all[has] = required
+    merged.diagnostics["required_band"] = required_all
+    for skip in skips:
+        name = skip["encoding"]
+        merged.encoded.pop(name, None)
+        merged.rows.pop(name, None)
+        for key in [k for k in merged.diagnostics if k.endswith("/" + name) or k.startswith(f"finalize/{name}/")]:
+            del merged.diagnostics[key]
+    return skips
+
+
+def finalize_encodings(merged: EncodedBatch, settings: BakeSettings) -> dict[str, Encoding]:
+    """The encodings whose parameters are stored: built from the bake's settings, then each one's ``finalize`` over
+    every probe of the store (its fields and its ``aux_specs`` inputs) — e.g. the hallucination curve fit.
+
+    The diagnostics of a finalized encoding are computed here, from the finalized parameters: the negative share
+    for every probe, the reference error where the workers returned the reference irradiance (probes baked now;
+    reused probes keep their stored error)."""
+    encodings = build_encodings(sorted(merged.encoded), settings)
+    out: dict[str, Encoding] = {}
+    deferred: list[str] = []
+    for name, encoding in encodings.items():
+        rows = merged.rows[name]
+        aux = {}
+        for spec in encoding.aux_specs():
+            values = merged.diagnostics.get(aux_key(name, spec.name))
+            if values is None:
+                raise ConfigError(f"{name}: finalize input {spec.name} is missing from the merged results")
+            aux[spec.name] = np.asarray(values)[rows].astype(spec.dtype)
+        params = encoding.finalize(merged.encoded[name], aux)
+        out[name] = encoding if params == encoding.params else get_encoding(name)(params)
+        if encoding.aux_specs() and encoding.kind == "irradiance":
+            deferred.append(name)
+    if deferred:
+        _finalized_diagnostics(merged, out, deferred, settings)
+    return out
+
+
+def _finalized_diagnostics(merged: EncodedBatch, encodings: dict[str, Encoding], names: list[str],
+                           settings: BakeSettings) -> None:
+    normals = fibonacci_directions(settings.quality_directions)
+    reference_all = merged.transient.get(REFERENCE_IRRADIANCE)
+    count = len(merged.probes)
+    for name in names:
+        rows = merged.rows[name]
+        reference = None
+        if reference_all is not None:
+            reference = np.asarray(reference_all)[rows]
+        values = irradiance_diagnostics({name: merged.encoded[name]}, {name: encodings[name]}, normals, None)
+        merged.diagnostics[f"negative_fraction/{name}"] = full_length(values[f"negative_fraction/{name}"], rows, count)
+        if reference is None:
+            continue
+        fresh = np.all(np.isfinite(reference), axis=(1, 2))
+        if not fresh.any():
+            continue
+        evaluated = encodings[name].evaluate_irradiance({k: v[fresh] for k, v in merged.encoded[name].items()},
+                                                        normals)
+        key = f"reference_error/{name}"
+        errors = merged.diagnostics.get(key, np.full(count, np.nan, dtype=np.float32)).astype(np.float32)
+        errors[rows[fresh]] = relative_rmse_per_probe(evaluated, reference[fresh])
+        merged.diagnostics[key] = errors
+        if encodings[name].worse_than is not None:
+            flag, baseline = encodings[name].worse_than
+            base = merged.diagnostics.get(f"reference_error/{baseline.name}")
+            if base is not None:
+                hurts = np.where(np.isfinite(errors) & np.isfinite(base), (errors > base).astype(np.float32), np.nan)
+                merged.diagnostics[flag] = hurts.astype(np.float32)
+
+
+def remap_history(previous, reused: list[str], probes: list[Probe]) -> tuple[list[dict[str, str]], np.ndarray | None]:  # noqa: ANN001
+    """History entries of the earlier bakes that reused probes come from, and each probe's index into it (this
+    bake, appended last by the writer, gets index ``len(history)``)."""
+    if not reused or previous is None:
+        return [], None
+    old_ids = dict(zip(previous.probe_names, previous.probe_bake_ids))
+    used = sorted({int(old_ids[n]) for n in reused})
+    remap = {old: new for new, old in enumerate(used)}
+    history = [previous.history[i] for i in used] if previous.history else []
+    reused_set = set(reused)
+    bake_ids = np.array([remap[int(old_ids[p.name])] if p.name in reused_set else len(history) for p in probes],
+                        dtype=np.int32)
+    return history, bake_ids

@@ -1,0 +1,227 @@
+"""USD scenes: every bakery probe prim of a stage, rendered with Embree, plus a layer of baked attributes.
+
+Parent (the only place that touches ``pxr``, through :mod:`bakery.usd`)
+    :meth:`UsdSceneSource.plan` reads and checks the stage once (:func:`bakery.usd.scene.read_scene`). Errors
+    (``bakery check`` severity "error") stop the bake with :class:`~bakery.errors.SceneError` before anything is
+    written; warnings are re-emitted as :class:`~bakery.errors.SceneWarning`. Every probe becomes a
+    :class:`~bakery.probe.Probe` (name = prim path; volume members ``<volume>[i,j,k]``) whose inputs are the hash of
+    everything every probe can see plus, for image probes, the image bytes (:mod:`bakery.pipeline.dependencies`).
+    A reflection probe's SH-exponential fit range follows the materials in its influence volume
+    (:mod:`bakery.pipeline.roughness`). :meth:`prepare` writes the capture scene once as a snapshot
+    (:mod:`bakery.capture.snapshot`) in the bake's work folder.
+
+Workers
+    :meth:`UsdSceneSource.capture` memory-maps the snapshot (cached per process), builds the Embree scene once and
+    renders (or loads the captured image of) one probe. Seeds come from the probe's name
+    (:func:`bakery.capture.probe_seed`), so captures do not depend on batching or the number of workers. Workers
+    never import ``pxr`` and never re-read the stage.
+
+After the store
+    :meth:`after_write` writes the baked-results layer (:func:`bakery.usd.layer.write_bake_layer`) with an
+    ``over`` per probe prim; a probe volume's arrays are written only if all of its probes were baked.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bakery.encodings import ENCODINGS
+from bakery.errors import SceneError, SceneWarning
+from bakery.pipeline.settings import CaptureSettings
+from bakery.probe import Probe
+from bakery.sources.base import Capture, PlannedProbe, Source, SourceHandle, SourcePlan, register_source
+
+SCENE_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
+
+
+def default_layer_path(output: Path) -> Path:
+    """``<store stem>.bake.usda`` beside the store (never the scene's own file, whatever the store is called)."""
+    output = Path(output)
+    return output.with_name(f"{output.stem}.bake.usda")
+
+
+@dataclass(frozen=True)
+class SceneProbeCapture:
+    """Capture spec of one scene probe: its row in the snapshot's probes and how to render it."""
+
+    index: int
+    name: str
+    settings: CaptureSettings
+
+
+def _json_attribute(value: Any) -> Any:
+    return value if isinstance(value, (str, int, float, bool)) else json.dumps(value, sort_keys=True)
+
+
+@lru_cache(maxsize=2)
+def _renderer(location: str, digest: str, settings: CaptureSettings):  # noqa: ANN202, ARG001 - digest: cache key
+    from bakery.capture import ProbeRenderer
+    from bakery.capture.snapshot import read_capture_scene
+
+    scene = read_capture_scene(Path(location))
+    return scene, ProbeRenderer(scene, samples=settings.samples, bounces=settings.bounces, base_seed=settings.seed)
+
+
+class UsdSceneSource(Source):
+    """A USD stage with bakery probe prims (schemas in ``schemas/usd``)."""
+
+    kind = "usd"
+    default_face_size = 32
+    default_batch_size = 64
+
+    def __init__(self, path: Path, capture: CaptureSettings | None = None) -> None:
+        self.path = Path(path)
+        self.capture_settings = capture or CaptureSettings()
+        self._reading = None
+        self._prim_of: dict[str, str] = {}
+        self._positions: dict[str, tuple[float, float, float]] = {}
+        self._lights: list[dict] = []
+        self._protected: tuple[str, ...] = ()
+
+    # -- parent ---------------------------------------------------------------------------------------------------
+    def plan(self, settings, previous) -> SourcePlan:  # noqa: ANN001, ARG002
+        from bakery.pipeline.dependencies import environment_hash, light_table
+        from bakery.pipeline.roughness import fit_alpha_range, visible_roughness
+        from bakery.usd.scene import read_scene
+
+        reading = read_scene(self.path)
+        if reading.errors:
+            listing = "\n".join(f"  {issue}" for issue in reading.errors)
+            raise SceneError(f"{self.path}: {len(reading.errors)} error(s); the bake cannot be trusted:\n{listing}")
+        for issue in reading.issues:
+            warnings.warn(f"{self.path}: {issue}", SceneWarning, stacklevel=2)
+        self._reading = reading
+        self._protected = tuple(str(Path(p).resolve()) for p in reading.layers)
+        scene_hash = environment_hash(reading.scene, tuple(reading.assets))
+        self._lights = light_table(reading.scene)
+        ranged = [name for name, cls in ENCODINGS.items() if cls.accepts_alpha_range]
+        planned: list[PlannedProbe] = []
+        roughness_notes: list[dict[str, str]] = []
+        from bakery.files import sha256_file
+
+        for index, spec in enumerate(reading.scene.probes):
+            probe_settings: dict[str, Any] = {"encodings": list(spec.encodings)} if spec.encodings else {}
+            if spec.influence:
+                probe_settings["influence"] = spec.influence
+            if spec.kind == "reflection" and ranged:
+                alpha_range = fit_alpha_range(visible_roughness(spec.position, spec.influence or {},
+                                                                reading.scene.meshes))
+                if alpha_range is not None:
+                    fit_range = {"alpha_min": alpha_range[0], "alpha_max": alpha_range[1]}
+                    probe_settings["encoding_settings"] = {name: dict(fit_range) for name in ranged}
+                    roughness_notes.append({"probe": spec.name, "reason": (
+                        f"{', '.join(ranged)} fitted over α ∈ [{alpha_range[0]:g}, {alpha_range[1]:g}] (materials in "
+                        f"its influence volume) instead of the default range")})
+            probe = Probe(spec.name, (spec.kind,), spec.position, probe_settings)
+            image_hash = (sha256_file(spec.image) if Path(spec.image).is_file() else "<missing>") if spec.image else None
+            inputs = (scene_hash, image_hash) if spec.image else (scene_hash,)
+            capture = SceneProbeCapture(index, spec.name, self.capture_settings)
+            planned.append(PlannedProbe(probe, capture, inputs))
+            self._prim_of[spec.name] = spec.volume or spec.name
+            self._positions[spec.name] = spec.position
+        attributes: dict[str, Any] = {
+            "source": str(self.path), "source_kind": self.kind, "sources": json.dumps([str(self.path)]),
+            "scene_up_axis": reading.up_axis, "scene_meters_per_unit": reading.meters_per_unit,
+            "capture_samples": self.capture_settings.samples, "capture_bounces": self.capture_settings.bounces,
+            "capture_seed": self.capture_settings.seed, "scene_lights": _json_attribute(self._lights),
+        }
+        if roughness_notes:
+            attributes["roughness_ranges"] = _json_attribute(roughness_notes)
+        return SourcePlan(planned, attributes, layers=_json_attribute(list(self._protected)),
+                          issues=[str(i) for i in reading.issues])
+
+    def layer_path(self, request) -> Path:  # noqa: ANN001
+        return Path(request.layer) if request.layer is not None else default_layer_path(request.output)
+
+    def validate_outputs(self, request) -> None:  # noqa: ANN001
+        protected = set(self._protected) | {str(self.path.resolve())}
+        if str(self.layer_path(request).resolve()) in protected:
+            raise SceneError(f"{self.layer_path(request)}: refusing to overwrite one of the scene's own layers; "
+                             "choose another --layer")
+        if str(Path(request.output).resolve()) in protected:
+            raise SceneError(f"{request.output}: refusing to overwrite one of the scene's own layers with the store; "
+                             "choose another -o")
+
+    def rebake(self, previous, reused: list[str]) -> tuple[set[str], dict[str, Any]]:  # noqa: ANN001
+        """Reused probes that a changed local light can affect (:mod:`bakery.pipeline.dependencies`)."""
+        from bakery.pipeline.dependencies import mean_irradiance_from_store, probes_affected_by_light_changes
+
+        if not reused:
+            return set(), {}
+        old_table = json.loads(str(previous.attributes.get("scene_lights", "[]")))
+        positions = np.array([self._positions[n] for n in reused], dtype=np.float64)
+        affected, changed = probes_affected_by_light_changes(
+            old_table, self._lights, reused, positions, mean_irradiance_from_store(previous, reused))
+        return affected, ({"changed_lights": _json_attribute(changed)} if affected else {})
+
+    def prepare(self, work_dir: Path) -> SourceHandle:
+        from bakery.capture.snapshot import write_capture_scene
+
+        if self._reading is None:
+            raise RuntimeError("UsdSceneSource.prepare before plan")
+        folder = Path(work_dir) / "scene"
+        digest = write_capture_scene(self._reading.scene, folder)
+        return SourceHandle(self.kind, str(folder), digest)
+
+    def after_write(self, merged, contents, request) -> dict[str, Any]:  # noqa: ANN001
+        from bakery.usd.layer import BakedPrim, attribute_name, write_bake_layer
+
+        layer_path = self.layer_path(request)
+        rows_of_prim: dict[str, list[int]] = {}
+        for row, probe in enumerate(merged.probes):
+            rows_of_prim.setdefault(self._prim_of.get(probe.name, probe.name), []).append(row)
+        expected: dict[str, int] = {}
+        for prim in self._prim_of.values():
+            expected[prim] = expected.get(prim, 0) + 1
+        baked: list[BakedPrim] = []
+        for prim, rows in rows_of_prim.items():
+            if len(rows) != expected.get(prim, len(rows)):
+                continue  # part of a volume failed: its arrays would be incomplete
+            fields: dict[str, np.ndarray] = {}
+            names: list[str] = []
+            for encoding, values in merged.encoded.items():
+                index = {int(r): k for k, r in enumerate(merged.rows[encoding])}
+                if not all(r in index for r in rows):
+                    continue
+                kind = ENCODINGS[encoding].kind
+                for field_name, array in values.items():
+                    fields[attribute_name(kind, encoding, field_name)] = np.asarray(array)[[index[r] for r in rows]]
+                names.append(encoding)
+            baked.append(BakedPrim(prim, len(rows), tuple(names), fields))
+        write_bake_layer(
+            layer_path, baked, request.output, str(contents.attributes.get("settings_hash", "")), self.path,
+            up_axis=self._reading.up_axis, meters_per_unit=self._reading.meters_per_unit, protected=self._protected,
+        )
+        return {"layer": str(layer_path)}
+
+    # -- worker ---------------------------------------------------------------------------------------------------
+    @classmethod
+    def capture(cls, handle: SourceHandle, spec: SceneProbeCapture, face_size: int) -> Capture:
+        from bakery.capture import load_captured_cube
+        from bakery.sphere.cubemap import resample_cube
+
+        scene, renderer = _renderer(handle.location, handle.digest, spec.settings)
+        probe = scene.probes[spec.index]
+        if probe.name != spec.name:
+            raise SceneError(f"{spec.name}: the scene snapshot does not hold this probe (got {probe.name})")
+        n = probe.resolution or face_size
+        if probe.image:
+            cube = load_captured_cube(probe.image, np.asarray(probe.rotation), n)
+            stats = {"capture_loaded": 1.0}
+        else:
+            cube, render_stats = renderer.render(np.asarray(probe.position), n, probe.name)
+            stats = {"capture_rays": float(render_stats.rays), "capture_seconds": float(render_stats.seconds),
+                     "capture_rendered": 1.0}
+        if cube.shape[1] != face_size:
+            cube = resample_cube(cube, face_size)
+        return Capture(np.asarray(cube, dtype=np.float32), stats=stats)
+
+
+register_source(UsdSceneSource)
