@@ -18,7 +18,7 @@ from bakery.capture.scene import LIGHT_TYPES, CaptureScene, Dome, Light, Materia
 from bakery.capture.snapshot import read_capture_scene, scene_content_hash, write_capture_scene
 from bakery.errors import InputError
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = {"indoor": ROOT / "examples/indoor/indoor.usda", "outdoor": ROOT / "examples/outdoor/outdoor.usda"}
 
 

@@ -220,7 +220,7 @@ def test_recipe_schema_rejects_bad_recipes(tmp_path, text, message):
 
 
 def test_shipped_recipes_are_valid():
-    presets = sorted(p.stem for p in (Path(__file__).resolve().parents[1] / "pipelines").glob("*.toml"))
+    presets = sorted(p.stem for p in (Path(__file__).resolve().parents[2] / "pipelines").glob("*.toml"))
     assert "mobile" in presets
     for name in presets:
         assert load_recipe(name).name == name

@@ -19,7 +19,7 @@ from bakery.probe import PROBE_KINDS, Probe, ProbeBatch
 from bakery.sphere.cubemap import cube_texel_directions
 from bakery.sphere.fibonacci import fibonacci_directions
 
-SPEC_FILES = sorted((Path(__file__).resolve().parents[1] / "schemas").glob("store*.md"))
+SPEC_FILES = sorted((Path(__file__).resolve().parents[2] / "schemas").glob("store*.md"))
 FACE = 16
 SMALL = {"splitsum": {"min_face_size": 8}}  # keeps the chain small at FACE
 

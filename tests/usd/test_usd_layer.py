@@ -20,7 +20,7 @@ from bakery.store.format import read_store
 from bakery.usd.layer import attribute_name, content_hash, read_baked_values
 from bakery.usd.plugin import FALLBACKS, PLUGIN_DIR, PROBE_TYPES, schemas_registered
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def _scene(tmp_path):

@@ -17,7 +17,7 @@ import bakery
 from bakery.encodings import ENCODINGS
 from bakery.environment.io import write_exr
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PACKAGE = ROOT / "bakery"
 EXAMPLE_SCENE = ROOT / "examples" / "indoor" / "indoor.usda"
 ENV = {**os.environ, "SOURCE_DATE_EPOCH": "1700000000"}

@@ -11,7 +11,7 @@ import OpenImageIO as oiio
 
 import bakery
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "environments" / "city_512.hdr"
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "environments" / "city_512.hdr"
 IRRADIANCE = ["-e", "sh2", "-e", "sh3", "-e", "zh3", "-e", "zh3_deringed", "-e", "zh3_hallucinated",
               "-e", "zh3_quantized", "-e", "sh3_quantized", "-e", "zh3_solved"]
 

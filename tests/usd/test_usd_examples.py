@@ -11,7 +11,7 @@ import bakery
 from bakery.usd.check import check_scene
 from bakery.usd.scene import read_scene
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 SCENES = [EXAMPLES / "indoor" / "indoor.usda", EXAMPLES / "outdoor" / "outdoor.usda"]
 
 
