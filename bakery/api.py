@@ -34,7 +34,9 @@ class EncodingInfo:
 
 
 class ProbeStore:
-    """A probe store opened for reading (all arrays are loaded; stores are small)."""
+    """A probe store opened for reading (all arrays are loaded; stores are small). Opening verifies the store's
+    checksums (``schemas/store-v1.md``, Integrity) and raises :class:`bakery.errors.StoreFormatError` naming the
+    datasets that fail them."""
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = str(path)
@@ -52,6 +54,8 @@ class ProbeStore:
                                                      self._contents.probe_bake_ids is not None else
                                                      np.zeros(len(self.probe_names)), dtype=int)
         self.history: list[dict[str, str]] = list(self._contents.history)
+        #: checksums were present and verified on open (format ≥ 1.2.0; a store that fails them does not open)
+        self.verified: bool = bool(self._contents.integrity and self._contents.integrity.verified)
         self.encodings: dict[str, EncodingInfo] = {}
         try:
             self.conventions = json.loads(a.get("conventions", "{}"))

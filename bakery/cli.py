@@ -12,6 +12,7 @@ import warnings
 from pathlib import Path
 
 import click
+import numpy as np
 from rich.console import Console
 from rich.table import Table
 
@@ -33,6 +34,11 @@ class _Group(click.Group):
         except BakeryError as error:
             console.print(f"[red]error:[/red] {error}")
             sys.exit(error.exit_code)
+        except OSError as error:  # a file-system failure the library did not name (permissions, full disk, …)
+            from bakery.files import os_error_message
+
+            console.print(f"[red]error:[/red] {os_error_message(error)}")
+            sys.exit(2)
 
 
 @click.group(cls=_Group)
@@ -75,6 +81,22 @@ class _Progress:
         self.progress.update(self.task, completed=done, total=total, rate=f"{rate:.1f} probes/s")
 
 
+def _scheduler_address(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:  # noqa: ARG001
+    """``--scheduler``: ``tcp://HOST:PORT`` (or ``tls://``, ``ucx://``, ``inproc://…``); a bare ``HOST:PORT`` is tcp."""
+    if value is None:
+        return None
+    import re
+
+    address = value if "://" in value else f"tcp://{value}"
+    scheme, _, rest = address.partition("://")
+    if scheme == "inproc":
+        return address
+    match = re.fullmatch(r"(\[[0-9a-fA-F:]+\]|[A-Za-z0-9_.-]+):(\d{1,5})", rest)
+    if scheme not in ("tcp", "tls", "ucx", "ws", "wss") or not match or not 0 < int(match.group(2)) < 65536:
+        raise click.BadParameter(f"{value!r} is not a scheduler address; expected tcp://HOST:PORT")
+    return address
+
+
 @main.command()
 @click.argument("sources", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option("-o", "--output", type=click.Path(path_type=Path), help="Store (.h5). Default: SOURCE with .h5.")
@@ -86,25 +108,38 @@ class _Progress:
 @click.option("--layer", type=click.Path(path_type=Path),
               help="USD layer of baked attributes, .usda or .usdc (scenes; default <store stem>.bake.usda).")
 @click.option("--samples", type=click.IntRange(min=1), default=None, help="Rays per cube texel (scenes; default 4).")
-@click.option("--bounces", type=click.IntRange(min=0), default=None, help="Diffuse bounces (scenes; default 1).")
+@click.option("--bounces", type=click.IntRange(min=0), default=None,
+              help="Largest number of bounces, Russian roulette from the 4th (scenes; default 64).")
 @click.option("--seed", type=int, default=None, help="Base seed of the per-probe capture seeds (scenes).")
+@click.option("--target-noise", type=click.FloatRange(min=0.0, max=1.0, max_open=True), default=None,
+              help="Adaptive capture: add rays until each probe's relative SH noise is below this (scenes; 0 = off).")
+@click.option("--time", "time_code", type=float, default=None,
+              help="USD time code to read the scene at (default: authored defaults, else the earliest sample).")
 @click.option("--jobs", "-j", type=click.IntRange(min=1), default=None,
               help="Worker processes (default: number of cores).")
-@click.option("--scheduler", help="Dask scheduler address (tcp://host:port) to bake on a farm.")
+@click.option("--scheduler", callback=_scheduler_address,
+              help="Dask scheduler address (tcp://host:port) to bake on a farm.")
 @click.option("--dask-local", is_flag=True, help="Use a local Dask cluster of --jobs workers.")
 @click.option("--dry-run", is_flag=True, help="Print the plan (probes, reuse, batches) and exit.")
 @click.option("--no-resume", is_flag=True, help="Ignore checkpoints of an interrupted bake and the existing store.")
 @click.option("--no-reference", is_flag=True, help="Skip error-vs-reference diagnostics.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
+@click.option("--force", is_flag=True,
+              help="Replace an existing file at the store or layer path even if it is not a previous bakery output "
+                   "(never an input of the bake).")
 def bake(sources: tuple[Path, ...], output: Path | None, recipe: str | None, encodings: tuple[str, ...],
          face_size: int | None, layout: str | None, layer: Path | None, samples: int | None, bounces: int | None,
          seed: int | None, jobs: int | None, scheduler: str | None, dask_local: bool, dry_run: bool,
-         no_resume: bool, no_reference: bool, as_json: bool) -> None:
+         no_resume: bool, no_reference: bool, as_json: bool, force: bool, target_noise: float | None = None,
+         time_code: float | None = None) -> None:
     """Bake SOURCES: environment images (one distant probe each) or one USD scene (its probes).
 
-    Exit codes: 0 all probes baked; 6 the store was written but some probes failed (listed); 2/3 bad input or
-    settings (nothing written).
+    The store (and layer) may only replace a previous bakery store (layer); anything else at those paths is
+    refused unless --force. Exit codes: 0 all probes baked; 6 the store was written but some probes failed
+    (listed); 2/3 bad input, output or settings (nothing written).
     """
+    from dataclasses import replace
+
     from bakery.pipeline.executors import make_executor
     from bakery.pipeline.run import bake as run_bake
     from bakery.pipeline.run import check_output_paths, load_previous, plan_bake
@@ -114,11 +149,12 @@ def bake(sources: tuple[Path, ...], output: Path | None, recipe: str | None, enc
     request = request_from(
         sources, output, recipe=recipe, encodings=encodings, face_size=face_size, layer=layer, layout=layout,
         samples=samples, bounces=bounces, seed=seed, resume=not no_resume,
-        reference_errors=False if no_reference else None,
+        reference_errors=False if no_reference else None, target_noise=target_noise, time=time_code,
     )
+    request = replace(request, force=force)
+    source = source_for(request.sources, request.layout, request.capture)
+    check_output_paths(request, source)  # before any work (also before a Dask cluster starts)
     if dry_run:
-        source = source_for(request.sources, request.layout, request.capture)
-        check_output_paths(request, source)
         _, plan = plan_bake(request, source, load_previous(request.output) if request.resume else None)
         info = {"store": str(request.output), "probes": len(plan.tasks), "reused": len(plan.reused),
                 "to_bake": plan.to_bake, "batches": len(plan.batches), "skipped": plan.skipped,
@@ -139,6 +175,10 @@ def bake(sources: tuple[Path, ...], output: Path | None, recipe: str | None, enc
             summary = run_bake(request, executor, progress)
     finally:
         executor.close()
+    # ---- recipe `exports` (bakery export after the bake; issue 13) -------------------------------------------
+    if recipe:
+        _run_recipe_exports(recipe, request.output, summary.layer)
+    # -----------------------------------------------------------------------------------------------------------
     if as_json:
         out.print_json(json.dumps(summary.as_dict(), default=str))
     else:
@@ -179,11 +219,21 @@ def diff(a: Path, b: Path, as_json: bool) -> None:
 @click.argument("store", type=click.Path(path_type=Path))
 @click.option("-o", "--output", type=click.Path(path_type=Path), help="Write the upgraded store here (default: in place).")
 @click.option("--dry-run", is_flag=True, help="Say what would change.")
-def migrate(store: Path, output: Path | None, dry_run: bool) -> None:
+@click.option("--force", is_flag=True, help="Let -o replace a file that is not a bakery store (never STORE itself).")
+def migrate(store: Path, output: Path | None, dry_run: bool, force: bool) -> None:
     """Upgrade STORE to the current store format version."""
+    from bakery.files import FileLock
+    from bakery.pipeline.run import check_store_output
     from bakery.store.format import FORMAT_VERSION, migrate_store
 
-    steps = migrate_store(store, output, dry_run=dry_run)
+    target = output if output is not None and output.resolve() != store.resolve() else None
+    if target is not None:
+        check_store_output(target, [store], force)
+    if dry_run:
+        steps = migrate_store(store, target, dry_run=True)
+    else:
+        with FileLock(target or store):  # the file being written (a bake of it waits for no one: it is refused)
+            steps = migrate_store(store, target)
     if not steps:
         out.print(f"{store} is already format {FORMAT_VERSION}")
     for step in steps:
@@ -215,6 +265,8 @@ def inspect(store: Path, as_json: bool, pattern: str | None, region: str | None)
             rows.append({"name": s.probe_names[i], "kinds": s.probe_kinds[i],
                          "position": [float(v) for v in s.probe_positions[i]], "content_hash": s.probe_hashes[i],
                          "baked": bake.get("time_utc", ""), "bakery_version": bake.get("bakery_version", "")})
+            if "capture/sh_noise" in s.diagnostics:  # achieved relative SH noise of the capture (issue 11)
+                rows[-1]["sh_noise"] = float(np.asarray(s.diagnostics["capture/sh_noise"])[i])
         if as_json:
             out.print_json(json.dumps(rows))
             return
@@ -227,7 +279,7 @@ def inspect(store: Path, as_json: bool, pattern: str | None, region: str | None)
     info = {
         "format": s.attributes.get("format"), "format_version": s.format_version,
         "bakery_version": s.attributes.get("bakery_version"), "settings_hash": s.attributes.get("settings_hash"),
-        "conventions": s.conventions, "probes": len(s.probe_names),
+        "conventions": s.conventions, "probes": len(s.probe_names), "checksums_verified": s.verified,
         "encodings": {n: {"kind": e.kind, "version": e.version, "bytes_per_probe": e.bytes_per_probe,
                           "probes": e.probe_count, "settings": e.settings} for n, e in s.encodings.items()},
     }
@@ -236,6 +288,8 @@ def inspect(store: Path, as_json: bool, pattern: str | None, region: str | None)
         return
     out.print(f"[bold]{store}[/bold]: {info['format']} {info['format_version']} (bakery {info['bakery_version']})")
     out.print(f"settings hash {info['settings_hash']}")
+    out.print("checksums verified" if s.verified else
+              f"no checksums (format {info['format_version']}; `bakery migrate` adds them)")
     conventions = Table("convention", "value", title="conventions", show_lines=False)
     for key, value in s.conventions.items():
         conventions.add_row(key, value)
@@ -255,6 +309,14 @@ def inspect(store: Path, as_json: bool, pattern: str | None, region: str | None)
         out.print(f"skipped {skip.get('encoding') or skip.get('probe')}: {skip['reason']}")
     for note in json.loads(s.attributes.get("roughness_ranges", "[]")):
         out.print(f"roughness range {note['probe']}: {note['reason']}")
+    if "capture/sh_noise" in s.diagnostics:  # capture settings and achieved noise (issue 11)
+        noise = np.asarray(s.diagnostics["capture/sh_noise"], dtype=np.float64)
+        noise = noise[np.isfinite(noise)]
+        a = s.attributes
+        if noise.size:
+            out.print(f"capture: {a.get('capture_samples')} rays/texel, ≤ {a.get('capture_bounces')} bounces, target "
+                      f"noise {a.get('capture_target_noise', 0)}; SH noise median {np.median(noise):.3g}, "
+                      f"max {noise.max():.3g} ({noise.size} rendered probes)")
 
 
 @main.group()
@@ -297,11 +359,12 @@ def bench_reflection(folder: Path, output: Path, speed: bool, face_size: int, no
 @click.option("--environment", type=click.Path(path_type=Path), default=None,
               help="Capture image for references (default: the store's source).")
 @click.option("--no-previews", is_flag=True, help="Skip the sphere preview renders.")
-def report(store: Path, out_dir: Path, environment: Path | None, no_previews: bool) -> None:
+@click.option("--force", is_flag=True, help="Replace report.html/report.json in DIR even if bakery did not write them.")
+def report(store: Path, out_dir: Path, environment: Path | None, no_previews: bool, force: bool) -> None:
     """Write DIR/report.html + report.json: memory and quality of STORE, per encoding and probe."""
     from bakery.report import write_report
 
-    paths = write_report(store, out_dir, environment=environment, previews=not no_previews)
+    paths = write_report(store, out_dir, environment=environment, previews=not no_previews, force=force)
     console.print(f"wrote {paths['html']} and {paths['json']}")
 
 
@@ -331,6 +394,24 @@ def bench_scale(output: Path, volume: str, reflection: int, recipe: str, face_si
     out.print_json(json.dumps(result))
 
 
+@bench.command("capture")
+@click.argument("scenes", nargs=-1, type=click.Path(exists=True, path_type=Path))
+@click.option("-o", "--output", type=click.Path(path_type=Path), default=Path("bench-results/capture"), show_default=True)
+@click.option("--face-size", type=int, default=32, show_default=True)
+@click.option("--samples", type=click.IntRange(min=1), default=4, show_default=True)
+@click.option("--bounces", type=click.IntRange(min=0), default=None, help="Default: the capture's default (64).")
+@click.option("--target-noise", type=float, default=0.0, show_default=True)
+@click.option("--probes", type=int, default=None, help="Render only the first N probes of each scene.")
+def bench_capture(scenes: tuple[Path, ...], output: Path, face_size: int, samples: int, bounces: int | None,
+                  target_noise: float, probes: int | None) -> None:
+    """Capture speed (rays/s, probes/s) and achieved SH noise of the examples (or SCENES), one process."""
+    from bakery.bench.capture import run_capture_bench
+
+    result = run_capture_bench(scenes, output, face_size=face_size, samples=samples, bounces=bounces,
+                               target_noise=target_noise, probes=probes)
+    out.print_json(json.dumps(result))
+
+
 @main.command()
 @click.argument("scene", type=click.Path(path_type=Path))
 def check(scene: Path) -> None:
@@ -346,6 +427,304 @@ def check(scene: Path) -> None:
     out.print(f"{len(issues)} issue(s), {errors} error(s)")
     if check_exit_code(issues):
         sys.exit(check_exit_code(issues))
+
+
+# --- farm bakes (issue 16): shards of a plan, their merge, the plan, job templates ---------------------------------
+def _add_shard_options(command: click.Command) -> None:
+    """``bakery bake --probes A-B | --shard i/n [--base STORE] [--plan-id ID]``: bake one shard of the plan
+    (:mod:`bakery.pipeline.shards`) instead of the whole bake; every other option of ``bake`` means the same."""
+    import functools
+
+    callback = command.callback
+
+    def wrapper(*args, probes=None, shard=None, base=None, plan_id=None, **params):  # noqa: ANN002, ANN003, ANN202
+        if probes is None and shard is None:
+            if base is not None or plan_id is not None:
+                raise click.UsageError("--base and --plan-id apply to a shard (--probes A-B or --shard i/n)")
+            return callback(*args, **params)
+        return _bake_shard(params, probes, shard, base, plan_id)
+
+    command.callback = functools.update_wrapper(wrapper, callback)
+    command.params.extend([
+        click.Option(["--probes"], help="Bake only these probes of the plan's work order (A-B, inclusive; see "
+                                        "`bakery plan`) into the shard store -o, for `bakery merge`."),
+        click.Option(["--shard"], help="Bake the i-th of n shards (i/n, 1-based) of the plan's suggested chunking."),
+        click.Option(["--base"], type=click.Path(path_type=Path),
+                     help="Shards: plan against this store (the farm's final store); its unchanged probes are reused "
+                          "by the merge."),
+        click.Option(["--plan-id"], help="Shards: refuse to bake (exit 2) unless the plan's id is this one."),
+    ])
+
+
+_add_shard_options(bake)
+
+
+def _request(params: dict, output: Path | None):  # noqa: ANN202
+    from dataclasses import replace
+
+    from bakery.pipeline.settings import request_from
+
+    request = request_from(
+        params["sources"], output, recipe=params.get("recipe"), encodings=params.get("encodings") or (),
+        face_size=params.get("face_size"), layer=params.get("layer"), layout=params.get("layout"),
+        samples=params.get("samples"), bounces=params.get("bounces"), seed=params.get("seed"),
+        resume=not params.get("no_resume", False), reference_errors=False if params.get("no_reference") else None,
+    )
+    if params.get("force") and "force" in request.__dataclass_fields__:
+        request = replace(request, force=True)
+    return request
+
+
+def _bake_shard(params: dict, probes: str | None, shard: str | None, base: Path | None, plan_id: str | None) -> None:
+    from bakery.pipeline.executors import make_executor
+    from bakery.pipeline.shards import ShardSpec, bake_shard, parse_probe_range, parse_shard, plan_shard
+
+    if params.get("output") is None:
+        raise click.UsageError("a shard needs -o SHARD.h5 (its own store, merged later by `bakery merge`)")
+    if params.get("layer") is not None:
+        raise click.UsageError("a shard writes no layer; give --layer to `bakery merge`")
+    request = _request(params, params["output"])
+    spec = ShardSpec(probes=parse_probe_range(probes) if probes is not None else None,
+                     shard=parse_shard(shard) if shard is not None else None, base=base, plan_id=plan_id)
+    if params.get("dry_run"):
+        from bakery.pipeline.shards import format_range, work_order
+
+        _, plan, identity, probe_range, _ = plan_shard(request, spec)
+        info = {"store": str(request.output), "plan_id": identity, "range": format_range(probe_range),
+                "work_probes": plan.to_bake,
+                "probes": work_order(plan)[probe_range[0]: probe_range[1] + 1] if probe_range else []}
+        out.print_json(json.dumps(info)) if params.get("as_json") else out.print(
+            f"shard of plan {identity}: probes {info['range']} of {plan.to_bake} ({len(info['probes'])} probes)")
+        return
+    executor = make_executor(params.get("jobs"), params.get("scheduler"), params.get("dask_local", False))
+    try:
+        with _Progress(console.is_terminal and not params.get("as_json")) as progress:
+            summary = bake_shard(request, spec, executor, progress)
+    finally:
+        executor.close()
+    console.print(summary.log_line())  # the task log: range, rays/s, time
+    if params.get("as_json"):
+        out.print_json(json.dumps(summary.as_dict(), default=str))
+    for name, message in summary.failed.items():
+        console.print(f"[red]failed[/red] {name}: {message}")
+    if summary.failed:
+        sys.exit(6)
+
+
+def _settings_options(command):  # noqa: ANN001, ANN202
+    """The bake settings of ``bakery bake`` (same names and meaning) for ``plan`` and ``farm openjd``."""
+    options = [
+        click.option("--recipe", "-r", help="Recipe preset (mobile, console, pc-high, reference) or TOML path."),
+        click.option("--encodings", "-e", multiple=True, help="Encodings to bake (repeatable); overrides the recipe."),
+        click.option("--face-size", type=int, default=None, help="Bake-grid cube face size."),
+        click.option("--layout", type=click.Choice(["equirect", "cube", "angular"]), help="Force the image layout."),
+        click.option("--samples", type=click.IntRange(min=1), default=None, help="Rays per cube texel (scenes)."),
+        click.option("--bounces", type=click.IntRange(min=0), default=None, help="Diffuse bounces (scenes)."),
+        click.option("--seed", type=int, default=None, help="Base seed of the per-probe capture seeds (scenes)."),
+        click.option("--no-reference", is_flag=True, help="Skip error-vs-reference diagnostics."),
+    ]
+    for option in reversed(options):
+        command = option(command)
+    return command
+
+
+def _settings_args(params: dict) -> list[str]:
+    """The settings options of ``params`` as ``bakery bake`` arguments (recipe files made absolute)."""
+    args: list[str] = []
+    if params.get("recipe"):
+        recipe = params["recipe"]
+        args += ["--recipe", str(Path(recipe).resolve()) if Path(recipe).is_file() else recipe]
+    for name in params.get("encodings") or ():
+        args += ["-e", name]
+    for key, flag in (("face_size", "--face-size"), ("layout", "--layout"), ("samples", "--samples"),
+                      ("bounces", "--bounces"), ("seed", "--seed")):
+        if params.get(key) is not None:
+            args += [flag, str(params[key])]
+    if params.get("no_reference"):
+        args.append("--no-reference")
+    return args
+
+
+@main.command("plan")
+@click.argument("sources", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("-o", "--output", type=click.Path(path_type=Path),
+              help="The store the bake would write (its unchanged probes are reused). Default: SOURCE with .h5.")
+@_settings_options
+@click.option("--no-resume", is_flag=True, help="Plan a clean bake (ignore the existing store).")
+@click.option("--tasks", "-n", type=click.IntRange(min=1), default=4, show_default=True,
+              help="Suggest a chunking of the work into this many farm tasks.")
+@click.option("--calibration", type=click.Path(path_type=Path),
+              help="Cost calibration JSON (`bakery farm calibrate`; default: $BAKERY_CALIBRATION, else bakery's).")
+@click.option("--json", "as_json", is_flag=True, help="Print the plan as JSON on stdout.")
+def plan_command(sources: tuple[Path, ...], output: Path | None, tasks: int, calibration: Path | None,
+                 as_json: bool, **params) -> None:  # noqa: ANN003
+    """The bake plan of SOURCES without baking: probes by kind, reused and to bake, batches, the estimated cost
+    per probe and per task, and a chunking for N farm tasks (`bakery bake --probes A-B` ranges)."""
+    from bakery.farm.plan import plan_info
+
+    request = _request({**params, "sources": sources}, output)
+    info = plan_info(request, tasks, None if params.get("no_resume") else request.output, calibration)
+    if as_json:
+        out.print_json(json.dumps(info, default=str))
+        return
+    probes, estimate, chunking = info["probes"], info["estimate"], info["chunking"]
+    kinds = ", ".join(f"{v} {k}" for k, v in sorted(probes["by_kind"].items()))
+    out.print(f"plan {info['plan_id']} for {info['store']}: {probes['total']} probes ({kinds}), {info['reused']} "
+              f"reused, {info['to_bake']} to bake in {len(info['batches'])} batches; encodings: "
+              + ", ".join(info["encodings"]))
+    out.print("estimated: " + ", ".join(f"{v * 1000:.2f} ms per {k} probe" for k, v in
+                                        estimate["seconds_per_probe"].items())
+              + f"; {estimate['one_process_seconds']:.1f} s in one process")
+    out.print(f"{chunking['useful_tasks']} tasks: " + ", ".join(
+        f"{r} (~{s:.1f} s)" for r, s in zip(chunking["ranges"], chunking["estimated_seconds"]))
+        + f"; merge ~{chunking['merge_seconds']:.1f} s")
+    if chunking["note"]:
+        out.print(f"note: {chunking['note']}")
+    for skip in info["skipped"]:
+        out.print(f"  skipped {skip['probe']}: {skip['reason']}")
+
+
+@main.command()
+@click.argument("shards", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("-o", "--output", type=click.Path(path_type=Path), required=True, help="The merged store (.h5).")
+@click.option("--layer", type=click.Path(path_type=Path),
+              help="USD layer of baked attributes (scenes; default <store stem>.bake.usda).")
+@click.option("--scene", "sources", multiple=True, type=click.Path(path_type=Path),
+              help="The scene (or images) where the merge host sees them, if not where the shards recorded them.")
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
+def merge(shards: tuple[Path, ...], output: Path, layer: Path | None, sources: tuple[Path, ...],
+          as_json: bool) -> None:
+    """Merge the shard stores of one plan (files, or folders of them) into STORE and its layer: the same bytes as a
+    one-process `bakery bake`. Exit 2 if the shards do not cover the plan exactly once (the missing and duplicated
+    ranges are named) or belong to different plans; 6 if some probes failed (the store is written)."""
+    from bakery.pipeline.shards import merge_shards
+
+    summary = merge_shards(list(shards), output, layer, tuple(sources) or None)
+    if as_json:
+        out.print_json(json.dumps(summary.as_dict(), default=str))
+    else:
+        console.print(f"{output}: merged {summary.shards} shards of plan {summary.plan_id}: {summary.baked} probes "
+                      f"baked, {summary.reused} reused, {len(summary.failed)} failed in {summary.seconds:.1f} s"
+                      + (f"; layer {summary.layer}" if summary.layer else ""))
+    for name, message in summary.failed.items():
+        console.print(f"[red]failed[/red] {name}: {message}")
+    if summary.failed:
+        sys.exit(6)
+
+
+@main.group()
+def farm() -> None:
+    """Farm bakes: job templates for farm schedulers, and the cost calibration `bakery plan` uses."""
+
+
+@farm.command("openjd")
+@click.argument("sources", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("-o", "--output", "template", type=click.Path(path_type=Path), required=True,
+              help="The job template to write (.yaml, or .json).")
+@click.option("--store", type=click.Path(path_type=Path), help="The merged store (default: SOURCE with .h5).")
+@click.option("--layer", type=click.Path(path_type=Path), help="The baked layer (default: <store stem>.bake.usda).")
+@click.option("--shard-dir", type=click.Path(path_type=Path),
+              help="Shared folder of the shard stores (default: <store stem>.shards beside the store).")
+@_settings_options
+@click.option("--tasks", "-n", type=click.IntRange(min=1), default=4, show_default=True,
+              help="Bake tasks (at most one per batch of the plan).")
+@click.option("--jobs", "-j", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Worker processes of each task (the job parameter Jobs).")
+@click.option("--command", "bakery_command", default="bakery", show_default=True,
+              help="How farm hosts run bakery (e.g. 'python -m bakery.cli').")
+@click.option("--no-resume", is_flag=True, help="A clean bake: do not reuse the existing store's probes.")
+@click.option("--calibration", type=click.Path(path_type=Path), help="Cost calibration JSON for the chunking.")
+def farm_openjd(sources: tuple[Path, ...], template: Path, store: Path | None, layer: Path | None,
+                shard_dir: Path | None, tasks: int, jobs: int, bakery_command: str, calibration: Path | None,
+                **params) -> None:  # noqa: ANN003
+    """Write an Open Job Description job template for SOURCES: one task per probe range of the plan (bakery bake
+    --probes) and a dependent merge step (bakery merge). Validate with `openjd check`, run with `openjd run`."""
+    from bakery.farm.openjd import job_parameters, job_template, write_template
+    from bakery.farm.plan import plan_info
+    from bakery.sources import default_layer_path
+
+    if len(sources) > 1 and any(s.suffix.lower() in (".usd", ".usda", ".usdc", ".usdz") for s in sources):
+        raise click.UsageError("bake one USD scene at a time")
+    sources = tuple(s.resolve() for s in sources)
+    if store is not None:
+        store.resolve().parent.mkdir(parents=True, exist_ok=True)  # the job's output folder
+    request = _request({**params, "sources": sources}, store.resolve() if store else None)
+    store = request.output.resolve()
+    base = None if params.get("no_resume") else store
+    info = plan_info(request, tasks, base, calibration)
+    layer = (layer or default_layer_path(store)).resolve()
+    shard_dir = (shard_dir or store.with_name(f"{store.stem}.shards")).resolve()
+    if len(sources) != 1:
+        raise click.UsageError("farm templates bake one scene or one image (the Scene job parameter)")
+    body = job_template(name=f"bakery {sources[0].name}", scene=sources[0], store=store, layer=layer,
+                        shard_dir=shard_dir, ranges=info["chunking"]["ranges"], plan_id=info["plan_id"],
+                        bake_args=_settings_args(params), command=bakery_command,
+                        base=base is not None and store.is_file(), jobs=jobs, template_dir=template.resolve().parent)
+    write_template(template, body)
+    values = job_parameters(scene=sources[0], store=store, layer=layer, shard_dir=shard_dir, jobs=jobs)
+    parameters = template.with_name(template.stem + ".params.json")
+    parameters.write_text(json.dumps(values, indent=2) + "\n")
+    console.print(f"wrote {template}: {len(info['chunking']['ranges'])} bake tasks "
+                  f"({', '.join(info['chunking']['ranges'])}) and a merge into {store} (plan {info['plan_id']}); "
+                  f"estimated makespan {info['chunking']['makespan_seconds']:.0f} s; job parameters in {parameters} "
+                  f"(openjd run {template} --job-param file://{parameters})")
+
+
+@farm.command("calibrate")
+@click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
+              help="Where to write the calibration JSON (use it with --calibration or $BAKERY_CALIBRATION).")
+def farm_calibrate(output: Path) -> None:
+    """Measure the cost model's constants on this machine (five bakes of the scale bench's generated hall, ~1 min)."""
+    from bakery.farm.calibrate import calibrate
+
+    data = calibrate(output)
+    console.print(f"wrote {output} ({len(data['encodings'])} encodings; process {data['process_seconds']:.2f} s, "
+                  f"{data['seconds_per_ray'] * 1e9:.1f} ns per modelled ray)")
+
+
+# ------------------------------------------------------------------------------------------------ export (issue 13)
+@main.command("export")
+@click.argument("store", type=click.Path(path_type=Path))
+@click.option("-o", "--output", "out_dir", type=click.Path(path_type=Path), required=True,
+              help="Output folder (created; files bakery did not write are never overwritten).")
+@click.option("--format", "fmt", required=True,
+              help="Export format: ktx2, gltf, three or filament (bakery.export.EXPORT_FORMATS).")
+@click.option("--profile", help="Roughness-to-mip profile: gltf, filament, three, babylon (default: the format's).")
+@click.option("--probes", "pattern", help="Export only probes whose name matches this glob.")
+@click.option("--option", "options", multiple=True, metavar="KEY=VALUE",
+              help="Format option, e.g. vk_format=E5B9G9R9_UFLOAT_PACK32, levels=5, layout=array (repeatable).")
+@click.option("--layer", type=click.Path(path_type=Path),
+              help="Baked USD layer to reference the files from (default: <store stem>.bake.usda beside the store).")
+@click.option("--no-layer", is_flag=True, help="Do not touch any USD layer.")
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
+def export_command(store: Path, out_dir: Path, fmt: str, profile: str | None, pattern: str | None,
+                   options: tuple[str, ...], layer: Path | None, no_layer: bool, as_json: bool) -> None:
+    """Write STORE's probes as files engines load directly (docs/exports.md). Exit 2: bad input (nothing written);
+    3: unknown format, profile or option."""
+    from bakery.export import export_store
+    from bakery.export.base import parse_options
+
+    result = export_store(store, out_dir, fmt, profile=profile, probes=pattern, options=parse_options(options),
+                          layer=False if no_layer else layer)
+    if as_json:
+        out.print_json(json.dumps(result.as_dict()))
+    else:
+        console.print(f"{out_dir}: {len(result.files)} {fmt} file(s), profile {result.profile}"
+                      + (f"; layer {result.layer}" if result.layer else ""))
+
+
+def _run_recipe_exports(recipe: str, store: Path, layer: str | None) -> None:
+    """The recipe's ``exports`` after a bake: outputs relative to the store's folder."""
+    from bakery.export import export_store
+    from bakery.pipeline.recipe import load_recipe
+
+    for entry in load_recipe(recipe).exports:
+        target = Path(entry["output"])
+        target = target if target.is_absolute() else Path(store).parent / target
+        result = export_store(store, target, entry["format"], profile=entry.get("profile"),
+                              probes=entry.get("probes"), options=entry.get("options", {}),
+                              layer=Path(layer) if layer else None)
+        console.print(f"exported {len(result.files)} {entry['format']} file(s) to {target}")
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -3,21 +3,33 @@
 memory-mapped so that every worker process of a bake — and every later bake on the machine — shares one physical
 copy instead of rebuilding it per process.
 
-Location: ``$BAKERY_CACHE_DIR`` or ``~/.cache/bakery/operators``. Files are named by the sha256 of the operator's
-key (which encodes every setting it depends on and its formulation version) and bakery's version, written
-atomically (temp file + rename) so concurrent workers never read a partial file. Delete the folder to clear it;
-set ``BAKERY_CACHE_DIR=off`` to keep operators in memory only.
+Location: ``$BAKERY_CACHE_DIR`` or ``~/.cache/bakery/operators``. Files are named
+``<key digest>.<content sha256>.npy``: the sha256 of the operator's key (which encodes every setting it depends
+on and its formulation version) and bakery's version, then the SHA-256 of the array (dtype, shape, bytes). They
+are written atomically (temp file + rename) so concurrent workers never read a partial file.
+
+Integrity: :func:`load` re-hashes the memory-mapped array and compares it with its name. A file that does not
+match (a damaged disk, a poisoned cache: valid header, altered values) is removed with a
+:class:`OperatorCacheWarning` and the operator is rebuilt — a cached operator is never used unverified. Temporary
+files of killed writers are removed on the next save. Delete the folder to clear it; set ``BAKERY_CACHE_DIR=off``
+to keep operators in memory only.
 """
 
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 import bakery
-from bakery.files import atomic_replace, sha256_bytes
+from bakery.errors import BakeryWarning
+from bakery.files import atomic_replace, pid_alive, sha256_array, sha256_bytes
+
+
+class OperatorCacheWarning(BakeryWarning):
+    """A cached operator failed its checksum and was rebuilt."""
 
 
 def cache_directory() -> Path | None:
@@ -27,32 +39,65 @@ def cache_directory() -> Path | None:
     return Path(configured) if configured else Path.home() / ".cache" / "bakery" / "operators"
 
 
-def _path(key: str) -> Path | None:
+def _key_digest(key: str) -> str:
+    return sha256_bytes(f"{key}|{bakery.__version__}".encode())[:32]
+
+
+def _candidates(key: str) -> list[Path]:
     directory = cache_directory()
-    if directory is None:
-        return None
-    digest = sha256_bytes(f"{key}|{bakery.__version__}".encode())[:32]
-    return directory / f"{digest}.npy"
+    if directory is None or not directory.is_dir():
+        return []
+    return sorted(directory.glob(f"{_key_digest(key)}.*.npy"))
+
+
+def _verified(path: Path) -> np.ndarray | None:
+    """The memory-mapped array at ``path`` if its content matches the SHA-256 in its name, else None."""
+    expected = path.name.split(".")[1] if path.name.count(".") >= 2 else ""
+    try:
+        array = np.load(path, mmap_mode="r")
+        actual = sha256_array(array)
+    except (OSError, ValueError, EOFError):
+        actual = None
+    if actual == expected:
+        return array
+    warnings.warn(f"operator cache file {path} does not match its SHA-256 checksum (damaged or altered); "
+                  "rebuilding the operator", OperatorCacheWarning, stacklevel=3)
+    try:
+        path.unlink()
+    except OSError:
+        pass
+    return None
 
 
 def load(key: str) -> np.ndarray | None:
-    path = _path(key)
-    if path is None or not path.is_file():
-        return None
-    try:
-        return np.load(path, mmap_mode="r")
-    except (OSError, ValueError):
-        return None  # unreadable or partial (should not happen: writes are atomic): rebuild
+    for path in _candidates(key):
+        array = _verified(path)
+        if array is not None:
+            return array
+    return None
+
+
+def _remove_stale_temporaries(directory: Path) -> None:
+    for tmp in directory.glob(".*.npy.tmp-*"):
+        pid = tmp.name.rsplit(".tmp-", 1)[1]
+        if pid.isdigit() and not pid_alive(int(pid)):
+            try:
+                tmp.unlink()
+            except OSError:
+                pass
 
 
 def save(key: str, array: np.ndarray) -> np.ndarray:
-    path = _path(key)
-    if path is None:
+    directory = cache_directory()
+    if directory is None:
         return array
+    array = np.ascontiguousarray(array)
+    path = directory / f"{_key_digest(key)}.{sha256_array(array)}.npy"
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
+        directory.mkdir(parents=True, exist_ok=True)
+        _remove_stale_temporaries(directory)
         with atomic_replace(path) as tmp, open(tmp, "wb") as handle:
-            np.save(handle, np.ascontiguousarray(array))
+            np.save(handle, array)
         return np.load(path, mmap_mode="r")
     except OSError:
         return array  # a read-only home or full disk only costs the rebuild next time

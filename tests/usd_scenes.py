@@ -15,7 +15,12 @@ def header(up_axis: str = "Y", meters_per_unit: float = 1.0, extra: str = "") ->
     return f'#usda 1.0\n(\n    upAxis = "{up_axis}"\n    metersPerUnit = {meters_per_unit}\n{extra})\n\n'
 
 
-def material(name: str, diffuse=(0.18, 0.18, 0.18), emissive=(0.0, 0.0, 0.0), extra: str = "") -> str:
+def material(name: str, diffuse=(0.18, 0.18, 0.18), emissive=(0.0, 0.0, 0.0), extra: str = "",
+             diffuse_only: bool = False, inputs: str = "") -> str:
+    """A UsdPreviewSurface material. ``diffuse_only``: specular workflow with specularColor 0 (F0 = 0: no specular
+    lobe, an exactly Lambertian surface); ``inputs``: extra authored shader inputs (usda lines)."""
+    if diffuse_only:
+        inputs = "int inputs:useSpecularWorkflow = 1\n        color3f inputs:specularColor = (0, 0, 0)\n        " + inputs
     return f"""
 def Material "{name}"
 {{
@@ -25,6 +30,7 @@ def Material "{name}"
         uniform token info:id = "UsdPreviewSurface"
         color3f inputs:diffuseColor = ({diffuse[0]}, {diffuse[1]}, {diffuse[2]})
         color3f inputs:emissiveColor = ({emissive[0]}, {emissive[1]}, {emissive[2]})
+        {inputs}
         token outputs:surface
     }}
     {extra}

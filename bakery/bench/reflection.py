@@ -1,44 +1,49 @@
-"""Glossy-reflection quality and speed bench (seed 000, Fig. 4–7 protocol): ``bakery bench reflection DIR``.
+"""Glossy-reflection quality bench over the full roughness range (seed 000 Fig. 4–7 protocol, extended by issue 12):
+``bakery bench reflection DIR``.
 
 Protocol
-    For every environment image in ``env_dir``: resample to the bake cube grid (``face_size``), encode with SH
-    exponentials (``shexp``) and split-sum (``splitsum``) through the registered encodings (what a store holds,
-    float16 chain included), and render orthographic spheres — chrome (F0 = 1) and glass (F0 = 0.04) — at
-    α = r², r ∈ linspace(0.5, 1, 6) (α ∈ [0.25, 1], perceptually spaced [Bur12]) from two views (front, +Z;
-    elevated, looking down 40°). The reference is the brute-force integral of Eq. 1 over the full-resolution image
-    (:func:`bakery.reflection.reference.integrate_reflection`, exact texel solid angles). One case = (environment,
-    material, view, α); MSE over the sphere's pixels and RGB; ratio = MSE(shexp) / MSE(splitsum) (< 1: SH-exp
-    wins). Memory: bytes per probe of each encoding's stored fields (shared tables excluded).
+    Environments: every ``.hdr``/``.exr`` under ``env_dir``, resampled to the bake cube grid (``face_size``) and encoded
+    by every reflection encoding through its registered class (what a store holds, float16 levels included):
+    ``splitsum`` (the baseline), ``shexp``, ``shexp_lights``, ``shexp_hybrid`` (probe range α ∈ [0, 1]: every chain
+    level). Also scored: the *idealised split-sum* (``splitsum_ideal``: the GGX v = n kernel applied exactly at the
+    row's α to the full-resolution capture, × the same DFG factor — the best any split-sum chain can do), and with
+    ``plain_splitsum`` the paper's plain 1024-sample chain (``splitsum_plain``; omitted, never printed, otherwise).
+    Spheres: orthographic, ``sphere_resolution``² pixels, seen from :data:`ELEVATIONS` (view elevation −30° … 85°,
+    azimuth +Z); chrome (F0 = 1) and glass (F0 = 0.04); α ∈ :data:`ALPHAS` (0 … 1, including α between chain levels).
+    Reference: Eq. 1 by brute force over the full-resolution image (exact texel solid angles); at α = 0 the mirror
+    E = F(n·v)·L(r) with L bilinear in the full-resolution image. Cached per image and row set in
+    ``cache_dir`` (default ``out_dir/reference-cache``).
+    One case = (environment, material, elevation, α); MSE over the sphere's pixels and RGB.
+    Per α and per α band, for every scored encoding: win share (MSE < split-sum's), geometric-mean MSE ratio vs
+    split-sum (and vs the idealised split-sum), geometric-mean relative MSE vs the reference, signed brightness bias
+    (mean over cases of Σ E / Σ E_ref − 1). Memory: bytes per probe of each encoding's stored fields; for the hybrid
+    also the upload per probe by the probe's smallest material α.
 
-    SH-exp is scored three ways: the default (albedo-normalised, luminance-weighted solve), the unweighted
-    log-space solve (``fit="log"``, to measure the weighting against the plain fit) and the paper's formulation
-    (unweighted, not albedo-normalised); and ``shexp_lights`` (SH-exp of the capture without its brightest texel
-    clusters + those clusters as analytic lights) is scored against the same split-sum.
-
-Speed (``speed=True``): single process, captures 6×N² (N = ``face_size``), batches of 64 probes (a bake's batch size).
-    SH-exp fit: ms/probe and probes/s of the default (splatted multi-resolution grid, weighted solve), of the
-    unweighted solve and of a finer grid, with a breakdown by step; each one's error against the plain fit (E0 at
-    the design rows by brute force over every capture texel, same solve) on every environment.
-    Split-sum chain: fast formulation (SH per-band scaling for rough levels, filtered importance sampling for
-    sharp ones) vs the plain 1024-sample GGX importance sampling, ms/probe, and each one's error per level vs an
-    exact dense quadrature of the same kernel at 512 texel directions.
+Speed (``speed=True``): the SH-exp speed protocol of docs/reflection.md (fits, grids, split-sum fast vs plain) and
+the encode time of every reflection encoding.
 """
 
 from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
+from bakery.brdf.ggx import reflect
+from bakery.encodings.hybrid import SHExpHybrid
 from bakery.encodings.shexp import SHExp, SHExpLights
 from bakery.encodings.splitsum import SplitSum
 from bakery.environment import environment_samples, resample_to_cube
 from bakery.environment.io import read_environment
+from bakery.environment.layouts import EnvironmentImage, direction_to_equirect
+from bakery.files import sha256_bytes, sha256_file
 from bakery.probe import ProbeBatch
 from bakery.reflection import splitsum as ss
-from bakery.reflection.reference import integrate_reflection, reflected_radiance
+from bakery.reflection.hybrid import first_chain_level
+from bakery.reflection.reference import integrate_reflection
 from bakery.reflection.shexp import (
     WEIGHT_MIN,
     SHExpSettings,
@@ -55,15 +60,25 @@ from bakery.reflection.shexp import (
     solve_from_samples,
     splat_flux,
 )
+from bakery.reflection.tables import compute_dfg_tables, lookup_table
+from bakery.sphere.cubemap import (
+    cube_texel_directions,
+    cube_texel_solid_angles,
+    sample_cube_bilinear,
+)
 from bakery.sphere.fibonacci import fibonacci_directions
 
 IMAGE_SUFFIXES = (".hdr", ".exr")
-#: Result keys of the encodings (their registered names; the JSON keys stay the store's group names).
-SHEXP, SPLITSUM, SHEXP_LIGHTS = SHExp.name, SplitSum.name, SHExpLights.name
-PERCEPTUAL = np.linspace(0.5, 1.0, 6)
-ALPHAS = PERCEPTUAL**2
+#: Result keys: the registered encodings (store group names), then the idealised and the plain split-sum.
+SPLITSUM, SHEXP, SHEXP_LIGHTS, HYBRID = SplitSum.name, SHExp.name, SHExpLights.name, SHExpHybrid.name
+IDEAL, PLAIN = "splitsum_ideal", "splitsum_plain"
+#: GGX α of the cases: the issue's grid {0, 0.04, 0.0625, 0.1, 0.16, 0.25, …, 1} plus α between chain levels.
+ALPHAS = (0.0, 0.02, 0.04, 0.0625, 0.1, 0.13, 0.16, 0.2, 0.25, 0.3, 0.36, 0.49, 0.64, 0.81, 1.0)
+#: View elevations in degrees (v = (0, sin e, cos e), towards the viewer).
+ELEVATIONS = (-30.0, 0.0, 30.0, 60.0, 85.0)
 MATERIALS = {"chrome": 1.0, "glass": 0.04}
-VIEWS = {"front": np.array([0.0, 0.0, 1.0]), "elevated": np.array([0.0, np.sin(np.radians(40)), np.cos(np.radians(40))])}
+#: α bands of the summary tables: (label, lo, hi) with lo ≤ α < hi.
+BANDS = (("α < 0.1", 0.0, 0.1), ("0.1 ≤ α < 0.25", 0.1, 0.25), ("α ≥ 0.25", 0.25, 1.01), ("all α", 0.0, 1.01))
 
 
 def find_environments(folder: Path) -> list[Path]:
@@ -72,8 +87,8 @@ def find_environments(folder: Path) -> list[Path]:
 
 def sphere_normals(view: np.ndarray, resolution: int) -> np.ndarray:
     """Normals (K, 3) of the visible pixels of an orthographic unit sphere seen from ``view`` (towards the viewer),
-    pixel centres of a resolution² image over [-1, 1]²."""
-    up = np.array([0.0, 1.0, 0.0])
+    pixel centres of a resolution² image over [-1, 1]² (image up = +Y projected, or −Z for a view along ±Y)."""
+    up = np.array([0.0, 1.0, 0.0]) if abs(view[1]) < 0.99 else np.array([0.0, 0.0, -1.0])
     right = np.cross(up, view)
     right /= np.linalg.norm(right)
     up = np.cross(view, right)
@@ -84,152 +99,300 @@ def sphere_normals(view: np.ndarray, resolution: int) -> np.ndarray:
     return x[inside, None] * right + y[inside, None] * up + z[:, None] * view
 
 
-def _rows(resolution: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple[str, float, slice]]]:
-    views, normals, alphas, cases = [], [], [], []
+def view_direction(elevation_deg: float) -> np.ndarray:
+    e = np.radians(elevation_deg)
+    return np.array([0.0, np.sin(e), np.cos(e)])
+
+
+def bench_rows(resolution: int, alphas=ALPHAS, elevations=ELEVATIONS):
+    """Rows v (M, 3), n (M, 3), α (M,) and the cases [(elevation, α, slice)] (elevation slowest)."""
+    views, normals, alpha, cases = [], [], [], []
     start = 0
-    for view_name, view in VIEWS.items():
-        n = sphere_normals(view, resolution)
-        for alpha in ALPHAS:
-            views.append(np.broadcast_to(view, n.shape))
+    for elevation in elevations:
+        v = view_direction(elevation)
+        n = sphere_normals(v, resolution)
+        for a in alphas:
+            views.append(np.broadcast_to(v, n.shape))
             normals.append(n)
-            alphas.append(np.full(len(n), alpha))
-            cases.append((view_name, float(alpha), slice(start, start + len(n))))
+            alpha.append(np.full(len(n), float(a)))
+            cases.append((float(elevation), float(a), slice(start, start + len(n))))
             start += len(n)
-    return np.concatenate(views), np.concatenate(normals), np.concatenate(alphas), cases
+    return np.concatenate(views), np.concatenate(normals), np.concatenate(alpha), cases
+
+
+def mirror_radiance(image: EnvironmentImage, directions: np.ndarray) -> np.ndarray:
+    """L(d) (M, 3): bilinear in an equirect image (longitude wraps), else the nearest full-resolution sample."""
+    if image.layout != "equirect":
+        samples = environment_samples(image)
+        return samples.radiance[np.argmax(np.asarray(directions) @ samples.directions.T, axis=1)]
+    h, w = image.height, image.width
+    rows, cols = direction_to_equirect(directions, h, w)
+    x = cols - 0.5
+    y = np.clip(rows - 0.5, 0.0, h - 1.0)
+    x0 = np.floor(x).astype(np.int64)
+    y0 = np.minimum(np.floor(y).astype(np.int64), h - 1)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    xa, xb, y1 = x0 % w, (x0 + 1) % w, np.minimum(y0 + 1, h - 1)
+    p = image.pixels.astype(np.float64)
+    return (p[y0, xa] * (1 - fx) + p[y0, xb] * fx) * (1 - fy) + (p[y1, xa] * (1 - fx) + p[y1, xb] * fx) * fy
+
+
+def reference_e0_e1(path: Path, image: EnvironmentImage, view: np.ndarray, normal: np.ndarray, alpha: np.ndarray,
+                    cache_dir: Path | None) -> tuple[np.ndarray, np.ndarray]:
+    """(E0, E1) (M, 3) by brute force over the full-resolution image ([SHExp] Eq. 6–7); α = 0: the mirror.
+    Cached in ``cache_dir`` by the image's sha256 and the rows."""
+    key = sha256_file(path)[:16] + sha256_bytes(np.concatenate([view, normal, alpha[:, None]], 1).tobytes())[:16]
+    cached = Path(cache_dir) / f"{Path(path).stem}-{key}.npz" if cache_dir is not None else None
+    if cached is not None and cached.is_file():
+        with np.load(cached) as z:
+            return z["e0"], z["e1"]
+    e0 = np.empty((len(view), 3))
+    e1 = np.empty_like(e0)
+    rough = alpha > 0
+    e0[rough], e1[rough] = integrate_reflection(environment_samples(image), view[rough], normal[rough], alpha[rough])
+    mirror = mirror_radiance(image, reflect(view[~rough], normal[~rough]))
+    nv = np.clip(np.sum(view[~rough] * normal[~rough], axis=1), 0.0, 1.0)[:, None]
+    e0[~rough], e1[~rough] = mirror, mirror * (1.0 - nv) ** 5  # α → 0: ∫ f_DV⟨l,n⟩ → δ(l − r)
+    if cached is not None:
+        cached.parent.mkdir(parents=True, exist_ok=True)
+        np.savez(cached, e0=e0, e1=e1)
+    return e0, e1
+
+
+def ideal_split_sum(cube: np.ndarray, directions: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+    """The idealised split-sum's prefiltered radiance (M, 3): the normalised v = n kernel K_α applied exactly (dense
+    quadrature over every capture texel) at each row's own α and direction; α = 0: bilinear in the capture."""
+    cube = np.asarray(cube, dtype=np.float32)
+    n = cube.shape[1]
+    src = cube_texel_directions(n).reshape(-1, 3).astype(np.float32)
+    omega = cube_texel_solid_angles(n).reshape(-1).astype(np.float32)
+    radiance = cube.reshape(-1, 3)
+    out = np.empty((len(directions), 3))
+    for a in np.unique(alpha):
+        rows = np.flatnonzero(alpha == a)
+        if a <= 0:
+            out[rows] = sample_cube_bilinear(cube, directions[rows])
+            continue
+        for s in range(0, rows.size, 64):
+            chunk = rows[s : s + 64]
+            k = ss._kernel_profile((directions[chunk].astype(np.float32) @ src.T).astype(np.float64), float(a))
+            k *= omega
+            out[chunk] = (k @ radiance) / k.sum(axis=1, keepdims=True)
+    return out
+
+
+def _encoders(face_size: int) -> dict[str, object]:
+    return {SPLITSUM: SplitSum(face_size=face_size), SHEXP: SHExp(), SHEXP_LIGHTS: SHExpLights(),
+            HYBRID: SHExpHybrid(face_size=face_size)}
 
 
 def run_reflection_bench(
-    env_dir: Path, out_dir: Path, speed: bool = False, face_size: int = 128, sphere_resolution: int = 20,
-    plain_splitsum: bool = True,
+    env_dir: Path, out_dir: Path, speed: bool = False, face_size: int = 128, sphere_resolution: int = 12,
+    plain_splitsum: bool = True, cache_dir: Path | None = None, echo: Callable[[str], None] | None = print,
 ) -> dict:
-    """Run the quality protocol (and with ``speed`` the speed protocol); write ``reflection.json`` and
-    ``reflection.md`` to ``out_dir``; return the result dict. ``plain_splitsum`` also scores the paper's split-sum
-    setting (plain 1024-sample GGX importance sampling per texel; ~20 s per 128² probe)."""
+    """Run the protocol (module doc), write ``reflection.json`` and ``reflection.md`` to ``out_dir``, print the
+    headline table through ``echo`` (stdout by default; None: silent) and return the result dict."""
     paths = find_environments(Path(env_dir))
     if not paths:
         raise FileNotFoundError(f"no .hdr/.exr environment images under {env_dir}")
-    images = [read_environment(p)[0] for p in paths]
-    names = [p.stem for p in paths]
-    cubes = np.stack([resample_to_cube(img, face_size) for img in images])
-    batch = ProbeBatch(cubes)
-    shexp, split = SHExp(), SplitSum(face_size=face_size)
-    paper = SHExp(fit="log", albedo_normalized=False)
-    unweighted = SHExp(fit="log")
-    lights = SHExpLights()
-    t0 = time.perf_counter()
-    fields_shexp = shexp.encode(batch)
-    t1 = time.perf_counter()
-    fields_split = split.encode(batch)
-    t2 = time.perf_counter()
-    fields_paper = paper.encode(batch)
-    fields_log = unweighted.encode(batch)
-    t3 = time.perf_counter()
-    fields_lights = lights.encode(batch)
-    t4 = time.perf_counter()
-    plain_levels = None
-    if plain_splitsum:  # the paper's split-sum: 1024-sample plain IS chain, stored as float16 like the encoding
-        chains = [ss._reference_prefilter_chain(c, split.chain, 1024) for c in cubes]
-        plain_levels = [np.stack([ch[i] for ch in chains]).astype(np.float16) for i in range(split.chain.n_levels)]
-    view, normal, alpha, cases = _rows(sphere_resolution)
-    rows = []
-    for i, (name, image) in enumerate(zip(names, images, strict=True)):
-        e0, e1 = integrate_reflection(environment_samples(image), view, normal, alpha)
-        one = lambda fields: {k: v[i : i + 1] for k, v in fields.items()}  # noqa: E731
+    cache_dir = Path(out_dir) / "reference-cache" if cache_dir is None else Path(cache_dir)
+    encoders = _encoders(face_size)
+    view, normal, alpha, cases = bench_rows(sphere_resolution)
+    r = reflect(view, normal)
+    nv = np.clip(np.sum(view * normal, axis=1), 0.0, 1.0)
+    ab = lookup_table(compute_dfg_tables(64, 64).dfg, nv, alpha)  # the encodings' DFG table
+    rows: list[dict] = []
+    encode_seconds = {k: 0.0 for k in [*encoders, IDEAL] + ([PLAIN] if plain_splitsum else [])}
+    upload = []
+    for path in paths:
+        image = read_environment(path)[0]
+        cube = resample_to_cube(image, face_size)
+        batch = ProbeBatch(cube[None])
+        e0, e1 = reference_e0_e1(path, image, view, normal, alpha, cache_dir)
+        fields = {}
+        for key, encoding in encoders.items():
+            start = time.perf_counter()
+            fields[key] = encoding.encode(batch)
+            encode_seconds[key] += time.perf_counter() - start
+        upload.append(int(encoders[HYBRID].upload_bytes(fields[HYBRID])[0]))
+        start = time.perf_counter()
+        ideal = ideal_split_sum(cube, r, alpha)
+        encode_seconds[IDEAL] += time.perf_counter() - start
+        plain = None
+        if plain_splitsum:
+            start = time.perf_counter()
+            chain = ss._reference_prefilter_chain(cube, encoders[SPLITSUM].chain, 1024)
+            plain = {f"level{k}": level[None].astype(np.float16) for k, level in enumerate(chain)}
+            encode_seconds[PLAIN] += time.perf_counter() - start
         for material, f0 in MATERIALS.items():
             f0s = np.full(len(alpha), f0)
-            reference = reflected_radiance(e0, e1, f0s)
-            est_shexp = shexp.evaluate_reflection(one(fields_shexp), shexp.shared_tables(), view, normal, alpha, f0s)[0]
-            est_split = split.evaluate_reflection(one(fields_split), split.shared_tables(), view, normal, alpha, f0s)[0]
-            est_paper = paper.evaluate_reflection(one(fields_paper), paper.shared_tables(), view, normal, alpha, f0s)[0]
-            est_log = unweighted.evaluate_reflection(one(fields_log), unweighted.shared_tables(), view, normal, alpha,
-                                                     f0s)[0]
-            est_lights = lights.evaluate_reflection(one(fields_lights), lights.shared_tables(), view, normal, alpha,
-                                                    f0s)[0]
-            est_plain = None
-            if plain_levels is not None:
-                est_plain = split.evaluate_reflection({f"level{k}": lv[i : i + 1] for k, lv in enumerate(plain_levels)},
-                                                      split.shared_tables(), view, normal, alpha, f0s)[0]
-            for view_name, a, sl in cases:
+            reference = f0 * e0 + (1.0 - f0) * e1  # [SHExp] Eq. 5
+            est = {k: enc.evaluate_reflection(fields[k], enc.shared_tables(), view, normal, alpha, f0s)[0]
+                   for k, enc in encoders.items()}
+            est[IDEAL] = ideal * (f0 * ab[:, 0:1] + ab[:, 1:2])
+            if plain is not None:
+                split = encoders[SPLITSUM]
+                est[PLAIN] = split.evaluate_reflection(plain, split.shared_tables(), view, normal, alpha, f0s)[0]
+            for elevation, a, sl in cases:
                 ref = reference[sl]
-                mse_shexp = float(np.mean((est_shexp[sl] - ref) ** 2))
-                mse_split = float(np.mean((est_split[sl] - ref) ** 2))
-                mse_paper = float(np.mean((est_paper[sl] - ref) ** 2))
-                mse_log = float(np.mean((est_log[sl] - ref) ** 2))
-                mse_lights = float(np.mean((est_lights[sl] - ref) ** 2))
-                mse_plain = float(np.mean((est_plain[sl] - ref) ** 2)) if est_plain is not None else float("nan")
-                power = float(np.mean(ref**2))
-                rows.append({
-                    "environment": name, "material": material, "view": view_name, "alpha": a,
-                    "mse_shexp": mse_shexp, "mse_splitsum": mse_split, "mse_shexp_paper": mse_paper,
-                    "rel_mse_shexp": mse_shexp / power if power > 0 else 0.0,
-                    "rel_mse_splitsum": mse_split / power if power > 0 else 0.0,
-                    "ratio": mse_shexp / mse_split if mse_split > 0 else float("inf"),
-                    "ratio_paper": mse_paper / mse_split if mse_split > 0 else float("inf"),
-                    "mse_shexp_unweighted": mse_log,
-                    "mse_shexp_lights": mse_lights,
-                    "ratio_lights": mse_lights / mse_split if mse_split > 0 else float("inf"),
-                    "ratio_lights_vs_plain": mse_lights / mse_plain if mse_plain > 0 else float("nan"),
-                    "ratio_unweighted": mse_log / mse_split if mse_split > 0 else float("inf"),
-                    "mse_splitsum_plain": mse_plain,
-                    "ratio_vs_plain": mse_shexp / mse_plain if mse_plain > 0 else float("nan"),
-                })
-    ratios = np.array([r["ratio"] for r in rows])
-    losses = [r for r in rows if r["ratio"] >= 1.0]
+                row = {"environment": path.stem, "material": material, "elevation": elevation, "alpha": a,
+                       "reference_power": float(np.mean(ref**2)), "reference_sum": float(np.sum(ref)),
+                       "reference_max": float(np.max(ref))}
+                for k, x in est.items():
+                    row[f"mse_{k}"] = float(np.mean((x[sl] - ref) ** 2))
+                    row[f"bias_{k}"] = float(np.sum(x[sl]) / row["reference_sum"] - 1.0) if row["reference_sum"] > 0 \
+                        else 0.0
+                    row[f"peak_{k}"] = float(np.max(x[sl]) / row["reference_max"]) if row["reference_max"] > 0 else 0.0
+                rows.append(row)
+    keys = [*encoders, IDEAL] + ([PLAIN] if plain_splitsum else [])
+    hybrid = encoders[HYBRID]
+    chain_bytes = [6 * s * s * 3 * 2 for s in hybrid.chain.level_sizes()]
+    fixed = hybrid.bytes_per_probe() - sum(chain_bytes)
+    by_alpha_min = {}
+    for a in ALPHAS:
+        k0 = first_chain_level(hybrid.chain.level_alphas(), float(a), hybrid.blends[1][1])
+        by_alpha_min[str(a)] = fixed + sum(chain_bytes[k0:])
     result = {
         "protocol": {
-            "face_size": face_size, "sphere_resolution": sphere_resolution, "alphas": [float(a) for a in ALPHAS],
-            "materials": MATERIALS, "views": {k: v.tolist() for k, v in VIEWS.items()},
-            "shexp_settings": shexp.settings, "splitsum_settings": split.settings,
-            "shexp_lights_settings": lights.settings,
-            "reference": "brute-force Eq. 1 over the full-resolution image (exact texel solid angles)",
+            "face_size": face_size, "sphere_resolution": sphere_resolution, "alphas": list(ALPHAS),
+            "elevations_deg": list(ELEVATIONS), "materials": MATERIALS, "environments": [p.stem for p in paths],
+            "normals_per_view": [int(sl.stop - sl.start) for e, a, sl in cases if a == ALPHAS[0]],
+            "settings": {k: e.settings for k, e in encoders.items()},
+            "reference": "brute-force Eq. 1 over the full-resolution image (exact texel solid angles); α = 0: the "
+                         "mirror F(n·v)·L(r), L bilinear in the full-resolution image",
+            "idealised_split_sum": "K_α (v = n) applied exactly at the row's α to the full-resolution capture, × DFG",
+            "scored": keys,
         },
         "rows": rows,
-        "summary": {
-            "cases": len(rows),
-            "shexp_wins": int(np.sum(ratios < 1.0)),
-            "shexp_win_share": float(np.mean(ratios < 1.0)),
-            "median_ratio": float(np.median(ratios)),
-            "paper_formulation_wins": int(sum(r["ratio_paper"] < 1.0 for r in rows)),
-            "paper_formulation_win_share": float(np.mean([r["ratio_paper"] < 1.0 for r in rows])),
-            "unweighted_wins": int(sum(r["ratio_unweighted"] < 1.0 for r in rows)),
-            "unweighted_geometric_mean_ratio": float(np.exp(np.mean(np.log(np.maximum(
-                [r["ratio_unweighted"] for r in rows], 1e-30))))),
-            "weighted_beats_unweighted": float(np.mean([r["mse_shexp"] < r["mse_shexp_unweighted"] for r in rows])),
-            "lights_wins": int(sum(r["ratio_lights"] < 1.0 for r in rows)),
-            "lights_win_share": float(np.mean([r["ratio_lights"] < 1.0 for r in rows])),
-            "lights_win_share_vs_plain_splitsum": float(np.mean([r["ratio_lights_vs_plain"] < 1.0 for r in rows])),
-            "lights_geometric_mean_ratio": float(np.exp(np.mean(np.log(np.maximum(
-                [r["ratio_lights"] for r in rows], 1e-30))))),
-            "lights_memory_ratio": split.bytes_per_probe() / lights.bytes_per_probe(),
-            "wins_at_alpha_ge_0.36": float(np.mean([r["ratio"] < 1.0 for r in rows if r["alpha"] > 0.3])),
-            "wins_at_alpha_ge_0.49": float(np.mean([r["ratio"] < 1.0 for r in rows if r["alpha"] > 0.4])),
-            "win_share_vs_plain_splitsum": float(np.mean([r["ratio_vs_plain"] < 1.0 for r in rows])),
-            "paper_formulation_win_share_vs_plain": float(np.mean([
-                r["mse_shexp_paper"] < r["mse_splitsum_plain"] for r in rows])),
-            "geometric_mean_ratio": float(np.exp(np.mean(np.log(np.maximum(ratios, 1e-30))))),
-            "bytes_per_probe": {SHEXP: shexp.bytes_per_probe(), SPLITSUM: split.bytes_per_probe(),
-                                SHEXP_LIGHTS: lights.bytes_per_probe()},
-            "memory_ratio": split.bytes_per_probe() / shexp.bytes_per_probe(),
-            "losses_by_environment": _count(losses, "environment"),
-            "losses_by_alpha": _count(losses, "alpha"),
-            "losses_by_material": _count(losses, "material"),
-            "encode_ms_per_probe": {SHEXP: 1e3 * (t1 - t0) / len(names),
-                                    f"{SPLITSUM}_fast": 1e3 * (t2 - t1) / len(names),
-                                    SHEXP_LIGHTS: 1e3 * (t4 - t3) / len(names)},
-        },
+        "summary": summarise(rows, keys),
+        "bytes_per_probe": {k: e.bytes_per_probe() for k, e in encoders.items()},
+        "hybrid_upload_bytes": {"per_environment_probe": upload, "by_smallest_material_alpha": by_alpha_min,
+                                "level_alphas": [float(a) for a in hybrid.chain.level_alphas()],
+                                "level_sizes": list(hybrid.chain.level_sizes())},
+        "encode_s_per_probe": {k: v / len(paths) for k, v in encode_seconds.items()},
     }
     if speed:
-        result["speed"] = run_speed(cubes, names)
+        cubes = np.stack([resample_to_cube(read_environment(p)[0], face_size) for p in paths])
+        result["speed"] = run_speed(cubes, [p.stem for p in paths])
     write_results(result, Path(out_dir))
+    if echo is not None:
+        echo(format_headline(result))
     return result
 
 
-def _count(rows: list[dict], key: str) -> dict:
-    out: dict[str, int] = {}
-    for r in rows:
-        k = str(round(r[key], 4)) if isinstance(r[key], float) else r[key]
-        out[k] = out.get(k, 0) + 1
-    return out
+def _geomean(values: list[float]) -> float:
+    return float(np.exp(np.mean(np.log(np.maximum(values, 1e-300))))) if values else float("nan")
+
+
+def summarise(rows: list[dict], keys: list[str]) -> dict:
+    """Per α (``by_alpha``) and per band (``by_band``), for every scored key: cases, wins (MSE < split-sum's),
+    win share, geometric-mean MSE ratio vs split-sum and vs the idealised split-sum, geometric-mean relative MSE vs
+    the reference, mean signed brightness bias, median peak ratio."""
+    def stats(subset: list[dict]) -> dict:
+        out = {}
+        for k in keys:
+            ratio = [r[f"mse_{k}"] / r[f"mse_{SPLITSUM}"] for r in subset if r[f"mse_{SPLITSUM}"] > 0]
+            out[k] = {
+                "cases": len(subset),
+                "wins": int(sum(r[f"mse_{k}"] < r[f"mse_{SPLITSUM}"] for r in subset)),
+                "win_share": float(np.mean([r[f"mse_{k}"] < r[f"mse_{SPLITSUM}"] for r in subset])),
+                "geomean_ratio_vs_splitsum": _geomean(ratio),
+                "geomean_ratio_vs_ideal": _geomean([r[f"mse_{k}"] / r[f"mse_{IDEAL}"] for r in subset
+                                                    if r[f"mse_{IDEAL}"] > 0]),
+                "geomean_relative_mse": _geomean([r[f"mse_{k}"] / r["reference_power"] for r in subset
+                                                  if r["reference_power"] > 0]),
+                "bias": float(np.mean([r[f"bias_{k}"] for r in subset])),
+                "median_peak_ratio": float(np.median([r[f"peak_{k}"] for r in subset])),
+            }
+        return out
+
+    alphas = sorted({r["alpha"] for r in rows})
+    return {
+        "cases": len(rows),
+        "by_alpha": {str(a): stats([r for r in rows if r["alpha"] == a]) for a in alphas},
+        "by_band": {label: stats([r for r in rows if lo <= r["alpha"] < hi]) for label, lo, hi in BANDS},
+        "by_material": {m: stats([r for r in rows if r["material"] == m]) for m in MATERIALS},
+    }
+
+
+def _cell(s: dict) -> str:
+    return (f"{100 * s['win_share']:.0f}% · {s['geomean_ratio_vs_splitsum']:.3g}× · "
+            f"{100 * s['bias']:+.0f}%")
+
+
+def format_headline(result: dict) -> str:
+    """The headline table (stdout and the top of reflection.md): per α band and per α, every scored encoding's win
+    share vs split-sum · geometric-mean MSE ratio vs split-sum · mean signed brightness bias; bytes per probe."""
+    summary, protocol = result["summary"], result["protocol"]
+    keys = protocol["scored"]
+    lines = [f"Reflection bench: {summary['cases']} cases = {len(protocol['environments'])} environments × "
+             f"{len(MATERIALS)} materials × {len(protocol['elevations_deg'])} view elevations × "
+             f"{len(protocol['alphas'])} α (face {protocol['face_size']}, "
+             f"{sum(protocol['normals_per_view'])} normals per α and material)", "",
+             "Cells: win share vs splitsum · geometric-mean MSE ratio vs splitsum · mean brightness bias vs the "
+             "reference.", "",
+             "| α band | " + " | ".join(keys) + " |", "|---|" + "---|" * len(keys)]
+    for label, _, _ in BANDS:
+        s = summary["by_band"][label]
+        lines.append(f"| {label} | " + " | ".join(_cell(s[k]) for k in keys) + " |")
+    lines += ["", "| α | " + " | ".join(keys) + " |", "|---|" + "---|" * len(keys)]
+    for a, s in summary["by_alpha"].items():
+        lines.append(f"| {float(a):.4g} | " + " | ".join(_cell(s[k]) for k in keys) + " |")
+    chains = [k for k in (SPLITSUM, HYBRID, PLAIN) if k in keys]
+    lines += ["", "Geometric-mean MSE ratio vs the idealised split-sum (exact α, full resolution):", "",
+              "| α | " + " | ".join(chains) + " |", "|---|" + "---|" * len(chains)]
+    for a, s in summary["by_alpha"].items():
+        lines.append(f"| {float(a):.4g} | " + " | ".join(f"{s[k]['geomean_ratio_vs_ideal']:.3g}" for k in chains)
+                     + " |")
+    up = result["hybrid_upload_bytes"]
+    lines += ["", "Bytes per probe: " + ", ".join(f"{k} {v:,}" for k, v in result["bytes_per_probe"].items())
+              + f". {HYBRID} upload by the probe's smallest material α: "
+              + ", ".join(f"α ≥ {float(a):g}: {b:,}" for a, b in up["by_smallest_material_alpha"].items()) + "."]
+    return "\n".join(lines) + "\n"
+
+
+def format_table(result: dict) -> str:
+    """reflection.md: the headline, per-environment tables of the hybrid, by material, and speed if measured."""
+    lines = ["# Reflection bench", "", format_headline(result)]
+    summary = result["summary"]
+    keys = result["protocol"]["scored"]
+    lines += ["## By material", "", "| material | " + " | ".join(keys) + " |", "|---|" + "---|" * len(keys)]
+    for m, s in summary["by_material"].items():
+        lines.append(f"| {m} | " + " | ".join(_cell(s[k]) for k in keys) + " |")
+    envs = result["protocol"]["environments"]
+    for key in (HYBRID, SHEXP_LIGHTS):
+        lines += ["", f"## {key} / {SPLITSUM}: geometric-mean MSE ratio per environment and α (wins/cases)", "",
+                  "| environment | " + " | ".join(f"α={a:g}" for a in ALPHAS) + " |", "|---|" + "---|" * len(ALPHAS)]
+        for env in envs:
+            cells = []
+            for a in ALPHAS:
+                rr = [r for r in result["rows"] if r["environment"] == env and r["alpha"] == a]
+                ratio = [r[f"mse_{key}"] / r[f"mse_{SPLITSUM}"] for r in rr if r[f"mse_{SPLITSUM}"] > 0]
+                cells.append(f"{_geomean(ratio):.3g} ({sum(x < 1 for x in ratio)}/{len(rr)})")
+            lines.append(f"| {env} | " + " | ".join(cells) + " |")
+    lines += ["", "Encode seconds per probe: " + ", ".join(f"{k} {v:.2f}" for k, v in
+                                                          result["encode_s_per_probe"].items()), ""]
+    if "speed" in result:
+        sp = result["speed"]
+        lines += [
+            "## Speed (single process)", "",
+            *[f"- SH-exp fit, {k} (grids {sp['shexp_grids'][k]}): {v:.3f} ms/probe "
+              f"({sp['shexp_probes_per_s'][k]:.0f} probes/s); rel. RMS of E0 vs the plain fit: max "
+              f"{max(sp['shexp_vs_plain_rel_rms'][k].values()):.3g}, median "
+              f"{np.median(list(sp['shexp_vs_plain_rel_rms'][k].values())):.3g}"
+              for k, v in sp["shexp_ms_per_probe"].items()],
+            f"- split-sum chain: fast {sp['splitsum_fast_ms_per_probe']:.0f} ms/probe, plain 1024-sample IS "
+            f"{sp['splitsum_plain_ms_per_probe']:.0f} ms/probe", "",
+        ]
+    return "\n".join(lines) + "\n"
+
+
+def write_results(result: dict, out_dir: Path, stem: str = "reflection") -> tuple[Path, Path]:
+    out_dir.mkdir(parents=True, exist_ok=True)
+    json_path, text_path = out_dir / f"{stem}.json", out_dir / f"{stem}.md"
+    json_path.write_text(json.dumps(result, indent=1))
+    text_path.write_text(format_table(result))
+    return json_path, text_path
 
 
 def _time(fn, repeat: int = 3) -> float:
@@ -346,69 +509,3 @@ def _exact_at(cube: np.ndarray, alpha: float, size: int, texels: np.ndarray) -> 
     return (k @ cube.reshape(-1, 3).astype(np.float64)) / k.sum(axis=1)[:, None]
 
 
-def format_table(result: dict) -> str:
-    """Markdown summary: per (environment, α) mean ratio, then totals (and speed)."""
-    s = result["summary"]
-    lines = [
-        f"# Reflection bench ({s['cases']} cases)", "",
-        f"SH-exp lower MSE in {s['shexp_wins']}/{s['cases']} cases ({100 * s['shexp_win_share']:.1f}%); "
-        f"median ratio {s['median_ratio']:.3g}, geometric mean {s['geometric_mean_ratio']:.3g}. "
-        f"Unweighted log-space solve: {s['unweighted_wins']}/{s['cases']} (geometric mean "
-        f"{s['unweighted_geometric_mean_ratio']:.3g}); the weighted solve has the lower MSE in "
-        f"{100 * s['weighted_beats_unweighted']:.1f}% of cases. "
-        f"Paper formulation (unweighted, no albedo normalisation): {s['paper_formulation_wins']}/{s['cases']} "
-        f"({100 * s['paper_formulation_win_share']:.1f}%). Against the paper's split-sum setting (plain 1024-sample "
-        f"IS chain): {100 * s['win_share_vs_plain_splitsum']:.1f}% (paper formulation "
-        f"{100 * s['paper_formulation_win_share_vs_plain']:.1f}%).",
-        f"Bytes per probe: {SHEXP} {s['bytes_per_probe'][SHEXP]}, {SPLITSUM} {s['bytes_per_probe'][SPLITSUM]} "
-        f"(ratio {s['memory_ratio']:.0f}×).",
-        f"{SHEXP_LIGHTS} ({s['bytes_per_probe'][SHEXP_LIGHTS]} bytes, {s['lights_memory_ratio']:.0f}× less than "
-        f"split-sum): lower MSE in {s['lights_wins']}/{s['cases']} ({100 * s['lights_win_share']:.1f}%), geometric "
-        f"mean ratio {s['lights_geometric_mean_ratio']:.3g}; vs the plain 1024-sample chain "
-        f"{100 * s['lights_win_share_vs_plain_splitsum']:.1f}%.", "",
-        "| environment | " + " | ".join(f"α={a:.3g}" for a in ALPHAS) + " |",
-        "|---|" + "---|" * len(ALPHAS),
-    ]
-    envs = sorted({r["environment"] for r in result["rows"]})
-    for key, label in (("ratio", SHEXP), ("ratio_lights", SHEXP_LIGHTS)):
-        if key != "ratio":
-            lines += ["", "| environment | " + " | ".join(f"α={a:.3g}" for a in ALPHAS) + " |",
-                      "|---|" + "---|" * len(ALPHAS)]
-        for env in envs:
-            cells = []
-            for a in ALPHAS:
-                rr = [r[key] for r in result["rows"] if r["environment"] == env and abs(r["alpha"] - a) < 1e-9]
-                wins = sum(x < 1 for x in rr)
-                cells.append(f"{np.exp(np.mean(np.log(np.maximum(rr, 1e-30)))):.3g} ({wins}/{len(rr)})")
-            lines.append(f"| {env} | " + " | ".join(cells) + " |")
-        lines += ["", f"Cells: geometric-mean MSE ratio {label}/{SPLITSUM} over materials × views (wins/cases)."]
-    lines += [""]
-    if "speed" in result:
-        sp = result["speed"]
-        lines += [
-            "## Speed (single process)", "",
-            *[f"- SH-exp fit, {k} (grids {sp['shexp_grids'][k]}): {v:.3f} ms/probe "
-              f"({sp['shexp_probes_per_s'][k]:.0f} probes/s); rel. RMS of E0 vs the plain fit: max "
-              f"{max(sp['shexp_vs_plain_rel_rms'][k].values()):.3g}, median "
-              f"{np.median(list(sp['shexp_vs_plain_rel_rms'][k].values())):.3g}"
-              for k, v in sp["shexp_ms_per_probe"].items()],
-            "- default breakdown (ms/probe): " + ", ".join(
-                f"{k} {v:.3f}" for k, v in sp["shexp_breakdown_ms_per_probe"].items()),
-            f"- shexp_lights (light extraction + fit): {sp['shexp_lights_ms_per_probe']:.3f} ms/probe",
-            f"- plain fit (brute-force design samples): {sp['shexp_plain_ms_per_probe']:.0f} ms/probe",
-            f"- split-sum chain: fast {sp['splitsum_fast_ms_per_probe']:.0f} ms/probe, plain 1024-sample IS "
-            f"{sp['splitsum_plain_ms_per_probe']:.0f} ms/probe", "",
-            "| env | level | α | formulation | fast vs exact | plain vs exact |", "|---|---|---|---|---|---|",
-        ]
-        for e in sp["splitsum_level_errors"]:
-            lines.append(f"| {e['environment']} | {e['level']} | {e['alpha']:.3g} | {e['formulation']} | "
-                         f"{e['rel_rms_fast_vs_exact']:.3g} | {e['rel_rms_plain_vs_exact']:.3g} |")
-    return "\n".join(lines) + "\n"
-
-
-def write_results(result: dict, out_dir: Path, stem: str = "reflection") -> tuple[Path, Path]:
-    out_dir.mkdir(parents=True, exist_ok=True)
-    json_path, text_path = out_dir / f"{stem}.json", out_dir / f"{stem}.md"
-    json_path.write_text(json.dumps(result, indent=2))
-    text_path.write_text(format_table(result))
-    return json_path, text_path

@@ -4,13 +4,13 @@
 position, direction and length is already in the **bake frame** (right-handed, +Y up, metres; see
 :mod:`bakery.conventions`): the reader applies the stage's ``upAxis`` and ``metersPerUnit``.
 
-Light radiometry (UsdLux, "Light units" in the UsdLux overview)
-    An unnormalised light's emitted radiance is L = intensity · 2^exposure · color.
-    ``normalize`` divides area lights' radiance by their emitting area (in **m²**, so that a scene authored in
-    centimetres and the same scene in metres bake identically) and makes a distant light's intensity its
-    illuminance at normal incidence. An unnormalised distant light of angular diameter 2α has illuminance
-    E = L · π·sin²α (a uniform disc of half-angle α). These are resolved by the reader: :class:`Light` carries
-    ``radiance`` (area lights) or ``illuminance`` (distant lights) directly.
+Light radiometry (UsdLux, "Light units" in the UsdLux overview; interpretation in ``docs/capture.md``)
+    An unnormalised light's emitted radiance is L = intensity · 2^exposure · color (· blackbody(colorTemperature)).
+    ``normalize`` divides area lights' radiance by their world-space emitting area in **stage units²** (as
+    OpenUSD's HdEmbree does) and makes a distant light's intensity its illuminance at normal incidence. An
+    unnormalised distant light of angular diameter 2α has illuminance E = L · π·sin²α (a uniform disc of
+    half-angle α). These are resolved by the reader: :class:`Light` carries ``radiance`` (area lights) or
+    ``illuminance`` (distant lights) directly; the per-kind behaviour lives in :mod:`bakery.capture.lights`.
 """
 
 from __future__ import annotations
@@ -19,7 +19,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-LIGHT_TYPES = ("distant", "sphere", "rect", "disk")
+LIGHT_TYPES = ("distant", "sphere", "rect", "disk", "cylinder")
+#: Distance used for "no hit" and for unbounded shadow rays (metres).
+FAR = 1e30
 
 
 @dataclass(frozen=True)
@@ -34,9 +36,13 @@ class Light:
         position: (3,) centre in metres (area lights).
         axes: (3, 3) rows = local X, Y, Z axes in the bake frame, unit length (the light emits towards -Z for
             ``rect``/``disk``; a ``distant`` light shines along -Z, i.e. it comes *from* +Z).
-        size: (2,) ``rect`` width, height in metres; ``sphere``/``disk`` radius in ``size[0]`` (metres).
+        size: (2,) ``rect`` width, height in metres; ``sphere``/``disk`` radius in ``size[0]`` (metres);
+            ``cylinder`` radius, length (along local X) in metres.
         angle: distant light angular diameter in degrees.
-        visible: whether the light's shape is seen by camera (probe) rays.
+        visible: whether the light's shape is a surface in the scene: seen by camera and bounce rays, and
+            occluding (False for point-like lights, which are reached by next-event estimation only).
+        shaping: UsdLuxShapingAPI as (cone angle°, cone softness, focus, focus tint r, g, b); () = unshaped.
+        texture: index into :attr:`CaptureScene.textures` of a RectLight's ``texture:file`` (−1: none).
     """
 
     kind: str
@@ -48,6 +54,8 @@ class Light:
     size: tuple[float, float] = (0.0, 0.0)
     angle: float = 0.53
     visible: bool = True
+    shaping: tuple[float, ...] = ()
+    texture: int = -1
 
     def __post_init__(self) -> None:
         if self.kind not in LIGHT_TYPES:
@@ -61,12 +69,15 @@ class Light:
 
     @property
     def area(self) -> float:
+        """Emitting area in m² (0 for distant lights)."""
         if self.kind == "rect":
             return float(self.size[0] * self.size[1])
         if self.kind == "disk":
             return float(np.pi * self.size[0] ** 2)
         if self.kind == "sphere":
             return float(4.0 * np.pi * self.size[0] ** 2)
+        if self.kind == "cylinder":
+            return float(2.0 * np.pi * self.size[0] * self.size[1])
         return 0.0
 
 
@@ -94,10 +105,20 @@ class Dome:
 
 @dataclass(frozen=True)
 class Material:
-    """A diffuse + emissive surface (UsdPreviewSurface reduced to what irradiance capture needs).
+    """A UsdPreviewSurface-like surface (the capture's one material model; MaterialX surfaces map onto it).
 
-    ``roughness`` and ``metallic`` are read and kept for reports; the capture shades diffusely with
-    albedo = diffuse · (1 − metallic).
+    Attributes:
+        diffuse, emission: (3,) linear Rec.709 diffuse colour and emitted radiance.
+        roughness: perceptual roughness r (GGX α = r², clamped to ≥ 1e-3 when shaded).
+        metallic: metalness (metallic workflow): F0 = lerp(F0_dielectric(ior), diffuse, metallic), diffuse
+            weight (1 − metallic).
+        specular: (3,) F0 of the specular workflow (``use_specular_workflow``).
+        ior: index of refraction of the dielectric Fresnel (F0 = ((ior − 1)/(ior + 1))²).
+        opacity, opacity_threshold: cut-outs: a hit whose opacity is below the threshold (threshold > 0) is
+            passed through; partial opacity without a threshold is not modelled (reported by the reader).
+        maps: textured inputs, each a dict {"input": name, "texture": index into CaptureScene.textures,
+            "channels": "rgb" | "r" | "g" | "b" | "a", "scale": (4,), "bias": (4,), "fallback": (4,),
+            "wrap": (wrapS, wrapT)}; texture coordinates come from the mesh's ``uvs``.
     """
 
     name: str = "<default>"
@@ -105,10 +126,42 @@ class Material:
     emission: tuple[float, float, float] = (0.0, 0.0, 0.0)
     roughness: float = 0.5
     metallic: float = 0.0
+    specular: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    use_specular_workflow: bool = False
+    ior: float = 1.5
+    opacity: float = 1.0
+    opacity_threshold: float = 0.0
+    maps: tuple[dict, ...] = ()
 
     @property
     def albedo(self) -> np.ndarray:
-        return np.clip(np.asarray(self.diffuse, dtype=np.float64) * (1.0 - self.metallic), 0.0, 1.0)
+        """Diffuse albedo diffuse · (1 − metallic) (metallic workflow), clipped to [0, 1]."""
+        weight = 1.0 if self.use_specular_workflow else 1.0 - self.metallic
+        return np.clip(np.asarray(self.diffuse, dtype=np.float64) * weight, 0.0, 1.0)
+
+    @property
+    def f0(self) -> np.ndarray:
+        """(3,) normal-incidence specular reflectance."""
+        if self.use_specular_workflow:
+            return np.clip(np.asarray(self.specular, dtype=np.float64), 0.0, 1.0)
+        dielectric = ((self.ior - 1.0) / (self.ior + 1.0)) ** 2 if self.ior > 0 else 0.0
+        return np.clip((1.0 - self.metallic) * dielectric + self.metallic * np.asarray(self.diffuse, dtype=np.float64),
+                       0.0, 1.0)
+
+
+@dataclass(frozen=True)
+class Texture:
+    """An image used by materials or lights, as linear Rec.709 float32 pixels (H, W, 4) (RGBA; alpha 1 if absent).
+
+    Attributes:
+        name: source file (for messages).
+        pixels: (H, W, 4) float32, row 0 = the top of the image (t = 1 in UsdUVTexture's st convention).
+        color_space: the source colour space it was converted from (recorded in the store).
+    """
+
+    name: str
+    pixels: np.ndarray
+    color_space: str = "lin_rec709"
 
 
 @dataclass(frozen=True)
@@ -119,11 +172,14 @@ class Mesh:
         name: prim path (with an instance suffix for point instances).
         triangles: (T, 3, 3) float32 vertex positions.
         material: the bound material.
+        uvs: (T, 3, 2) float32 texture coordinates per triangle corner (the primvar the material's textures
+            read), or None.
     """
 
     name: str
     triangles: np.ndarray
     material: Material = field(default_factory=Material)
+    uvs: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -157,7 +213,12 @@ class ProbeSpec:
 
 @dataclass(frozen=True)
 class CaptureScene:
-    """Everything a capture sees, in the bake frame."""
+    """Everything a capture sees, in the bake frame.
+
+    ``textures`` are shared by materials and lights (by index); ``portals`` are PortalLights (kind "rect",
+    size and frame only) that guide the dome's sampling; ``working_space`` is the colour space every colour is
+    in (linear Rec.709); ``time_code`` the USD time the stage was read at (None: default/earliest).
+    """
 
     meshes: tuple[Mesh, ...] = ()
     lights: tuple[Light, ...] = ()
@@ -165,6 +226,10 @@ class CaptureScene:
     probes: tuple[ProbeSpec, ...] = ()
     meters_per_unit: float = 1.0
     up_axis: str = "Y"
+    textures: tuple[Texture, ...] = ()
+    portals: tuple[Light, ...] = ()
+    working_space: str = "lin_rec709"
+    time_code: float | None = None
 
     def triangle_count(self) -> int:
         return int(sum(m.triangles.shape[0] for m in self.meshes))

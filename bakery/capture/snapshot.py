@@ -4,7 +4,9 @@ Layout of a snapshot directory::
 
     scene.json       every field of the CaptureScene except the large arrays, plus the array manifest and the hash
     triangles.npy    (T, 3, 3) all meshes' triangles concatenated (mesh i is rows offsets[i]:offsets[i+1])
+    uvs.npy          (U, 3, 2) texture coordinates of the meshes that have them, concatenated (only if any)
     dome.npy         (H, W, 3) dome pixels (only when the dome has a texture)
+    texture_<i>.npy  (H, W, 4) pixels of CaptureScene.textures[i] (linear, float32)
 
 Content hash
     ``content_hash`` = sha256 of the canonical JSON body (``scene.json`` without the ``content_hash`` key: sorted
@@ -42,16 +44,25 @@ from typing import Any
 
 import numpy as np
 
-from bakery.capture.scene import CaptureScene, Dome, Light, Material, Mesh, ProbeSpec
+from bakery.capture.scene import CaptureScene, Dome, Light, Material, Mesh, ProbeSpec, Texture
 from bakery.errors import InputError
 from bakery.files import sha256_bytes
 
 __all__ = ["SNAPSHOT_FORMAT", "SNAPSHOT_VERSION", "read_capture_scene", "scene_content_hash", "write_capture_scene"]
 
 SNAPSHOT_FORMAT = "bakery.capture-scene"
-SNAPSHOT_VERSION = 1
+SNAPSHOT_VERSION = 2
 SCENE_JSON = "scene.json"
-_ARRAY_FILES = {"triangles": "triangles.npy", "dome": "dome.npy"}
+_ARRAY_FILES = {"triangles": "triangles.npy", "dome": "dome.npy", "uvs": "uvs.npy"}
+
+
+def _array_file(name: str) -> str | None:
+    """File name of a snapshot array (fixed names, plus ``texture_<i>``)."""
+    if name in _ARRAY_FILES:
+        return _ARRAY_FILES[name]
+    if name.startswith("texture_") and name[len("texture_"):].isdigit():
+        return f"{name}.npy"
+    return None
 _TAGS = ("__list__", "__dict__", "__ndarray__", "__float__")
 
 
@@ -158,11 +169,33 @@ def _concatenated_triangles(meshes: tuple[Mesh, ...]) -> tuple[np.ndarray, list[
     return np.concatenate(arrays, axis=0, dtype=dtype), offsets
 
 
+def _little(array: np.ndarray) -> np.ndarray:
+    array = np.asarray(array)
+    return np.ascontiguousarray(array, dtype=array.dtype.newbyteorder("<"))
+
+
 def _dome_pixels(dome: Dome | None) -> np.ndarray | None:
     if dome is None or dome.pixels is None:
         return None
-    pixels = np.asarray(dome.pixels)
-    return np.ascontiguousarray(pixels, dtype=pixels.dtype.newbyteorder("<"))
+    return _little(dome.pixels)
+
+
+def _concatenated_uvs(meshes: tuple[Mesh, ...]) -> tuple[np.ndarray | None, list[dict | None]]:
+    """The uvs of meshes that have them as one (U, 3, 2) array, and per mesh its slice record (None if no uvs)."""
+    arrays, records, start = [], [], 0
+    for mesh in meshes:
+        if mesh.uvs is None:
+            records.append(None)
+            continue
+        uv = np.asarray(mesh.uvs)
+        arrays.append(uv.reshape(-1, 3, 2))
+        records.append({"start": start, "stop": start + arrays[-1].shape[0], "shape": list(uv.shape),
+                        "dtype": uv.dtype.str})
+        start += arrays[-1].shape[0]
+    if not arrays:
+        return None, records
+    dtype = np.result_type(*arrays).newbyteorder("<")
+    return np.ascontiguousarray(np.concatenate(arrays, axis=0, dtype=dtype)), records
 
 
 def _snapshot_body(scene: CaptureScene) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
@@ -172,17 +205,27 @@ def _snapshot_body(scene: CaptureScene) -> tuple[dict[str, Any], dict[str, np.nd
     pixels = _dome_pixels(scene.dome)
     if pixels is not None:
         arrays["dome"] = pixels
+    uvs, uv_records = _concatenated_uvs(scene.meshes)
+    if uvs is not None:
+        arrays["uvs"] = uvs
+    textures = []
+    for i, texture in enumerate(scene.textures):
+        arrays[f"texture_{i}"] = _little(texture.pixels)
+        record = _fields(texture, skip=("pixels",))
+        record["pixels"] = f"texture_{i}"
+        textures.append(record)
     manifest = {}
     for name, array in arrays.items():
         entry = _array_entry(array)
-        entry["file"] = _ARRAY_FILES[name]
+        entry["file"] = _array_file(name)
         manifest[name] = entry
     meshes = []
-    for mesh, start, stop in zip(scene.meshes, offsets[:-1], offsets[1:]):
+    for mesh, start, stop, uv_record in zip(scene.meshes, offsets[:-1], offsets[1:], uv_records):
         tris = np.asarray(mesh.triangles)
-        record = _fields(mesh, skip=("triangles", "material"))
+        record = _fields(mesh, skip=("triangles", "material", "uvs"))
         record["material"] = _fields(mesh.material)
         record["triangles"] = {"start": start, "stop": stop, "shape": list(tris.shape), "dtype": tris.dtype.str}
+        record["uvs"] = uv_record
         meshes.append(record)
     dome = None
     if scene.dome is not None:
@@ -195,9 +238,11 @@ def _snapshot_body(scene: CaptureScene) -> tuple[dict[str, Any], dict[str, np.nd
         "triangle_offsets": offsets,
         "meshes": meshes,
         "lights": [_fields(light) for light in scene.lights],
+        "portals": [_fields(light) for light in scene.portals],
+        "textures": textures,
         "dome": dome,
         "probes": [_fields(probe) for probe in scene.probes],
-        "scene": _fields(scene, skip=("meshes", "lights", "dome", "probes")),
+        "scene": _fields(scene, skip=("meshes", "lights", "dome", "probes", "textures", "portals")),
     }
     return body, arrays
 
@@ -251,7 +296,7 @@ def write_capture_scene(scene: CaptureScene, directory: str | os.PathLike[str]) 
     tmp.mkdir()
     try:
         for name, array in arrays.items():
-            _write_npy(tmp / _ARRAY_FILES[name], array)
+            _write_npy(tmp / _array_file(name), array)
         document = dict(body, content_hash=content_hash)
         with open(tmp / SCENE_JSON, "wb") as handle:
             handle.write(_dumps(document))
@@ -326,7 +371,7 @@ def _read_manifest(directory: Path) -> tuple[str, dict[str, Any]]:
                          f"content {actual})")
     try:
         for name, entry in document["arrays"].items():
-            if _ARRAY_FILES.get(name) != entry["file"]:
+            if _array_file(name) != entry["file"]:
                 raise InputError(f"{directory}: {SCENE_JSON} names an unexpected array file {entry['file']!r}")
             file = directory / entry["file"]
             try:
@@ -360,6 +405,13 @@ def _load_array(directory: Path, entry: dict[str, Any], mmap: bool, verify: bool
     return array.view(np.ndarray) if isinstance(array, np.memmap) else array
 
 
+def _slice(array: np.ndarray, info: dict[str, Any]) -> np.ndarray:
+    view = array[info["start"]:info["stop"]]
+    if view.dtype.str != info["dtype"]:
+        view = view.astype(np.dtype(info["dtype"]))
+    return view.reshape(tuple(info["shape"]))
+
+
 def read_capture_scene(directory: str | os.PathLike[str], mmap: bool = True, verify: bool = False) -> CaptureScene:
     """Read a snapshot written by :func:`write_capture_scene`.
 
@@ -374,22 +426,24 @@ def read_capture_scene(directory: str | os.PathLike[str], mmap: bool = True, ver
         triangles = arrays["triangles"]
         meshes = []
         for record in body["meshes"]:
-            info = record["triangles"]
-            view = triangles[info["start"]:info["stop"]]
-            if view.dtype.str != info["dtype"]:
-                view = view.astype(np.dtype(info["dtype"]))
-            view = view.reshape(tuple(info["shape"]))
+            view = _slice(triangles, record["triangles"])
+            uv_info = record.get("uvs")
+            uvs = _slice(arrays["uvs"], uv_info) if uv_info is not None else None
             material = _build(Material, record["material"])
-            meshes.append(_build(Mesh, {k: v for k, v in record.items() if k not in ("triangles", "material")},
-                                 triangles=view, material=material))
+            meshes.append(_build(Mesh, {k: v for k, v in record.items() if k not in ("triangles", "material", "uvs")},
+                                 triangles=view, material=material, uvs=uvs))
         lights = tuple(_build(Light, record) for record in body["lights"])
+        portals = tuple(_build(Light, record) for record in body["portals"])
+        textures = tuple(_build(Texture, {k: v for k, v in record.items() if k != "pixels"},
+                                pixels=arrays[record["pixels"]]) for record in body["textures"])
         dome = None
         if body["dome"] is not None:
             record = dict(body["dome"])
             key = record.pop("pixels")
             dome = _build(Dome, record, pixels=arrays[key] if key is not None else None)
         probes = tuple(_build(ProbeSpec, record) for record in body["probes"])
-        return _build(CaptureScene, body["scene"], meshes=tuple(meshes), lights=lights, dome=dome, probes=probes)
+        return _build(CaptureScene, body["scene"], meshes=tuple(meshes), lights=lights, dome=dome, probes=probes,
+                      textures=textures, portals=portals)
     except InputError:
         raise
     except (KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:

@@ -1,8 +1,8 @@
 """Batched ray queries against the scene's triangles with Embree (``embreex``).
 
 All triangles of all meshes go into one Embree scene; ``primID`` indexes the concatenated triangle arrays, so
-per-triangle normals, albedo and emission are plain numpy gathers. Queries are issued in chunks of
-:data:`CHUNK` rays (Embree's stream API is single-call per chunk; there is no per-ray Python loop).
+per-triangle normals (and, in :mod:`bakery.capture.surfaces`, materials) are plain numpy gathers. Queries are
+issued in chunks of :data:`CHUNK` rays (Embree's stream API is single-call per chunk; there is no per-ray Python loop).
 """
 
 from __future__ import annotations
@@ -11,12 +11,11 @@ import numpy as np
 from embreex import rtcore_scene as rtcs
 from embreex.mesh_construction import TriangleMesh
 
-from bakery.capture.scene import CaptureScene
+from bakery.capture.scene import FAR, CaptureScene
 
 #: Rays per Embree call.
 CHUNK = 1 << 18
-#: Distance used for "no hit" and for unbounded shadow rays (metres).
-FAR = 1e30
+__all__ = ["CHUNK", "FAR", "SceneTracer"]
 
 
 class SceneTracer:
@@ -24,7 +23,7 @@ class SceneTracer:
 
     Attributes:
         normals: (T, 3) unit geometric normals (right-hand rule on the triangle's vertex order).
-        albedo: (T, 3) diffuse albedo; emission: (T, 3) emitted radiance.
+        mesh_of: (T,) index of the mesh each triangle belongs to.
         epsilon: relative ray-origin offset; see :meth:`offset`.
         rays_cast: running count of rays traced (for rays/s reports).
     """
@@ -33,18 +32,11 @@ class SceneTracer:
         triangles = [m.triangles.reshape(-1, 3, 3) for m in scene.meshes if m.triangles.size]
         self.empty = not triangles
         tris = np.concatenate(triangles).astype(np.float64) if triangles else np.zeros((0, 3, 3))
-        self.albedo = np.concatenate(
-            [np.broadcast_to(m.material.albedo, (m.triangles.shape[0], 3)) for m in scene.meshes if m.triangles.size]
-            or [np.zeros((0, 3))]
+        self.mesh_of = np.concatenate(
+            [np.full(m.triangles.reshape(-1, 3, 3).shape[0], i, dtype=np.int64) for i, m in enumerate(scene.meshes)]
+            or [np.zeros(0, dtype=np.int64)]
         )
-        self.emission = np.concatenate(
-            [
-                np.broadcast_to(np.asarray(m.material.emission, dtype=np.float64), (m.triangles.shape[0], 3))
-                for m in scene.meshes
-                if m.triangles.size
-            ]
-            or [np.zeros((0, 3))]
-        )
+        self.triangles = tris
         cross = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]) if len(tris) else np.zeros((0, 3))
         length = np.linalg.norm(cross, axis=-1, keepdims=True)
         self.normals = np.where(length > 0, cross / np.maximum(length, 1e-300), np.array([0.0, 1.0, 0.0]))
@@ -86,6 +78,31 @@ class SceneTracer:
             prim[start:stop] = out["primID"]
             t[start:stop] = np.where(hit, out["tfar"].astype(np.float64), FAR)
         return prim, t
+
+    def intersect_uv(self, origins: np.ndarray, directions: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """As :meth:`intersect`, plus the hit's barycentric coordinates u, v (M,) (p = (1−u−v)·v0 + u·v1 + v·v2)."""
+        m = origins.shape[0]
+        self.rays_cast += m
+        prim = np.full(m, -1, dtype=np.int64)
+        t = np.full(m, FAR)
+        bu = np.zeros(m)
+        bv = np.zeros(m)
+        if self._scene is None or m == 0:
+            return prim, t, bu, bv
+        for start in range(0, m, CHUNK):
+            stop = min(m, start + CHUNK)
+            out = self._scene.run(
+                np.ascontiguousarray(origins[start:stop], dtype=np.float32),
+                np.ascontiguousarray(directions[start:stop], dtype=np.float32),
+                output=1,
+            )
+            hit = out["primID"] >= 0
+            prim[start:stop] = out["primID"]
+            t[start:stop] = np.where(hit, out["tfar"].astype(np.float64), FAR)
+            bu[start:stop] = out["u"]
+            bv[start:stop] = out["v"]
+        return prim, t, bu, bv
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray) -> np.ndarray:
         """Whether each segment origin + t·direction, 0 < t < distance, hits a triangle: bool (M,)."""

@@ -8,6 +8,7 @@
     :mod:`bakery.encodings.quantized`  zh3_quantized, sh3_quantized
     :mod:`bakery.encodings.splitsum`   splitsum
     :mod:`bakery.encodings.shexp`      shexp, shexp_lights
+    :mod:`bakery.encodings.hybrid`     shexp_hybrid
 
 The contract (declaration, capabilities, typed Params) is in :mod:`bakery.encodings.base`. The modules are imported
 explicitly: a broken encoding module fails this import loudly.
@@ -18,9 +19,11 @@ from bakery.encodings.registry import ENCODINGS, get_encoding, register
 
 from bakery.encodings import sh  # noqa: E402,F401  (registration order = this order)
 from bakery.encodings import zh3  # noqa: E402,F401
+from bakery.encodings import zh3_hallucinated_solved  # noqa: E402,F401
 from bakery.encodings import quantized  # noqa: E402,F401
 from bakery.encodings import splitsum  # noqa: E402,F401
 from bakery.encodings import shexp  # noqa: E402,F401
+from bakery.encodings import hybrid  # noqa: E402,F401
 
 __all__ = ["ENCODINGS", "Encoding", "EncodingParams", "FieldSpec", "NoParams", "ParamsError", "finalize_field",
            "get_encoding", "register"]

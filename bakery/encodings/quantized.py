@@ -3,16 +3,17 @@
 Defines
     class          name           what
     -------------  -------------  -----------------------------------------------------------------------------
-    ZH3Quantized   zh3_quantized  16-byte ZH3: R11G11B10F DC + 12 SNORM8 ratios (linear band + zonal L2), built
-                                  from the deringed ZH3 and deringed again after decoding
+    ZH3Quantized   zh3_quantized  16-byte ZH3: R11G11B10F DC + 12 SNORM8 ratios (linear band + zonal L2): the
+                                  rounded codes of the deringed ZH3, refined by a search over neighbouring codes
+                                  for the lowest irradiance error with a non-negative decoded probe
     SH3Quantized   sh3_quantized  28-byte SH3: R11G11B10F DC + 24 SNORM8 ratios (the layout the paper compares with)
 
 Parameters
     encoding       recipe key       type  meaning
     -------------  ---------------  ----  --------------------------------------------------------------------
     both           sqrt_companding  bool  store sqrt-companded ratios (App. A.1; default true)
-    zh3_quantized  dering           bool  dering before packing and after decoding so that the decoded probe is
-                                          non-negative everywhere (default true)
+    zh3_quantized  dering           bool  dering before packing and keep the decoded probe non-negative everywhere
+                                          (the constraint of the code search; default true)
 
 Layouts: :mod:`bakery.irradiance.quantize` and ``schemas/store-v1.md``. Neither stores float radiance SH
 (``radiance_sh_field`` is None).
@@ -21,6 +22,7 @@ References
     [ZH3]  T. Roughton, P.-P. Sloan, A. Silvennoinen, M. Iwanicki, P. Shirley, "ZH3: Quadratic Zonal Harmonics",
            Proc. ACM Comput. Graph. Interact. Tech. 7(1), 2024 (seed 001), App. A (bounds) and A.1 (encoding).
     [WS22] T. Wiederien, P.-P. Sloan, "Tighter Spherical Harmonic Quantization Bound", I3D 2022 posters.
+    Code search: :mod:`bakery.irradiance.code_search` (objective and constraint derived there).
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ from bakery.encodings.base import Encoding, EncodingParams, FieldSpec
 from bakery.encodings.registry import register
 from bakery.errors import ClampWarning
 from bakery.irradiance import quantize
+from bakery.irradiance.code_search import decoded_zh3_sh3, negative_part, search_zh3_codes
 from bakery.irradiance.dering import clamp_zonal_l2, dering_zh3
 from bakery.irradiance.sh_irradiance import evaluate_sh_irradiance, minimum_sh_irradiance
 from bakery.irradiance.zh3 import (
@@ -45,8 +48,11 @@ from bakery.irradiance.zh3 import (
 )
 from bakery.probe import ProbeBatch
 
-#: Relative irradiance floor used when re-deringing decoded quantized ZH3 (about one SNORM8 step of the ratios).
+#: Relative irradiance floor of the last-resort windowing (about one SNORM8 step of the ratios).
 QUANTIZED_MARGIN = 1.0 / 127.0
+#: Steps each code may move from its rounded value in the code search (``search_zh3_codes``); the wider radii
+#: are searched (from the previous result) only for probes the narrower search left negative.
+SEARCH_RADII = (1, 2, 4)
 
 
 def _warn_clamps(name: str, stats: dict) -> None:
@@ -58,10 +64,11 @@ def _warn_clamps(name: str, stats: dict) -> None:
         )
 
 
-def _dering_quantized(packed: np.ndarray, companding: bool, rounds: int = 12) -> np.ndarray:
-    """Make decoded quantized ZH3 non-negative: re-dering the decoded values with a relative floor that starts at
-    one SNORM8 step and doubles each round, and re-pack, until the exact minimum of every decoded probe is ≥ 0.
-    A floor above π·Y00 ≈ 0.886 (relative to f0) leaves only DC, which is non-negative, so this terminates."""
+def _window_quantized(packed: np.ndarray, companding: bool, rounds: int = 12) -> np.ndarray:
+    """Last resort for probes the code search left negative: re-dering the decoded values with a relative floor
+    that starts at one SNORM8 step and doubles each round, and re-pack, until the exact minimum of every decoded
+    probe is ≥ 0. A floor above π·Y00 ≈ 0.886 (relative to f0) leaves only DC, which is non-negative, so this
+    terminates. (The previous default path; it widens the window far beyond the bound, hence only a fallback.)"""
     margin = QUANTIZED_MARGIN
     for _ in range(rounds):
         decoded_linear, decoded_zonal = quantize.unpack_zh3(packed, companding)
@@ -81,9 +88,12 @@ def _dering_quantized(packed: np.ndarray, companding: bool, rounds: int = 12) ->
 class ZH3Quantized(Encoding):
     """16-byte ZH3 ([ZH3] App. A.1): R11G11B10F DC + 12 SNORM8 ratios (layout in :mod:`bakery.irradiance.quantize`).
 
-    Built from the deringed ZH3 (``dering``, default on). The zonal coefficient is re-projected onto the axis the
-    reader will compute from the *decoded* linear band and re-clamped with the decoded DC, so that the quantized
-    probe is self-consistent.
+    Built from the deringed ZH3 (``dering``, default on; App. B clamp + exact minimum + window). The zonal
+    coefficient is re-projected onto the axis the reader will compute from the *decoded* linear band and
+    re-clamped with the decoded DC; then the codes are chosen by a greedy search over neighbouring codes (each
+    within :data:`SEARCH_RADII` of its rounded value) for the lowest irradiance error against the capture, subject
+    to a non-negative decoded probe (:func:`bakery.irradiance.code_search.search_zh3_codes`). Probes the search
+    cannot make non-negative (none on the shared maps) fall back to the windowing of :func:`_window_quantized`.
     """
 
     @dataclass(frozen=True)
@@ -101,7 +111,8 @@ class ZH3Quantized(Encoding):
 
     def encode(self, batch: ProbeBatch):
         companding, dering = self.params.sqrt_companding, self.params.dering
-        linear, zonal = fit_zh3_luminance(batch.radiance_sh(2))
+        radiance_sh = batch.radiance_sh(2)
+        linear, zonal = fit_zh3_luminance(radiance_sh)
         if dering:
             linear, zonal, _ = dering_zh3(linear, zonal)
         band2 = expand_zh3_to_sh3(linear, zonal, luminance_axis(linear))[:, 4:9]
@@ -113,8 +124,20 @@ class ZH3Quantized(Encoding):
         if dering:
             zonal = clamp_zonal_l2(decoded_linear, zonal, decoded_axis)
         packed, _ = quantize.pack_zh3(decoded_linear, zonal, companding)
-        if dering:
-            packed = _dering_quantized(packed, companding)
+        # [ZH3] App. A.1 codes chosen by the lowest error with E ≥ 0 after decoding (App. B), not by re-windowing.
+        packed, search = search_zh3_codes(packed, radiance_sh, companding, non_negative=dering,
+                                          radius=SEARCH_RADII[0])
+        if dering and search["negative"]:
+            still = negative_part(decoded_zh3_sh3(packed, companding)) > 0
+            for radius in SEARCH_RADII[1:]:
+                packed[still], _ = search_zh3_codes(packed[still], radiance_sh[still], companding, radius=radius)
+                still[still] = negative_part(decoded_zh3_sh3(packed[still], companding)) > 0
+                if not still.any():
+                    break
+            if still.any():
+                packed[still] = _window_quantized(packed[still], companding)
+                warnings.warn(f"{self.name}: {int(still.sum())} probes stayed negative after the code search and "
+                              "were windowed instead", ClampWarning, stacklevel=2)
         return {"packed": packed}
 
     def evaluate_irradiance(self, fields, normals):

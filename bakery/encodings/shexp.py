@@ -4,10 +4,11 @@ roughness, fitted through fixed operators (:mod:`bakery.reflection.shexp`), + a 
 Defines
     class        name          what
     -----------  ------------  ---------------------------------------------------------------------------------
-    SHExp        shexp         p (bands 0..p_band) and q (bands 1..q_band, no DC) float32 × RGB (33 × RGB = 396 bytes
-                               at the defaults); E = PQ (F0 A + B) (albedo-normalised) or PQ (F0 + (1 − F0) τ)
+    SHExp        shexp         p (bands 0..p_band) and q (bands 1..q_band, no DC) float32 × RGB (33 × RGB) + the
+                               fitted α range (2 float32): 404 bytes at the defaults; E = PQ (F0 A + B)
+                               (albedo-normalised) or PQ (F0 + (1 − F0) τ), α clamped into the fitted range
     SHExpLights  shexp_lights  ``shexp`` of the capture without its ≤ ``max_lights`` brightest texel clusters, plus
-                               those clusters as analytic GGX directional lights (beyond the paper; 588 bytes)
+                               those clusters as analytic GGX directional lights (beyond the paper; 596 bytes)
 
 Parameters
     encoding      recipe key         type                 meaning
@@ -17,7 +18,8 @@ Parameters
     both          n_normals          int                  design normals (≥ 1, default 64, paper Sec. 5.1)
     both          n_views            int                  design views per normal (≥ 1, default 64)
     both          n_alphas           int                  design roughnesses (≥ 1, default 4)
-    both          alpha_min          float                smallest design GGX α, 0 < alpha_min < alpha_max (0.2)
+    both          alpha_min          float                smallest design GGX α, 0 <= alpha_min < alpha_max (0.2);
+                                                          values below FIT_ALPHA_FLOOR = 0.05 are fitted from it
     both          alpha_max          float                largest design GGX α, alpha_max ≤ 1 (1.0); the pipeline
                                                           may override both per probe (``accepts_alpha_range``)
     both          fit_face_size      int                  finest fit-grid face size (≥ 1, default 16)
@@ -60,6 +62,9 @@ operator_cache.install()
 
 #: Highest band of p and q a recipe may ask for (289 coefficients per channel; the design must still have as many rows).
 MAX_BAND = 16
+#: SH-exp's own fit floor: a design range starting below it (e.g. a probe that sees a mirror: the pipeline passes
+#: the true α_min, down to 0) is fitted from this α (r ≈ 0.22; paper Sec. 5.4: the model does not hold α < 0.25).
+FIT_ALPHA_FLOOR = 0.05
 
 
 class SHExp(Encoding):
@@ -83,7 +88,11 @@ class SHExp(Encoding):
         LEGACY_VALUES = {"fit": {"dense": "log", "fast": "log"}}
 
         def normalize(self):
-            return {"min_fit_face_size": min(self.min_fit_face_size, self.fit_face_size)}
+            changes = {"min_fit_face_size": min(self.min_fit_face_size, self.fit_face_size)}
+            if 0.0 <= self.alpha_min < FIT_ALPHA_FLOOR:  # the fit floor (pipeline/roughness.py passes the true α_min)
+                changes["alpha_min"] = FIT_ALPHA_FLOOR
+                changes["alpha_max"] = max(self.alpha_max, round(FIT_ALPHA_FLOOR + 0.01, 6))
+            return changes
 
         def validate(self) -> None:
             for key in ("p_band", "q_band"):
@@ -92,9 +101,10 @@ class SHExp(Encoding):
             for key in ("n_normals", "n_views", "n_alphas", "fit_face_size", "min_fit_face_size"):
                 if getattr(self, key) < 1:
                     raise ValueError(f"{key} must be >= 1, got {getattr(self, key)}")
-            # GGX α range of the design: 0 < alpha_min < alpha_max <= 1
+            # GGX α range of the design: 0 < alpha_min < alpha_max <= 1 (normalize() raised [0, floor) to the floor)
             if not self.alpha_min > 0.0:
-                raise ValueError(f"alpha_min must be > 0 (0 < alpha_min < alpha_max <= 1), got {self.alpha_min}")
+                raise ValueError(f"alpha_min must be >= 0 (0 <= alpha_min < alpha_max <= 1; below "
+                                 f"{FIT_ALPHA_FLOOR} the fit starts at {FIT_ALPHA_FLOOR}), got {self.alpha_min}")
             if not self.alpha_max <= 1.0:
                 raise ValueError(f"alpha_max must be <= 1 (0 < alpha_min < alpha_max <= 1), got {self.alpha_max}")
             if not self.alpha_min < self.alpha_max:
@@ -108,7 +118,7 @@ class SHExp(Encoding):
 
     name = "shexp"
     kind = "reflection"
-    version = "1.1.0"  # 1.1.0: multi-resolution splatted fit grid and the weighted solve (same stored layout)
+    version = "1.2.0"  # 1.2.0: per-probe fitted α range (evaluation clamps α into it); 1.1.0: splatted fit grid
     description = ("SH exponentials PQ = exp(<vMF(1/a).Y(r), p>) exp(<vMF(1/a).Y(h_r), q>); E = PQ (F0 A + B) with "
                    "the DFG table (albedo-normalised) or PQ (F0 + (1-F0) tau) (paper)")
     accepts_alpha_range = True
@@ -128,6 +138,8 @@ class SHExp(Encoding):
                       "log-space SH of P(r), bands 0..p_band, index l*(l+1)+m, RGB last"),
             FieldSpec("q", (self.model.q_count, 3), "float32",
                       "log-space SH of Q(h_r), bands 1..q_band (no DC), index l*(l+1)+m-1, RGB last"),
+            FieldSpec("alpha_range", (2,), "float32",
+                      "GGX alpha range [lo, hi] the coefficients were fitted over; evaluation clamps alpha into it"),
         )
 
     def _table_name(self) -> str:
@@ -141,16 +153,27 @@ class SHExp(Encoding):
         return self._coefficient_fields(fit_shexp(batch.cubes, self.model))
 
     def _coefficient_fields(self, coeffs: np.ndarray) -> dict[str, np.ndarray]:
-        """(P, K_p + K_q, 3) → the stored ``p`` and ``q`` fields."""
+        """(P, K_p + K_q, 3) → the stored ``p``, ``q`` and ``alpha_range`` fields."""
         k = self.model.p_count
-        return {"p": np.ascontiguousarray(coeffs[:, :k]), "q": np.ascontiguousarray(coeffs[:, k:])}
+        fitted = np.array([self.model.alpha_min, self.model.alpha_max], dtype=np.float32)
+        return {"p": np.ascontiguousarray(coeffs[:, :k]), "q": np.ascontiguousarray(coeffs[:, k:]),
+                "alpha_range": np.tile(fitted, (coeffs.shape[0], 1))}
+
+    def _alpha_range(self, fields) -> np.ndarray:
+        """(P, 2) fitted α range of every probe (stores before 1.2.0: the settings' range)."""
+        if "alpha_range" in fields:
+            return np.asarray(fields["alpha_range"], dtype=np.float64)
+        return np.tile([self.model.alpha_min, self.model.alpha_max], (np.asarray(fields["p"]).shape[0], 1))
+
+    def _table(self, shared) -> np.ndarray:
+        table = shared.get(self._table_name()) if shared else None
+        return self.shared_tables()[self._table_name()] if table is None else table
 
     def evaluate_reflection(self, fields, shared, view, normal, alpha, f0):
+        """E (P, M, 3); α ∈ [0, 1] (ValueError otherwise) is clamped into each probe's fitted range for P·Q."""
         coeffs = np.concatenate([np.asarray(fields["p"]), np.asarray(fields["q"])], axis=1)
-        table = shared.get(self._table_name()) if shared else None
-        if table is None:
-            table = self.shared_tables()[self._table_name()]
-        return evaluate_shexp(coeffs, table, view, normal, alpha, f0, self.model)
+        return evaluate_shexp(coeffs, self._table(shared), view, normal, alpha, f0, self.model,
+                              self._alpha_range(fields))
 
 
 class SHExpLights(SHExp):
@@ -193,9 +216,13 @@ class SHExpLights(SHExp):
         return {**fields, "light_direction": directions, "light_flux": flux}
 
     def evaluate_reflection(self, fields, shared, view, normal, alpha, f0):
+        """SH-exp part (α clamped into the fitted range) + the lights at the material's α (exact at any α)."""
+        from bakery.reflection.validation import check_rows, clamp_view_to_horizon
+
         environment = super().evaluate_reflection(fields, shared, view, normal, alpha, f0)
-        a = np.broadcast_to(np.asarray(alpha, dtype=np.float64).reshape(-1), (np.asarray(view).reshape(-1, 3).shape[0],))
-        return environment + evaluate_lights(fields["light_direction"], fields["light_flux"], view, normal, a, f0)
+        v, n, a = check_rows(view, normal, alpha)
+        v = clamp_view_to_horizon(v, n)
+        return environment + evaluate_lights(fields["light_direction"], fields["light_flux"], v, n, a, f0)
 
 
 register(SHExp, SHExpLights)

@@ -6,7 +6,7 @@ Defines
     ZH3               zh3               linear SH + zonal L2 on the luminance axis of the linear band (Sec. 3.1–3.2,
                                         Eq. 9–10), 15 floats (60 bytes)
     ZH3Solved         zh3_solved        linear band re-solved for the lowest Eq. 11 error (Sec. 3.3, App. C
-                                        gradients, batched BFGS, two starts), 60 bytes
+                                        gradients, batched BFGS, luminance + 4 tetrahedral starts), 60 bytes
     ZH3Deringed       zh3_deringed      luminance-axis ZH3 made non-negative everywhere (App. B bound, exact
                                         minimum, windowing), 60 bytes
     ZH3Hallucinated   zh3_hallucinated  linear SH only; the zonal L2 term is predicted from the L1/L0 ratio at

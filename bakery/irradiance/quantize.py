@@ -16,7 +16,11 @@ Byte layouts (little-endian; all ratios coefficient-major, RGB inside each coeff
              maximum 65024 (R, G) / 64512 (B) clamp to it and are counted and warned).
     ratio    int8 SNORM: s = q / 127 ∈ [−1, 1]. Remap t = x / hi for x ≥ 0 and x / |lo| for x < 0 (zero stays exact),
              optionally companded s = sign(t)·√|t| (App. A.1: "square root to encode the magnitude"), then
-             q = round(127·s). Decoding inverts: t = s (or sign(s)·s²), x = t·hi or t·|lo|.
+             q = round(127·s). Decoding inverts: t = s (or sign(s)·s²), x = t·hi or t·|lo|. The encoder never
+             writes q = −128; a reader decodes it as −127 (s = max(q/127, −1), the GPU SNORM8 rule:
+             D3D/Vulkan map both −128 and −127 to −1.0).
+    DC codes with exponent 31 (float16's Inf/NaN) are never written (the encoder clamps to the largest finite
+             value); :func:`decode_r11g11b10` refuses them (StoreFormatError): a corrupt store.
     ZH3 16 B  [0:4] DC, [4:7] f1,−1 RGB, [7:10] f1,0 RGB, [10:13] f1,1 RGB, [13:16] f2^0 RGB (luminance-axis frame).
     SH3 28 B  [0:4] DC, then coefficients k = 1..8 (f1,−1 … f2,2), 3 bytes (RGB) each.
 
@@ -29,6 +33,8 @@ from __future__ import annotations
 from math import sqrt
 
 import numpy as np
+
+from bakery.errors import StoreFormatError
 
 SQRT3 = sqrt(3.0)
 #: (lower, upper) ratio bounds per SH index 1..8 ([ZH3] App. A).
@@ -82,12 +88,18 @@ def encode_r11g11b10(rgb: np.ndarray) -> tuple[np.ndarray, int]:
 
 
 def decode_r11g11b10(packed: np.ndarray) -> np.ndarray:
-    """Unpack uint32 (P,) R11G11B10F into float64 RGB (P, 3)."""
+    """Unpack uint32 (P,) R11G11B10F into float64 RGB (P, 3).
+
+    Raises StoreFormatError for a field with exponent 31 (Inf/NaN in the format): no bakery writer produces one
+    (schemas/store-v1.md), so the store is corrupt."""
     packed = np.asarray(packed, dtype=np.uint32)
     channels = []
     for channel in range(3):
         width = 5 + _MANTISSA_BITS[channel]
         code = (packed >> np.uint32(_SHIFT[channel])) & np.uint32((1 << width) - 1)
+        if np.any((code >> np.uint32(_MANTISSA_BITS[channel])) == 31):
+            raise StoreFormatError(f"R11G11B10F DC with exponent 31 (Inf/NaN) in channel {'RGB'[channel]}: "
+                                   "bakery never writes one; the store is corrupt")
         channels.append(_small_to_float(code, _MANTISSA_BITS[channel]))
     return np.stack(channels, axis=-1)
 
@@ -102,8 +114,8 @@ def encode_ratio(ratio: np.ndarray, lower: np.ndarray, upper: np.ndarray, sqrt_c
 
 
 def decode_ratio(code: np.ndarray, lower: np.ndarray, upper: np.ndarray, sqrt_companding: bool) -> np.ndarray:
-    """Inverse of :func:`encode_ratio` → ratios (...) float64."""
-    s = np.asarray(code, dtype=np.float64) / 127.0
+    """Inverse of :func:`encode_ratio` → ratios (...) float64; the code −128 (never written) decodes as −127."""
+    s = np.maximum(np.asarray(code, dtype=np.float64) / 127.0, -1.0)
     t = np.sign(s) * s * s if sqrt_companding else s
     return t * np.where(t >= 0, upper, -lower)
 

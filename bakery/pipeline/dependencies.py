@@ -7,18 +7,32 @@ anywhere can occlude, reflect or emit towards any probe.
 Per-probe part: the probe's own prim data (kind, position, rotation, resolution, encodings, influence) and the
 bytes of its captured image, if any. Moving one probe re-bakes only that probe.
 
-Local lights (sphere, rect, disk) are tracked one by one in a light table stored with the bake
-(root attribute ``scene_lights``). When a light is added, removed or changed, a previously baked probe p is
-re-baked iff the light's irradiance bound, before or after the change, reaches a fraction τ of the irradiance p
-had in the previous bake:
+Local lights (sphere, rect, disk, cylinder) are tracked one by one in a light table stored with the bake
+(root attribute ``scene_lights``, and per bake in ``/history/scene_lights``): name, hash, centre, bounding radius R,
+emitting area A, radiance L (RGB, times the largest texel of a light texture), ``power`` = max_c L_c · A and a
+``geometry`` hash of everything but the radiance (kind, position, orientation, size, visibility, shaping,
+texture). A reused probe is compared with the table of the bake that produced it (so repeated small edits cannot
+accumulate unnoticed). When lights are added, removed or changed, a previously baked probe p is re-baked unless
+one of two sufficient conditions shows that its irradiance cannot have changed by τ = 1/256:
 
-    E_bound(p) = L_max · A / max(d − R, R·10⁻³, 1 mm)²   (L_max: largest radiance channel, A: emitting area,
-                                                           d: distance to the light centre, R: bounding radius)
-    re-bake p  ⇔  E_bound,old(p) + E_bound,new(p) ≥ τ · Ē_prev(p),   τ = 1/256,
+    (a) relative:  every changed light kept its geometry and  r = max over lights and channels of
+                   |L_new,c − L_old,c| / L_old,c  < τ.
+                   Light transport is linear in the emitted radiance and every light's contribution is ≥ 0, so
+                   |ΔE(n)| ≤ r · E(n) < τ · E(n) in every direction n (a +0.17 % intensity edit re-bakes nothing).
+    (b) absolute:  ΔE_bound(p) < τ · Ē_prev(p), with
+                   E_bound(p, P) = P / max(d − R, R·10⁻³, 1 mm)²   (d: distance from p to the light centre;
+                                                                    E ≤ L·Ω ≤ L·A/gap², ignoring occlusion)
+                   ΔE_bound(p) = Σ over changed lights of  E_bound(p, max_c |L_new,c − L_old,c| · A)  (same
+                                 geometry: only the emission changed)  or  E_bound(p, P_old) + E_bound(p, P_new)
+                                 (moved, resized, reshaped, added, removed)
 
-where Ē_prev(p) is p's mean irradiance in the previous bake (luminance of π·f00·Y00 of its stored SH) — the
-light changes p's irradiance by at most E_bound,old + E_bound,new anywhere, ignoring occlusion, which can only
-over-estimate. Probes with no stored irradiance SH (reflection-only) are re-baked whenever any light changes.
+where Ē_prev(p) is p's mean irradiance in the previous bake (luminance of π·f00·Y00 of its stored SH). A reused
+probe therefore differs from a fresh bake by less than τ · max(E(n), Ē_prev) in every direction (checked against
+renders in ``tests/faults/test_incremental_delta.py``). Occlusion is ignored, which only over-estimates; so does
+the total area A for a sphere (its projected area is A/4), a margin the captures need: a small light covers few
+cube texels, and a capture's estimate of its irradiance was measured up to 2× the analytic L·πR²/d². Tables
+written before ``geometry`` was recorded fall back to the old + new bound. Probes with no stored irradiance SH
+(reflection-only) are re-baked whenever a light changes, unless (a) holds.
 """
 
 from __future__ import annotations
@@ -45,40 +59,95 @@ def file_digest(path: str) -> str:
 
 def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN001 - bakery.capture.scene.CaptureScene
     """Hash of everything that can affect every probe (module docstring)."""
-    parts: list = [(mesh.name, mesh.material.__dict__, np.asarray(mesh.triangles, dtype=np.float32))
+    from bakery.capture.lights import light_model
+
+    parts: list = [(mesh.name, mesh.material.__dict__, np.asarray(mesh.triangles, dtype=np.float32),
+                    None if getattr(mesh, "uvs", None) is None else np.asarray(mesh.uvs, dtype=np.float32))
                    for mesh in scene.meshes]
     if scene.dome is not None:
         dome = scene.dome
         pixels = np.zeros(0) if dome.pixels is None else np.asarray(dome.pixels, dtype=np.float32)
         parts.append((dome.name, dome.scale, dome.rotation, dome.layout, pixels))
-    parts += [light.__dict__ for light in scene.lights if light.kind == "distant"]
+    parts += [light.__dict__ for light in scene.lights if light_model(light).is_global]
+    parts += [portal.__dict__ for portal in getattr(scene, "portals", ())]
+    parts.append((getattr(scene, "time_code", None), getattr(scene, "working_space", "lin_rec709")))
     parts += [file_digest(asset) for asset in sorted(set(assets))]
     parts.append((scene.meters_per_unit, scene.up_axis))
     return stable_hash(*parts)
 
 
+def _texture_peak(scene, light) -> float:  # noqa: ANN001
+    """Largest RGB texel of a light's texture (1 without one): the radiance bound multiplies it."""
+    index = getattr(light, "texture", -1)
+    textures = getattr(scene, "textures", ())
+    if index is None or index < 0 or index >= len(textures):
+        return 1.0
+    pixels = np.asarray(textures[index].pixels, dtype=np.float64)
+    return float(max(np.max(pixels[..., :3]), 0.0)) if pixels.size else 1.0
+
+
 def light_table(scene) -> list[dict]:  # noqa: ANN001
-    """Local lights as JSON-able records: name, hash, centre, bounding radius and radiance × area."""
+    """Local lights as JSON-able records (module docstring): name, hash, geometry hash, centre, bounding radius,
+    area, radiance (RGB) and power = max radiance × area."""
+    from bakery.capture.lights import light_model
+
     table = []
     for light in scene.lights:
-        if light.kind == "distant":
+        model = light_model(light)  # the light kind's class: global or local, bounding radius
+        if model.is_global:
             continue
-        if light.kind == "rect":
-            radius = 0.5 * sqrt(light.size[0] ** 2 + light.size[1] ** 2)
-        else:
-            radius = float(light.size[0])
-        power = float(max(light.radiance)) * light.area
-        table.append({"name": light.name, "hash": stable_hash(light.__dict__), "position": list(map(float, light.position)),
-                      "radius": float(radius), "power": power})
+        radius = model.bounding_radius
+        peak = _texture_peak(scene, light)
+        radiance = [float(c) * peak for c in light.radiance]
+        geometry = {k: v for k, v in light.__dict__.items() if k not in ("name", "radiance")}
+        table.append({"name": light.name, "hash": stable_hash(light.__dict__), "geometry": stable_hash(geometry),
+                      "position": list(map(float, light.position)), "radius": float(radius),
+                      "area": float(light.area), "radiance": radiance,
+                      "power": float(max(radiance)) * float(light.area)})
     return sorted(table, key=lambda r: r["name"])
 
 
-def irradiance_bound(record: dict, positions: np.ndarray) -> np.ndarray:
-    """E_bound (P,) of a light-table record at probe positions (P, 3) (module docstring)."""
+def irradiance_bound(record: dict, positions: np.ndarray, power: float | None = None) -> np.ndarray:
+    """E_bound (P,) of a light-table record at probe positions (P, 3) for ``power`` (default: the record's)."""
     d = np.linalg.norm(positions - np.asarray(record["position"]), axis=1)
     radius = record["radius"]
     gap = np.maximum(d - radius, max(radius * 1e-3, 1e-3))
-    return record["power"] / gap**2
+    return (record["power"] if power is None else power) / gap**2
+
+
+def change_bound(old: dict | None, new: dict | None, positions: np.ndarray) -> np.ndarray:
+    """ΔE_bound (P,) of one light's change from ``old`` to ``new`` (either None: added/removed; module doc)."""
+    if _same_geometry(old, new) and "area" in new:
+        delta = max(abs(a - b) for a, b in zip(new["radiance"], old["radiance"]))
+        return irradiance_bound(new, positions, delta * new["area"])
+    bound = np.zeros(len(positions))
+    for record in (old, new):
+        if record is not None:
+            bound += irradiance_bound(record, positions)
+    return bound
+
+
+def _same_geometry(old: dict | None, new: dict | None) -> bool:
+    return (old is not None and new is not None and old.get("geometry") is not None
+            and old.get("geometry") == new.get("geometry") and "radiance" in old and "radiance" in new)
+
+
+def relative_emission_change(old_table: list[dict], new_table: list[dict]) -> float:
+    """r of condition (a) (module docstring): the largest relative change of any channel of any changed light's
+    radiance, or ``inf`` if a light was added, removed or changed its geometry (or was black in a channel)."""
+    old = {r["name"]: r for r in old_table}
+    new = {r["name"]: r for r in new_table}
+    worst = 0.0
+    for name in set(old) | set(new):
+        before, after = old.get(name), new.get(name)
+        if before is not None and after is not None and before.get("hash") == after.get("hash"):
+            continue
+        if not _same_geometry(before, after):
+            return float("inf")
+        for a, b in zip(after["radiance"], before["radiance"]):
+            if a != b:
+                worst = max(worst, abs(a - b) / b if b > 0 else float("inf"))
+    return worst
 
 
 def mean_irradiance_from_store(previous, names: list[str]) -> np.ndarray:  # noqa: ANN001 - StoreContents
@@ -104,19 +173,18 @@ def probes_affected_by_light_changes(
     old_table: list[dict], new_table: list[dict], names: list[str], positions: np.ndarray, previous_irradiance: np.ndarray,
     fraction: float = LIGHT_INFLUENCE_FRACTION,
 ) -> tuple[set[str], list[str]]:
-    """Names of probes a light change can affect, and the names of the changed lights."""
+    """Names of probes a light change can affect (conditions (a) and (b) of the module docstring), and the names
+    of the changed lights."""
     old = {r["name"]: r for r in old_table}
     new = {r["name"]: r for r in new_table}
     changed = sorted(n for n in set(old) | set(new) if old.get(n, {}).get("hash") != new.get(n, {}).get("hash"))
     affected: set[str] = set()
-    if not changed:
+    if not changed or relative_emission_change(old_table, new_table) < fraction:
         return affected, changed
     positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
     bound = np.zeros(len(names))
     for light in changed:
-        for record in (old.get(light), new.get(light)):
-            if record is not None:
-                bound += irradiance_bound(record, positions)
+        bound += change_bound(old.get(light), new.get(light), positions)
     unknown = ~np.isfinite(previous_irradiance)
     hit = unknown | (bound >= fraction * np.where(unknown, 0.0, previous_irradiance))
     affected = {n for n, h in zip(names, hit) if h}

@@ -9,19 +9,38 @@
 
 All executors run the same tasks with the same batch composition, so the merged result — and the store bytes —
 do not depend on the executor or the number of workers.
+
+Workers die with the bake: pool workers get the parent-death signal (Linux ``PR_SET_PDEATHSIG``) and, like the
+workers of a ``LocalCluster``, watch the parent's pid (:func:`bakery.pipeline.worker.watch_parent`), so killing
+only the parent (even with SIGKILL) leaves no worker running. A scheduler that cannot be reached is a
+:class:`SchedulerError` (exit 2) after a short connect timeout, not a traceback.
 """
 
 from __future__ import annotations
 
 import multiprocessing
 import os
+import socket
 from collections.abc import Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Protocol
 
+from bakery.errors import ConfigError, InputError
 from bakery.pipeline.plan import BatchTask
-from bakery.pipeline.worker import BatchOutcome, run_batch
+from bakery.pipeline.worker import (
+    PARENT_ENVIRONMENT,
+    BatchOutcome,
+    run_batch,
+    watch_parent,
+)
+
+#: Seconds to wait for a Dask scheduler to answer (``BAKERY_SCHEDULER_TIMEOUT`` overrides).
+SCHEDULER_TIMEOUT = 10.0
+
+
+class SchedulerError(InputError):
+    """The Dask scheduler given by ``--scheduler`` cannot be reached (or went away)."""
 
 
 class Executor(Protocol):
@@ -35,10 +54,16 @@ class Executor(Protocol):
     def close(self) -> None: ...
 
 
-def _worker_init() -> None:
+def _worker_init(parent: int | None = None) -> None:
     # One BLAS thread per worker process: the pool provides the parallelism.
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     os.environ.setdefault("OMP_NUM_THREADS", "1")
+    watch_parent(parent, death_signal=True)
+
+
+def parent_token() -> str:
+    """``host:pid`` of this process, for workers that must die with it (:data:`PARENT_ENVIRONMENT`)."""
+    return f"{socket.gethostname()}:{os.getpid()}"
 
 
 def _failed(task: BatchTask, message: str) -> BatchOutcome:
@@ -67,7 +92,7 @@ class ProcessExecutor:
 
     def _new_pool(self) -> ProcessPoolExecutor:
         return ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=_worker_init)
+                                   initializer=_worker_init, initargs=(os.getpid(),))
 
     def run(self, tasks: Iterable[BatchTask]) -> Iterator[BatchOutcome]:
         pending = list(tasks)
@@ -117,10 +142,17 @@ class DaskExecutor:
         self.retries = retries
         self._cluster = None
         if scheduler:
-            self._client = Client(scheduler)
+            timeout = float(os.environ.get("BAKERY_SCHEDULER_TIMEOUT", SCHEDULER_TIMEOUT))
+            _reachable(scheduler, timeout)
+            try:
+                self._client = Client(scheduler, timeout=f"{timeout}s")
+            except (OSError, TimeoutError) as error:
+                raise SchedulerError(f"cannot connect to the Dask scheduler at {scheduler}: "
+                                     f"{_reason(error)}") from None
         else:
             self._cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
-                                         processes=True, dashboard_address=None)
+                                         processes=True, dashboard_address=None,
+                                         env={PARENT_ENVIRONMENT: parent_token()})
             self._client = Client(self._cluster)
         self.workers = len(self._client.scheduler_info().get("workers", {})) or (workers or 1)
 
@@ -128,8 +160,11 @@ class DaskExecutor:
         from distributed import as_completed
 
         tasks = list(tasks)
-        futures = [self._client.submit(run_batch, t, key=f"bakery-batch-{t.key}", retries=self.retries, pure=False)
-                   for t in tasks]
+        try:
+            futures = [self._client.submit(run_batch, t, key=f"bakery-batch-{t.key}", retries=self.retries,
+                                           pure=False) for t in tasks]
+        except (OSError, TimeoutError) as error:
+            raise SchedulerError(f"lost the Dask scheduler: {_reason(error)}") from None
         by_key = {f.key: t for f, t in zip(futures, tasks)}
         for future in as_completed(futures):
             task = by_key[future.key]
@@ -144,12 +179,29 @@ class DaskExecutor:
             self._cluster.close()
 
 
+def _reason(error: BaseException) -> str:
+    text = str(error).strip().splitlines()
+    return f"{type(error).__name__}: {text[0]}" if text else type(error).__name__
+
+
+def _reachable(address: str, timeout: float) -> None:
+    """Fail fast (connection refused, unknown host) for tcp/tls addresses before Dask's retry loop."""
+    scheme, _, rest = address.partition("://") if "://" in address else ("tcp", "", address)
+    if scheme not in ("tcp", "tls") or ":" not in rest:
+        return
+    host, _, port = rest.rpartition(":")
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=min(timeout, 5.0)):
+            pass
+    except (OSError, ValueError) as error:
+        reason = getattr(error, "strerror", None) or str(error) or type(error).__name__
+        raise SchedulerError(f"cannot connect to the Dask scheduler at {address}: {reason}") from None
+
+
 def make_executor(jobs: int | None = None, scheduler: str | None = None, dask_local: bool = False) -> Executor:
     """``--scheduler`` → Dask client; ``--dask-local`` → Dask LocalCluster; ``--jobs 1`` → serial; else processes."""
-    if jobs is not None and jobs < 1:
-        from bakery.errors import ConfigError
-
-        raise ConfigError(f"--jobs must be >= 1, got {jobs}")
+    if jobs is not None and (isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1):
+        raise ConfigError(f"--jobs must be an integer >= 1, got {jobs!r}")
     if scheduler or dask_local:
         return DaskExecutor(scheduler, jobs)
     if jobs == 1:

@@ -1,10 +1,14 @@
 """Checkpoint journal: finished batches survive a killed bake.
 
-Layout: ``<store>.partial/<batch key>.pkl`` (beside the source's snapshot for workers), one pickled :class:`~bakery.pipeline.worker.BatchOutcome` per finished
-batch, each written atomically (temp file + fsync + rename), so a SIGKILL at any moment leaves only whole files. A
-batch key is the hash of its probes' content hashes (which include the settings and code version), so a journal
-entry is reused only by a bake that would compute exactly the same batch. The journal is deleted after the store
-has been written.
+Layout: ``<store>.partial/<batch key>.pkl`` (beside the source's snapshot for workers), one pickled
+:class:`~bakery.pipeline.worker.BatchOutcome` per finished batch, each written atomically (temp file + fsync +
+rename), so a SIGKILL at any moment leaves only whole files. A batch key is the hash of its probes' content hashes
+(which include the settings and code version), so a journal entry is reused only by a bake that would compute
+exactly the same batch. The journal is deleted after the store has been written.
+
+Integrity: each file starts with a header line ``bakery-journal 1 <sha256 of the pickle>``; an entry whose bytes do
+not match (a damaged disk, an edited file) or that cannot be unpickled is ignored — its batch is baked again — so a
+checkpoint is never reused unverified.
 """
 
 from __future__ import annotations
@@ -14,8 +18,10 @@ import pickle
 import shutil
 from pathlib import Path
 
-from bakery.files import atomic_replace
+from bakery.files import atomic_replace, sha256_bytes
 from bakery.pipeline.worker import BatchOutcome
+
+_MAGIC = b"bakery-journal 1 "
 
 
 class Journal:
@@ -24,26 +30,32 @@ class Journal:
         self.directory = store_path.with_name(store_path.name + ".partial")
 
     def load(self, keys: set[str]) -> dict[str, BatchOutcome]:
-        """Finished outcomes for the given batch keys (unreadable entries are ignored and recomputed)."""
+        """Verified finished outcomes for the given batch keys (unverifiable entries are ignored and recomputed)."""
         found: dict[str, BatchOutcome] = {}
         if not self.directory.is_dir():
             return found
         for key in keys:
             path = self.directory / f"{key}.pkl"
-            if path.is_file():
-                try:
-                    with open(path, "rb") as handle:
-                        outcome = pickle.load(handle)
-                    if isinstance(outcome, BatchOutcome) and outcome.key == key:
-                        found[key] = outcome
-                except (OSError, pickle.UnpicklingError, EOFError, AttributeError):
+            if not path.is_file():
+                continue
+            try:
+                data = path.read_bytes()
+                header, _, body = data.partition(b"\n")
+                if not header.startswith(_MAGIC) or header[len(_MAGIC):].decode() != sha256_bytes(body):
                     continue
+                outcome = pickle.loads(body)  # our own checkpoint, verified above
+                if isinstance(outcome, BatchOutcome) and outcome.key == key:
+                    found[key] = outcome
+            except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ValueError, UnicodeDecodeError):
+                continue
         return found
 
     def save(self, outcome: BatchOutcome) -> None:
         self.directory.mkdir(parents=True, exist_ok=True)
+        body = pickle.dumps(outcome, protocol=pickle.HIGHEST_PROTOCOL)
         with atomic_replace(self.directory / f"{outcome.key}.pkl") as tmp, open(tmp, "wb") as handle:
-            pickle.dump(outcome, handle, protocol=pickle.HIGHEST_PROTOCOL)
+            handle.write(_MAGIC + sha256_bytes(body).encode() + b"\n")
+            handle.write(body)
 
     def remove(self) -> None:
         shutil.rmtree(self.directory, ignore_errors=True)

@@ -1,7 +1,9 @@
 """Bake recipes: declarative TOML (``pipelines/*.toml``) validated against ``schemas/recipe.schema.json``.
 
 A recipe names the encodings to bake per probe kind (``[targets]``), the bake settings (``[bake]``), per-encoding
-parameters (``[encoding_settings.<name>]``) and pipeline options (``[pipeline]``). Unknown keys and unknown
+parameters (``[encoding_settings.<name>]``), pipeline options (``[pipeline]``) and how scenes are captured
+(``[capture]``: ``samples``, ``bounces``, ``target_noise``, ``max_samples``, ``time``, ``subdivision``; see
+:class:`bakery.pipeline.settings.CaptureSettings`). Unknown keys and unknown
 encoding names are errors that say where they are. The JSON Schema checks the recipe's structure; each
 ``[encoding_settings.<name>]`` table is checked by that encoding's typed ``Params``
 (:meth:`bakery.encodings.EncodingParams.from_mapping`: unknown keys, wrong types and out-of-range values).
@@ -35,6 +37,9 @@ class Recipe:
     bake: dict[str, Any] = field(default_factory=dict)
     encoding_settings: dict[str, dict[str, Any]] = field(default_factory=dict)
     pipeline: dict[str, Any] = field(default_factory=dict)
+    capture: dict[str, Any] = field(default_factory=dict)
+    #: ``[[exports]]`` tables (format, output, profile, probes, options), run after the bake by ``bakery bake``
+    exports: tuple[dict[str, Any], ...] = ()
 
     @property
     def encodings(self) -> tuple[str, ...]:
@@ -65,8 +70,19 @@ def validate_recipe(data: dict, source: str) -> Recipe:
         if name not in ENCODINGS:
             raise ConfigError(f"{source}: encoding_settings.{name}: unknown encoding; known: {', '.join(ENCODINGS)}")
         ENCODINGS[name].Params.from_mapping(values, where=f"{source}: encoding_settings.{name}")
+    exports = tuple(dict(e) for e in data.get("exports", []))
+    for i, entry in enumerate(exports):  # formats, profiles and options are checked by bakery/export
+        from bakery.export import get_format, get_profile
+
+        where = f"{source}: exports[{i}]"
+        try:
+            cls = get_format(entry["format"])
+            get_profile(entry.get("profile") or cls.default_profile)
+        except ConfigError as error:
+            raise ConfigError(f"{where}: {error}") from None
+        cls.Params.from_mapping(entry.get("options", {}), where=where)
     return Recipe(data["name"], data.get("description", ""), targets, data.get("bake", {}),
-                  data.get("encoding_settings", {}), data.get("pipeline", {}))
+                  data.get("encoding_settings", {}), data.get("pipeline", {}), data.get("capture", {}), exports)
 
 
 def load_recipe(name_or_path: str) -> Recipe:

@@ -1,11 +1,13 @@
 """The roughness range a reflection probe needs (issue 5: skip what a scene does not need).
 
 An SH-exponential fit covers a design range of GGX α (paper: [0.2, 1]). A probe only ever shades the materials
-inside its influence volume, so its fit can spend all its design samples on their range instead: the
+inside its influence volume, so its fit can spend all its design samples on their range instead, and the hybrid
+encoding (``shexp_hybrid``) stores only the sharp chain levels down to their smallest α: the
 probe's range is [r_lo², r_hi²] where r are the perceptual roughnesses (UsdPreviewSurface ``roughness``) of the
 materials whose geometry intersects the influence volume, bucketed outwards to steps of 0.1 in r (so a scene needs
-few distinct fit operators, which are cached per range), widened to at least one step, and clipped to
-α ∈ [ALPHA_FLOOR, 1]. Geometry counts as inside when a triangle's bounding sphere meets the influence volume's
+few distinct fit operators, which are cached per range), widened to at least one step, in α ∈ [0, 1]. This is the
+*true* range, down to α = 0 for a mirror: each encoding applies its own floor (SH-exp fits from its
+``FIT_ALPHA_FLOOR`` = 0.05, :mod:`bakery.encodings.shexp`; the hybrid keeps chain levels down to α = 0). Geometry counts as inside when a triangle's bounding sphere meets the influence volume's
 bounding sphere (radius for spheres, the box's |extent| for boxes: conservative — it may include more materials,
 never fewer). A probe with no geometry in range keeps the encoding's default range.
 
@@ -17,8 +19,6 @@ from __future__ import annotations
 
 import numpy as np
 
-#: Lowest α a fit design goes to (r ≈ 0.22); sharper materials are fitted at this α.
-ALPHA_FLOOR = 0.05
 STEP = 0.1
 
 
@@ -45,7 +45,8 @@ def visible_roughness(position, influence: dict, meshes) -> list[float]:  # noqa
 
 
 def fit_alpha_range(roughness: list[float]) -> tuple[float, float] | None:
-    """Bucketed GGX α range [r_lo², r_hi²] for the given perceptual roughnesses (module docstring), or None."""
+    """Bucketed GGX α range [r_lo², r_hi²] ⊂ [0, 1] for the given perceptual roughnesses (module docstring), or
+    None; r_lo may be 0 (a mirror in range)."""
     if not roughness:
         return None
     r = np.clip(np.asarray(roughness, dtype=np.float64), 0.0, 1.0)
@@ -53,4 +54,4 @@ def fit_alpha_range(roughness: list[float]) -> tuple[float, float] | None:
     hi = np.ceil(r.max() / STEP - 1e-9) * STEP
     if hi - lo < STEP:
         lo, hi = (hi - STEP, hi) if hi >= STEP else (0.0, STEP)
-    return float(round(max(lo * lo, ALPHA_FLOOR), 6)), float(round(max(hi * hi, ALPHA_FLOOR + 0.01), 6))
+    return float(round(lo * lo, 6)), float(round(hi * hi, 6))

@@ -7,18 +7,37 @@ benchmarks and the conformance suite all call :func:`bake`.
     merged = merge_batches(outcomes + reused probes)        # store order; band skips; finalize over all probes
     write_store(...); source.after_write(...)               # the single writer; then e.g. the USD layer
 
-Outputs are checked before any work (:func:`check_output_paths` and ``Source.validate_outputs``), so a refused
-bake touches no file. Finished batches are checkpointed in ``<store>.partial/`` (:mod:`bakery.pipeline.journal`),
-beside the snapshot workers read; the folder is removed once the store is written.
+Reliability (``docs/reliability.md``)
+    * Output policy (:func:`check_output_paths`), before any work: a bake writes its store only to a new path or
+      over a bakery store of a format this bakery writes, and its layer only to a new path or over a bakery layer;
+      anything else (a scene, an image, a text file, a foreign HDF5 file, a newer-format or unreadable store) is
+      refused with :class:`~bakery.files.OutputError` (exit 2) naming the file and the reason, unless
+      ``request.force`` — which never overwrites an input of the bake.
+    * One writer per store: :class:`~bakery.files.FileLock` on ``STORE.h5.lock`` for the whole bake.
+    * Repair on entry (holding the lock): a store/layer commit a crash interrupted is completed, temporary files of
+      killed runs are removed.
+    * The previous store is read with its checksums verified; probes that fail them are re-baked, never reused.
+    * Non-finite encoded values (finite but huge inputs overflowing float32) are refused per probe (reported as
+      failed probes), never stored.
+    * The store and the layer are written to temporary names and committed together
+      (:func:`bakery.files.commit_staged`): store first, then layer, through a commit record.
+    * Every ``OSError`` (permissions, read-only or full file system) becomes an ``OutputError`` naming the file;
+      temporary files are removed on every exit path (also SIGTERM).
+
+Finished batches are checkpointed in ``<store>.partial/`` (:mod:`bakery.pipeline.journal`), beside the snapshot
+workers read; the folder is removed once the store is written.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import signal
+import threading
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -27,6 +46,18 @@ import numpy as np
 
 import bakery.errors
 from bakery.errors import BakeryWarning, InputError, StoreFormatError
+from bakery.files import (
+    FileLock,
+    OutputError,
+    check_output_file,
+    commit_staged,
+    os_error_message,
+    recover_staged,
+    remove_stale_temporaries,
+    remove_temporaries_under,
+    staged_path,
+    with_filename,
+)
 from bakery.pipeline.encode import EncodedBatch
 from bakery.pipeline.executors import Executor, SerialExecutor
 from bakery.pipeline.journal import Journal
@@ -42,11 +73,21 @@ from bakery.pipeline.plan import Plan, make_batches, plan_tasks
 from bakery.pipeline.settings import BakeRequest
 from bakery.pipeline.write import store_contents
 from bakery.sources import Source, source_for
-from bakery.store.format import StoreContents, read_store, write_store
+from bakery.store.format import (
+    StoreContents,
+    StoreIntegrityWarning,
+    overwrite_refusal,
+    read_store,
+    write_store_file,
+)
 
 STORE_SUFFIXES = (".h5", ".hdf5")
 LAYER_SUFFIXES = (".usda", ".usdc", ".usd")
-_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+#: The comment every baked-results layer carries (``bakery.usd.layer.write_bake_layer``); an existing file at the
+#: layer path is a previous bakery layer iff it holds this text (``.usda`` header or ``.usdc`` string table).
+BAKE_LAYER_MARKER = b"Baked light probes written by bakery"
+#: Warning categories (class names) re-emitted to the user but not recorded in the store's ``warnings``.
+MACHINE_WARNINGS = frozenset({"OperatorCacheWarning"})
 
 
 @dataclass
@@ -84,46 +125,95 @@ class BakeSummary:
         return asdict(self)
 
 
-def load_previous(output: str | Path) -> StoreContents | None:
-    """The existing store at ``output``, if it is a readable store (else None: a full bake)."""
+def load_previous(output: str | Path, *, warn: bool = True) -> StoreContents | None:
+    """The existing store at ``output`` for reuse, or None (a full bake) if there is none or it is not a readable
+    store. Its checksums are verified: probes that fail them lose their content hash (so they are re-baked, never
+    reused) and a finding that cannot be attributed to probes discards the whole store; both are warned about."""
+    output = Path(output)
     try:
-        return read_store(output) if Path(output).is_file() else None
-    except StoreFormatError:
+        previous = read_store(output, strict=False) if output.is_file() else None
+    except StoreFormatError as error:
+        if warn and overwrite_refusal(output) is None:  # our own store, damaged beyond reading
+            warnings.warn(f"{error}; re-baking every probe", StoreIntegrityWarning, stacklevel=2)
         return None
+    if previous is None or previous.integrity is None or previous.integrity.ok:
+        return previous
+    integrity = previous.integrity
+    findings = "; ".join(integrity.problems[:3]) + (" …" if len(integrity.problems) > 3 else "")
+    if integrity.whole_store or previous.probe_hashes is None:
+        if warn:
+            warnings.warn(f"{output}: the previous store failed its integrity check ({findings}); nothing is reused, "
+                          "every probe is re-baked", StoreIntegrityWarning, stacklevel=2)
+        return None
+    previous.probe_hashes = ["" if n in integrity.bad_probes else h
+                             for n, h in zip(previous.probe_names, previous.probe_hashes)]
+    if warn:
+        warnings.warn(f"{output}: {len(integrity.bad_probes)} probe(s) of the previous store failed their checksum "
+                      f"({findings}); they are re-baked, not reused", StoreIntegrityWarning, stacklevel=2)
+    return previous
 
 
-def _writable_folder(path: Path, what: str) -> None:
-    folder = path.parent if str(path.parent) else Path(".")
-    if not folder.is_dir():
-        raise StoreFormatError(f"{path}: {what} folder {folder} does not exist")
-    if not os.access(folder, os.W_OK | os.X_OK):
-        raise StoreFormatError(f"{path}: {what} folder {folder} is not writable")
-    if path.is_dir():
-        raise StoreFormatError(f"{path}: is a directory; give a file name for the {what}")
+def _source_inputs(source: Source) -> list[Path]:
+    """Files the bake reads that no output may replace (images, the scene and, once planned, its layers)."""
+    paths = [Path(p) for p in getattr(source, "paths", ())]
+    if getattr(source, "path", None) is not None:
+        paths.append(Path(source.path))
+    paths += [Path(p) for p in getattr(source, "_protected", ())]
+    return paths
+
+
+def layer_overwrite_refusal(path: Path) -> str | None:
+    """Why an existing file must not be replaced by a baked-results layer (None: it is one)."""
+    try:
+        with open(path, "rb") as handle:
+            data = handle.read(256 << 20)
+    except OSError as error:
+        return f"exists and cannot be read ({os_error_message(error)})"
+    if BAKE_LAYER_MARKER in data:
+        return None
+    return "exists and is not a bakery baked-results layer"
+
+
+def layer_path_of(request: BakeRequest, source: Source) -> Path | None:
+    """The USD layer a bake writes: ``--layer``, else the source's default (scenes), else None."""
+    if request.layer is not None:
+        return Path(request.layer)
+    path_of = getattr(source, "layer_path", None)
+    return Path(path_of(request)) if callable(path_of) else None
+
+
+def check_store_output(output: Path, inputs: list[Path] = (), force: bool = False) -> None:  # type: ignore[assignment]
+    """The output policy for a store path (also ``bakery migrate -o``): an ``.h5``/``.hdf5`` file in a writable
+    folder, not an input, and either new or a bakery store of a format this bakery writes (``force``: anything
+    but an input)."""
+    output = Path(output)
+    if output.suffix.lower() not in STORE_SUFFIXES:
+        raise OutputError(f"{output}: the store must be an HDF5 file ({' or '.join(STORE_SUFFIXES)}); refusing to "
+                          "write a store there")
+    check_output_file(output, "store", inputs=inputs, refusal=overwrite_refusal, force=force)
 
 
 def check_output_paths(request: BakeRequest, source: Source) -> None:
-    """Before any work: the store and layer paths are writable files of the right kind and are not inputs."""
+    """Before any work: the output policy (module docstring) for the store and the layer."""
     output = request.output
-    if output.suffix.lower() not in STORE_SUFFIXES:
-        raise StoreFormatError(f"{output}: the store must be an HDF5 file ({' or '.join(STORE_SUFFIXES)})")
-    _writable_folder(output, "store")
-    if output.is_file():
-        with open(output, "rb") as handle:
-            if handle.read(8) != _HDF5_SIGNATURE:
-                raise StoreFormatError(f"{output}: exists and is not an HDF5 file; refusing to overwrite it")
-    inputs = {str(Path(p).resolve()) for p in getattr(source, "paths", ())}
-    if str(output.resolve()) in inputs:
-        raise StoreFormatError(f"{output}: is an input of this bake; choose another -o")
-    if request.layer is not None:
-        layer = request.layer
+    inputs = _source_inputs(source)
+    check_store_output(output, inputs, request.force)
+    layer = layer_path_of(request, source)
+    if layer is not None:
         if layer.suffix.lower() not in LAYER_SUFFIXES:
-            raise StoreFormatError(f"{layer}: the layer must be a USD file ({', '.join(LAYER_SUFFIXES)})")
-        _writable_folder(layer, "layer")
+            raise LayerOutputError(f"{layer}: the layer must be a USD file ({', '.join(LAYER_SUFFIXES)})")
         if layer.resolve() == output.resolve():
-            raise StoreFormatError(f"{layer}: the layer and the store must be different files")
-        if str(layer.resolve()) in inputs:
-            raise StoreFormatError(f"{layer}: is an input of this bake; choose another --layer")
+            raise LayerOutputError(f"{layer}: the layer and the store must be different files")
+        try:
+            check_output_file(layer, "layer", inputs=[*inputs, output], refusal=layer_overwrite_refusal,
+                              force=request.force)
+        except OutputError as error:
+            raise LayerOutputError(str(error)) from None
+
+
+class LayerOutputError(OutputError, bakery.errors.SceneError):
+    """The USD layer path is refused by the output policy (also a :class:`~bakery.errors.SceneError`, what a
+    refused layer raised before the policy existed)."""
 
 
 def plan_bake(request: BakeRequest, source: Source | None = None,
@@ -132,15 +222,46 @@ def plan_bake(request: BakeRequest, source: Source | None = None,
     source = source or source_for(request.sources, request.layout, request.capture)
     source_plan = source.plan(request.settings, previous)
     source.validate_outputs(request)
+    check_output_paths(request, source)  # again: planning knows more inputs (a scene's layers)
     batch_size = request.batch_size or source.default_batch_size
     plan = plan_tasks(source.kind, source_plan, request.settings, previous, batch_size)
     if previous is not None and plan.reused:
-        again, attributes = source.rebake(previous, plan.reused)
+        again, attributes = rebake_per_bake(source, previous, plan.reused)
         if again:
             plan.reused = [n for n in plan.reused if n not in again]
             plan.batches = make_batches(plan.pending_tasks(), batch_size, request.settings.as_json())
             plan.attributes.update(attributes)
     return source, plan
+
+
+#: Source attributes recorded per bake in ``/history`` so that later bakes compare reused probes with what they were
+#: baked from (:func:`rebake_per_bake`).
+PER_BAKE_ATTRIBUTES = ("scene_lights",)
+
+
+def rebake_per_bake(source: Source, previous: StoreContents, reused: list[str]) -> tuple[set[str], dict[str, Any]]:
+    """``Source.rebake`` for each group of reused probes produced by the same earlier bake, each against that
+    bake's own record of :data:`PER_BAKE_ATTRIBUTES` (``/history``) where the store has one: a probe is compared
+    with the lights it was baked with, not with the last bake's, so repeated small edits cannot accumulate."""
+    ids = dict(zip(previous.probe_names, (int(i) for i in previous.probe_bake_ids)))
+    groups: dict[tuple[str, ...], list[str]] = {}
+    for name in reused:
+        bake = previous.history[ids[name]] if 0 <= ids.get(name, -1) < len(previous.history) else {}
+        groups.setdefault(tuple(str(bake.get(k, "")) for k in PER_BAKE_ATTRIBUTES), []).append(name)
+    again: set[str] = set()
+    attributes: dict[str, Any] = {}
+    for recorded, names in groups.items():
+        own = {k: v for k, v in zip(PER_BAKE_ATTRIBUTES, recorded) if v}
+        view = replace(previous, attributes={**previous.attributes, **own}) if own else previous
+        affected, notes = source.rebake(view, names)
+        again |= set(affected)
+        for key, value in notes.items():
+            try:
+                merged = sorted(set(json.loads(attributes[key])) | set(json.loads(value)))
+                attributes[key] = json.dumps(merged)
+            except (KeyError, TypeError, ValueError):
+                attributes[key] = value
+    return again, attributes
 
 
 def _reemit(batch: EncodedBatch) -> None:
@@ -151,51 +272,22 @@ def _reemit(batch: EncodedBatch) -> None:
         warnings.warn(record.message, category, stacklevel=3)
 
 
-def bake(request: BakeRequest, executor: Executor | None = None,
-         progress: Callable[[int, int], None] | None = None) -> BakeSummary:
-    """Bake ``request`` on ``executor`` (default: in-process serial) and write the store (and the source's other
-    outputs, e.g. the USD layer) atomically.
+# --- parent-side tail, shared by bake() and bakery.pipeline.shards.merge_shards (issue 16) -------------------------
+def finalize_and_write(request: BakeRequest, source: Source, plan: Plan, batches: list[EncodedBatch],
+                       failures: dict[str, str], previous: StoreContents | None,
+                       ) -> tuple[EncodedBatch, StoreContents, dict[str, Any], list[dict[str, str]], dict[str, Any]]:
+    """The parent-side steps that need every probe: merge ``batches`` (worker results and reused probes) into plan
+    order, re-emit worker warnings, band skipping refined over neighbours, each encoding's ``finalize`` over every
+    probe, then write the store and the source's other outputs (e.g. the USD layer) together
+    (:func:`commit_outputs`). Probes with non-finite encoded values are moved to ``failures`` first
+    (:func:`refuse_non_finite`). The caller holds the store's lock (:func:`locked_outputs`).
 
-    Probes whose capture failed are left out of the store and reported in ``failed``; everything else is written.
-    If no probe could be baked, nothing is written and :class:`InputError` is raised. Warnings raised in workers are
-    re-emitted here (and recorded in the store's ``warnings``).
-    """
-    start = time.perf_counter()
-    executor = executor or SerialExecutor()
-    source = source_for(request.sources, request.layout, request.capture)
-    check_output_paths(request, source)
-    previous = load_previous(request.output) if request.resume else None
-    source, plan = plan_bake(request, source, previous)
+    Returns (merged, contents, encodings, skipped, extra outputs). :func:`bake` calls it after its executor;
+    ``bakery merge`` calls it on the results of shard stores, so a merged farm bake is the same bytes as one
+    process's."""
     settings = request.settings
-
-    journal = Journal(request.output)
-    done = journal.load({b.key for b in plan.batches}) if request.resume else {}
-    outcomes = list(done.values())
-    total = plan.to_bake
-    finished = sum(len(b.probes) for b in plan.batches if b.key in done)
-    if progress:
-        progress(finished, total)
-    todo = [b for b in plan.batches if b.key not in done]
-    if todo:
-        handle = source.prepare(journal.directory)
-        size_of = {b.key: len(b.probes) for b in plan.batches}
-        for outcome in executor.run([replace(b, source=handle) for b in todo]):
-            journal.save(outcome)
-            outcomes.append(outcome)
-            finished += size_of[outcome.key]
-            if progress:
-                progress(finished, total)
-
-    failures: dict[str, str] = {}
-    batches = []
-    for outcome in outcomes:
-        failures.update(outcome.failures)
-        if outcome.result is not None:
-            batches.append(outcome.result)
-    if plan.reused and previous is not None:
-        batches.append(extract_probes(previous, plan.reused))
+    batches = refuse_non_finite(batches, failures)
     if failures and not batches:
-        journal.remove()
         first = next(iter(failures.values()))
         raise InputError(f"no probe could be baked; nothing was written. First failure: {first}"
                          if len(failures) > 1 else first)
@@ -203,6 +295,9 @@ def bake(request: BakeRequest, executor: Executor | None = None,
     merged = (merge_batches(batches, [n for n in plan.order if n not in failures]) if batches
               else EncodedBatch([], {}, {}, {}))
     _reemit(merged)
+    # Warnings about this machine rather than the results (a rebuilt operator cache) are shown, not stored: the
+    # store must not depend on the state of the machine that baked it.
+    merged.warnings = [w for w in merged.warnings if w.category not in MACHINE_WARNINGS]
     skipped = list(plan.skipped) + apply_band_skips(merged, request.band_energy_tolerance)
     encodings = finalize_encodings(merged, settings)
     hash_of = {t.probe.name: t.content_hash for t in plan.tasks}
@@ -216,8 +311,213 @@ def bake(request: BakeRequest, executor: Executor | None = None,
     contents = store_contents(merged, settings, encodings, attributes,
                               probe_hashes=[hash_of[p.name] for p in merged.probes], history=history,
                               bake_ids=bake_ids, layers=plan.layers)
-    write_store(request.output, contents)
-    extra = source.after_write(merged, contents, request)
+    this_bake = dict(contents.history[-1])
+    for key in PER_BAKE_ATTRIBUTES:
+        if key in plan.attributes:
+            this_bake[key] = str(plan.attributes[key])
+    contents.history[-1] = this_bake
+    extra = commit_outputs(request, source, merged, contents)
+    return merged, contents, encodings, skipped, extra
+# --- end of the shared parent-side tail ------------------------------------------------------------------------
+
+
+def commit_record_path(output: Path) -> Path:
+    """The commit record of a store's staged commit (:func:`bakery.files.commit_staged`)."""
+    output = Path(output)
+    return output.with_name(f".{output.name}.commit")
+
+
+def recover_outputs(request: BakeRequest, source: Source) -> list[str]:
+    """With the store's lock held: finish a store/layer commit a crash interrupted and remove the temporary files
+    killed runs left (beside the store and the layer, and in the journal folder). Returns notes for warnings."""
+    notes = []
+    finished = recover_staged(commit_record_path(request.output))
+    if finished:
+        notes.append(f"completed the interrupted commit of {', '.join(str(p) for p in finished)} (a previous bake "
+                     "was killed between writing the store and the layer)")
+    removed = remove_stale_temporaries(request.output, keep_live=False)  # we hold the lock: all are stale
+    layer = layer_path_of(request, source)
+    if layer is not None:
+        removed += remove_stale_temporaries(layer)
+    removed += remove_temporaries_under(Journal(request.output).directory)
+    if removed:
+        notes.append(f"removed {len(removed)} temporary file(s) of an interrupted run "
+                     f"({', '.join(p.name for p in removed[:3])}{' …' if len(removed) > 3 else ''})")
+    return notes
+
+
+@contextmanager
+def _terminate_as_exit() -> Iterator[None]:
+    """SIGTERM raises ``SystemExit(143)`` in the main thread during a bake, so that every temporary file is
+    removed on the way out (the default action would kill the process without running any cleanup)."""
+    if threading.current_thread() is not threading.main_thread() or \
+            signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+        yield
+        return
+
+    def handler(signum: int, frame: object) -> None:
+        raise SystemExit(128 + signum)
+
+    signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def _is_usd_error(error: BaseException) -> bool:
+    return type(error).__module__.startswith("pxr")
+
+
+def _usd_reason(error: BaseException, path: Path) -> str:
+    """The end of a USD (Tf) error message, and the cause USD does not report: a full or read-only folder."""
+    lines = [line.strip() for line in str(error).strip().splitlines() if line.strip()]
+    reason = lines[-1].rsplit(" : ", 1)[-1].strip("'") if lines else type(error).__name__
+    folder = path.parent if str(path.parent) else Path(".")
+    try:
+        stats = os.statvfs(folder)
+        if stats.f_flag & os.ST_RDONLY:
+            reason += " (Read-only file system)"
+        elif stats.f_bavail * stats.f_frsize < (1 << 20):
+            reason += f" (No space left on device: {stats.f_bavail * stats.f_frsize // 1024} KiB free)"
+    except OSError:
+        pass
+    return reason
+
+
+def _non_finite_probes(batch: EncodedBatch) -> dict[str, str]:
+    """Probes of ``batch`` with a non-finite value in any float field of any encoding → the reason."""
+    bad: dict[str, str] = {}
+    for name in sorted(batch.encoded):
+        rows = np.asarray(batch.rows[name])
+        for key in sorted(batch.encoded[name]):
+            values = np.asarray(batch.encoded[name][key])
+            if values.dtype.kind not in "fc" or values.size == 0:
+                continue
+            finite = np.isfinite(values).reshape(len(values), -1).all(axis=1)
+            for r in np.flatnonzero(~finite).tolist():
+                probe = batch.probes[int(rows[r])].name
+                count = int(np.sum(~np.isfinite(values[r])))
+                bad.setdefault(probe, f"{probe}: encoding {name} produced {count} non-finite value(s) in {key} "
+                                      "(the input radiance overflows float32, max 3.4e38); the probe was not stored")
+    return bad
+
+
+def refuse_non_finite(batches: list[EncodedBatch], failures: dict[str, str]) -> list[EncodedBatch]:
+    """``batches`` without the probes whose encoded values are not finite; those are added to ``failures`` (the
+    store never holds inf/NaN: a finite but huge input overflows float32 in the projection)."""
+    out = []
+    for batch in batches:
+        refused = _non_finite_probes(batch)
+        failures.update(refused)
+        kept = _without_probes(batch, set(refused)) if refused else batch
+        if kept is not None:
+            out.append(kept)
+    return out
+
+
+def _without_probes(batch: EncodedBatch, names: set[str]) -> EncodedBatch | None:
+    """``batch`` without the named probes (None if none is left)."""
+    keep = np.array([i for i, p in enumerate(batch.probes) if p.name not in names], dtype=np.int64)
+    if keep.size == 0:
+        return None
+    new_index = np.full(len(batch.probes), -1, dtype=np.int64)
+    new_index[keep] = np.arange(keep.size)
+    encoded, rows = {}, {}
+    for name, fields in batch.encoded.items():
+        old_rows = np.asarray(batch.rows[name])
+        mask = new_index[old_rows] >= 0
+        if not mask.any():
+            continue
+        rows[name] = new_index[old_rows[mask]]
+        encoded[name] = {k: np.asarray(v)[mask] for k, v in fields.items()}
+
+    def per_probe(values: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        return {k: np.asarray(v)[keep] for k, v in values.items()}
+
+    return EncodedBatch([batch.probes[i] for i in keep.tolist()], encoded, rows, per_probe(batch.diagnostics),
+                        dict(batch.timings), list(batch.warnings), per_probe(batch.transient))
+
+
+def bake(request: BakeRequest, executor: Executor | None = None,
+         progress: Callable[[int, int], None] | None = None) -> BakeSummary:
+    """Bake ``request`` on ``executor`` (default: in-process serial) and write the store (and the source's other
+    outputs, e.g. the USD layer) atomically and together.
+
+    Probes whose capture failed, or whose encoded values are not finite, are left out of the store and reported in
+    ``failed``; everything else is written. If no probe could be baked, nothing is written and :class:`InputError`
+    is raised. Warnings raised in workers are re-emitted here (and recorded in the store's ``warnings``). Output
+    problems (policy, lock, file-system errors) raise :class:`~bakery.files.OutputError` and change nothing.
+    """
+    start = time.perf_counter()
+    executor = executor or SerialExecutor()
+    source = source_for(request.sources, request.layout, request.capture)
+    check_output_paths(request, source)
+    with locked_outputs(request, source):
+        return _bake_locked(request, executor, progress, source, start)
+
+
+@contextmanager
+def locked_outputs(request: BakeRequest, source: Source) -> Iterator[FileLock]:
+    """Hold the store's lock for a writer of ``request``'s outputs (a bake, ``bakery merge``): warn about a stale
+    lock taken over, repair what a killed run left (:func:`recover_outputs`), turn SIGTERM into a clean exit and
+    every ``OSError`` into an :class:`~bakery.files.OutputError` naming the file."""
+    try:
+        with FileLock(request.output) as lock, _terminate_as_exit():
+            if lock.stale:
+                warnings.warn(f"{request.output}: took over the lock of a bake that is no longer running "
+                              f"({FileLock.describe(lock.stale)})", BakeryWarning, stacklevel=3)
+            for note in recover_outputs(request, source):
+                warnings.warn(f"{request.output}: {note}", BakeryWarning, stacklevel=3)
+            yield lock
+    except OSError as error:
+        raise OutputError(f"{request.output}: the bake failed and the previous store and layer are unchanged: "
+                          f"{os_error_message(error)}") from None
+
+
+def _bake_locked(request: BakeRequest, executor: Executor, progress: Callable[[int, int], None] | None,
+                 source: Source, start: float) -> BakeSummary:
+    previous = load_previous(request.output) if request.resume else None
+    source, plan = plan_bake(request, source, previous)
+    settings = request.settings
+
+    journal = Journal(request.output)
+    done = journal.load({b.key for b in plan.batches}) if request.resume else {}
+    outcomes = list(done.values())
+    total = plan.to_bake
+    finished = sum(len(b.probes) for b in plan.batches if b.key in done)
+    if progress:
+        progress(finished, total)
+    todo = [b for b in plan.batches if b.key not in done]
+    if todo:
+        try:
+            handle = source.prepare(journal.directory)  # the workers' snapshot (e.g. the scene), in the journal
+        except OSError as error:
+            raise with_filename(error, journal.directory) from None
+        size_of = {b.key: len(b.probes) for b in plan.batches}
+        for outcome in executor.run([replace(b, source=handle) for b in todo]):
+            journal.save(outcome)
+            outcomes.append(outcome)
+            finished += size_of[outcome.key]
+            if progress:
+                progress(finished, total)
+
+    failures: dict[str, str] = {}
+    batches = []
+    for outcome in sorted(outcomes, key=lambda o: o.key):
+        failures.update(outcome.failures)
+        if outcome.result is not None:
+            batches.append(outcome.result)
+    batches = refuse_non_finite(batches, failures)
+    if plan.reused and previous is not None:
+        batches.append(extract_probes(previous, plan.reused))
+    if failures and not batches:
+        journal.remove()
+        first = next(iter(failures.values()))
+        raise InputError(f"no probe could be baked; nothing was written. First failure: {first}"
+                         if len(failures) > 1 else first)
+    merged, _contents, encodings, skipped, extra = finalize_and_write(request, source, plan, batches, failures,
+                                                                      previous)
     journal.remove()
 
     seconds = time.perf_counter() - start
@@ -237,3 +537,33 @@ def bake(request: BakeRequest, executor: Executor | None = None,
         reference_error={k.split("/", 1)[1]: float(np.nanmean(v)) for k, v in merged.diagnostics.items()
                          if k.startswith("reference_error/") and np.any(np.isfinite(v))},
     )
+
+
+def commit_outputs(request: BakeRequest, source: Source, merged: EncodedBatch,
+                   contents: StoreContents) -> dict[str, Any]:
+    """Write the store and the layer to temporary names, then rename both into place through a commit record
+    (:func:`bakery.files.commit_staged`: store first, then layer). Nothing is renamed unless both were written."""
+    output = request.output
+    layer = layer_path_of(request, source) if callable(getattr(source, "layer_path", None)) else None
+    staged_store = staged_path(output)
+    staged_layer = staged_path(layer, layer.suffix) if layer is not None else None
+    try:
+        write_store_file(staged_store, contents)
+        pairs = [(staged_store, output)]
+        if layer is not None:
+            try:
+                extra = source.after_write(merged, contents, replace(request, layer=staged_layer))
+            except Exception as error:
+                if _is_usd_error(error) or isinstance(error, bakery.errors.SceneError):
+                    raise OutputError(f"{layer}: USD could not write the layer: {_usd_reason(error, layer)}") from None
+                raise
+            extra["layer"] = str(layer)
+            pairs.append((staged_layer, layer))
+        else:
+            extra = source.after_write(merged, contents, request)
+        commit_staged(pairs, commit_record_path(output))
+        return extra
+    finally:
+        for staged in (staged_store, staged_layer):
+            if staged is not None and staged.exists():
+                staged.unlink()

@@ -26,14 +26,24 @@ class CaptureSettings:
     """How rendered captures are made (scene sources; part of every rendered probe's content hash).
 
     Attributes:
-        samples: rays per cube texel (≥ 1).
-        bounces: diffuse bounces after the first hit (≥ 0).
+        samples: rays per cube texel (≥ 1); with ``target_noise`` the rays of one adaptive pass.
+        bounces: largest number of bounces after the first hit (≥ 0); paths end earlier by Russian roulette from
+            the third bounce on (``bakery.capture.render``), so the default converges closed rooms.
         seed: base of the per-probe seeds (each probe's seed also hashes its name).
+        target_noise: adaptive sampling: add passes of ``samples`` rays per texel until the probe's relative SH
+            noise (estimated from its own rays) is below this (0: off).
+        max_samples: largest rays per texel of adaptive sampling (0: 64 × samples).
+        time: USD time code the stage is read at (None: authored defaults, else the earliest time sample).
+        subdivision: catmullClark refinement levels of subdivision meshes (0: their control cage, reported).
     """
 
     samples: int = 4
-    bounces: int = 1
+    bounces: int = 64
     seed: int = 0
+    target_noise: float = 0.0
+    max_samples: int = 0
+    time: float | None = None
+    subdivision: int = 0
 
     def __post_init__(self) -> None:
         if isinstance(self.samples, bool) or not isinstance(self.samples, int) or self.samples < 1:
@@ -42,6 +52,19 @@ class CaptureSettings:
             raise ConfigError(f"capture bounces must be an integer >= 0, got {self.bounces!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int):
             raise ConfigError(f"capture seed must be an integer, got {self.seed!r}")
+        if isinstance(self.target_noise, bool) or not isinstance(self.target_noise, (int, float)) or not (
+                0.0 <= float(self.target_noise) < 1.0):
+            raise ConfigError(f"capture target_noise must be a number in [0, 1), got {self.target_noise!r}")
+        object.__setattr__(self, "target_noise", float(self.target_noise))
+        if isinstance(self.max_samples, bool) or not isinstance(self.max_samples, int) or self.max_samples < 0:
+            raise ConfigError(f"capture max_samples must be an integer >= 0, got {self.max_samples!r}")
+        if self.time is not None:
+            if isinstance(self.time, bool) or not isinstance(self.time, (int, float)) or self.time != self.time:
+                raise ConfigError(f"capture time must be a number (a USD time code), got {self.time!r}")
+            object.__setattr__(self, "time", float(self.time))
+        if isinstance(self.subdivision, bool) or not isinstance(self.subdivision, int) or not (
+                0 <= self.subdivision <= 4):
+            raise ConfigError(f"capture subdivision must be an integer in [0, 4], got {self.subdivision!r}")
 
 
 @dataclass(frozen=True)
@@ -133,6 +156,8 @@ class BakeRequest:
         resume: reuse checkpoints of an interrupted bake and unchanged probes of the existing store.
         band_energy_tolerance: ε of band skipping; None disables skipping (encodings asked for explicitly).
         batch_size: probes per worker batch (None: the source's default).
+        force: let the outputs replace existing files the output policy would refuse (a foreign HDF5 file, a
+            newer-format or unreadable store, a non-bakery layer); never an input of the bake.
     """
 
     sources: tuple[Path, ...] | Any
@@ -144,6 +169,7 @@ class BakeRequest:
     resume: bool = True
     band_energy_tolerance: float | None = None
     batch_size: int | None = None
+    force: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "output", Path(self.output))
@@ -172,7 +198,8 @@ def request_from(
     layer: str | Path | None = None, layout: str | None = None, samples: int | None = None,
     bounces: int | None = None, seed: int | None = None, resume: bool = True, reference_errors: bool | None = None,
     quality_directions: int | None = None, band_energy_tolerance: float | None = None,
-    batch_size: int | None = None,
+    batch_size: int | None = None, target_noise: float | None = None, time: float | None = None,
+    subdivision: int | None = None,
 ) -> BakeRequest:
     """A :class:`BakeRequest` from a recipe (preset name or TOML path) and explicit overrides, which win.
 
@@ -208,9 +235,16 @@ def request_from(
         reference_errors=reference_errors if reference_errors is not None
         else bake_options.get("reference_errors", True),
     )
-    capture = CaptureSettings(samples=samples if samples is not None else CaptureSettings.samples,
-                              bounces=bounces if bounces is not None else CaptureSettings.bounces,
-                              seed=seed if seed is not None else CaptureSettings.seed)
+    capture_options = dict(getattr(loaded, "capture", {}) or {}) if loaded else {}
+    capture = CaptureSettings(
+        samples=samples if samples is not None else capture_options.get("samples", CaptureSettings.samples),
+        bounces=bounces if bounces is not None else capture_options.get("bounces", CaptureSettings.bounces),
+        seed=seed if seed is not None else CaptureSettings.seed,
+        target_noise=target_noise if target_noise is not None else capture_options.get("target_noise", 0.0),
+        max_samples=capture_options.get("max_samples", 0),
+        time=time if time is not None else capture_options.get("time"),
+        subdivision=subdivision if subdivision is not None else capture_options.get("subdivision", 0),
+    )
     if band_energy_tolerance is None and not encodings:
         band_energy_tolerance = pipeline_options.get("band_energy_tolerance", DEFAULT_BAND_TOLERANCE)
     return BakeRequest(

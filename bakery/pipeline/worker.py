@@ -4,10 +4,18 @@
 
 A probe whose capture raises is reported in ``failures`` and left out; the others are encoded. Warnings raised
 while capturing and encoding travel back in the outcome (the parent re-emits them). Nothing here imports ``pxr``.
+
+Worker processes die with the bake's parent (:func:`watch_parent`): the parent-death signal where the parent is the
+process that spawned us, and a watchdog thread that exits when the parent's pid is gone.
 """
 
 from __future__ import annotations
 
+import os
+import signal
+import socket
+import sys
+import threading
 import time
 import traceback
 import warnings
@@ -17,11 +25,70 @@ import numpy as np
 
 from bakery.allocator import tune_allocator
 from bakery.errors import BakeryError, BakeryWarning
-from bakery.pipeline.encode import BakeWarning, EncodedBatch, encode_batch, sanitize_diagnostics
+from bakery.pipeline.encode import (
+    BakeWarning,
+    EncodedBatch,
+    encode_batch,
+    sanitize_diagnostics,
+)
 from bakery.pipeline.plan import BatchTask
 from bakery.pipeline.settings import BakeSettings, build_encodings
 from bakery.probe import ProbeBatch
 from bakery.sources.base import source_class
+
+#: Environment variable ``host:pid`` naming the process a worker must die with (set for LocalCluster workers).
+PARENT_ENVIRONMENT = "BAKERY_PARENT"
+_WATCHED: list[int] = []
+
+
+def _set_death_signal() -> bool:
+    """Linux ``prctl(PR_SET_PDEATHSIG, SIGKILL)``: the kernel kills us when the thread that spawned us exits."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        return libc.prctl(1, int(signal.SIGKILL), 0, 0, 0) == 0  # PR_SET_PDEATHSIG = 1
+    except (OSError, AttributeError):
+        return False
+
+
+def watch_parent(pid: int | None = None, *, death_signal: bool = False, interval: float = 0.25) -> None:
+    """Make this process exit when the bake's parent ``pid`` exits (default: from :data:`PARENT_ENVIRONMENT`,
+    if it names this host). Idempotent per process."""
+    if pid is None:
+        token = os.environ.get(PARENT_ENVIRONMENT, "")
+        host, _, text = token.rpartition(":")
+        if not text.isdigit() or host != socket.gethostname():
+            return
+        pid = int(text)
+    if _WATCHED or pid <= 0 or pid == os.getpid():
+        return
+    _WATCHED.append(pid)
+    direct = os.getppid() == pid
+    if death_signal and direct:
+        _set_death_signal()
+    if direct and os.getppid() != pid:  # the parent died before the signal was armed
+        os._exit(70)
+
+    def watch() -> None:
+        while True:
+            time.sleep(interval)
+            if (direct and os.getppid() != pid) or not _alive(pid):
+                os._exit(70)
+
+    threading.Thread(target=watch, name="bakery-parent-watch", daemon=True).start()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 @dataclass
@@ -37,6 +104,7 @@ class BatchOutcome:
 def run_batch(task: BatchTask) -> BatchOutcome:
     """Capture every probe of ``task`` and encode them together (module docstring)."""
     start = time.perf_counter()
+    watch_parent()  # LocalCluster workers: die with the bake (pool workers are set up by their initializer)
     tune_allocator()
     settings = BakeSettings.from_json(task.settings_json)
     source = source_class(task.source.kind)

@@ -97,19 +97,30 @@ def remove_texels(cubes: np.ndarray, removed: tuple[np.ndarray, np.ndarray]) -> 
     return out
 
 
+def evaluate_light_parts(
+    directions: np.ndarray, flux: np.ndarray, view: np.ndarray, normal: np.ndarray, alpha: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Base and Fresnel-tail radiance (E0, E1), each (P, M, 3), of the lights (P, K, 3) at rows (M, 3), (M, 3), (M,):
+    Σ_k Φ_k f_DV⟨n, l_k⟩₊ and Σ_k Φ_k f_DV⟨n, l_k⟩₊ (1 − v·h_k)⁵ ([SHExp] Eq. 6–7 for delta lights); α clamped at
+    ``MIN_ALPHA``."""
+    directions = np.asarray(directions, dtype=np.float64)
+    flux = np.asarray(flux, dtype=np.float64)
+    alpha = np.maximum(np.asarray(alpha, dtype=np.float64), MIN_ALPHA)
+    base_out, tail_out = [], []
+    for dirs_p, flux_p in zip(directions, flux, strict=True):
+        base, tail = fdv_cosine_weights(dirs_p, np.ones(len(dirs_p)), view, normal, alpha, tail=True)  # (M, K)
+        base_out.append(base @ flux_p)
+        tail_out.append(tail @ flux_p)
+    return np.stack(base_out), np.stack(tail_out)
+
+
 def evaluate_lights(
     directions: np.ndarray, flux: np.ndarray, view: np.ndarray, normal: np.ndarray, alpha: np.ndarray,
     f0: np.ndarray,
 ) -> np.ndarray:
     """Specular radiance (P, M, 3) of the lights (P, K, 3) at rows (M, 3), (M, 3), (M,), F0 (M,) or (M, 3):
     Φ · f_DV ⟨n, l⟩₊ · (F0 + (1 − F0)(1 − v·h)⁵) per light (module doc), summed; α clamped at ``MIN_ALPHA``."""
-    directions = np.asarray(directions, dtype=np.float64)
-    flux = np.asarray(flux, dtype=np.float64)
     f0 = np.asarray(f0, dtype=np.float64)
     f0 = f0[:, None] if f0.ndim == 1 else f0
-    alpha = np.maximum(np.asarray(alpha, dtype=np.float64), MIN_ALPHA)
-    out = []
-    for dirs_p, flux_p in zip(directions, flux, strict=True):
-        base, tail = fdv_cosine_weights(dirs_p, np.ones(len(dirs_p)), view, normal, alpha, tail=True)  # (M, K)
-        out.append(f0 * (base @ flux_p) + (1.0 - f0) * (tail @ flux_p))
-    return np.stack(out)
+    base, tail = evaluate_light_parts(directions, flux, view, normal, alpha)
+    return f0 * base + (1.0 - f0) * tail

@@ -551,6 +551,25 @@ def evaluate_e0(coefficients: np.ndarray, view: np.ndarray, normal: np.ndarray, 
     return pq * design_albedo(v, np.asarray(normal, dtype=np.float64).reshape(-1, 3), a)[None, :, None]
 
 
+def clamped_pq(coefficients: np.ndarray, view: np.ndarray, normal: np.ndarray, alpha: np.ndarray,
+               settings: SHExpSettings, alpha_range: np.ndarray | None = None) -> np.ndarray:
+    """P·Q (P, M, 3) with α clamped per probe into its fitted range ``alpha_range`` (P, 2) = [α_lo, α_hi] (None:
+    the settings' [alpha_min, alpha_max]): outside the fitted range the model is evaluated at the range's end, never
+    extrapolated (below α_lo the vMF factors would let the log-space peak grow without bound: +364 % at α = 0 with
+    peaks 8× the reference maximum, issue 12). Probes with equal ranges share one design matrix."""
+    coefficients = np.asarray(coefficients, dtype=np.float64)
+    a = np.asarray(alpha, dtype=np.float64).reshape(-1)
+    if alpha_range is None:
+        alpha_range = np.tile([settings.alpha_min, settings.alpha_max], (coefficients.shape[0], 1))
+    ranges = np.asarray(alpha_range, dtype=np.float64).reshape(-1, 2)
+    out = np.empty((coefficients.shape[0], a.shape[0], coefficients.shape[-1]))
+    unique, inverse = np.unique(ranges, axis=0, return_inverse=True)
+    for u, (lo, hi) in enumerate(unique):
+        probes = np.flatnonzero(inverse.reshape(-1) == u)
+        out[probes] = evaluate_pq(coefficients[probes], view, normal, np.clip(a, lo, hi), settings)
+    return out
+
+
 def evaluate_shexp(
     coefficients: np.ndarray,
     table: np.ndarray,
@@ -559,18 +578,22 @@ def evaluate_shexp(
     alpha: np.ndarray,
     f0: np.ndarray,
     settings: SHExpSettings,
+    alpha_range: np.ndarray | None = None,
 ) -> np.ndarray:
     """Specular radiance E (P, M, 3) from coefficients (P, K, 3).
 
     Albedo-normalised: E = P·Q · (F0·A + B)(n·v, α), ``table`` the DFG table (Nα, Nv, 2).
     Paper: E = P·Q · (F0 + (1 − F0) τ(n·v, α)) ([SHExp] Eq. 5, 15), ``table`` the Fresnel-tail table (Nα, Nv).
+    α must be in [0, 1] (ValueError otherwise); P·Q is evaluated at α clamped into each probe's fitted range
+    (:func:`clamped_pq`), the table at the material's α; views below the horizon are clamped to it
+    (:mod:`bakery.reflection.validation`).
     """
     from bakery.reflection.tables import lookup_table
+    from bakery.reflection.validation import check_rows, clamp_view_to_horizon
 
-    v = np.asarray(view, dtype=np.float64).reshape(-1, 3)
-    n = np.asarray(normal, dtype=np.float64).reshape(-1, 3)
-    a = np.broadcast_to(np.asarray(alpha, dtype=np.float64).reshape(-1), (v.shape[0],))
-    pq = evaluate_pq(coefficients, v, n, a, settings)
+    v, n, a = check_rows(view, normal, alpha)
+    v = clamp_view_to_horizon(v, n)
+    pq = clamped_pq(coefficients, v, n, a, settings, alpha_range)
     nv = np.clip(np.sum(v * n, axis=-1), 0.0, 1.0)
     f0 = np.asarray(f0, dtype=np.float64)
     f0 = f0[:, None] if f0.ndim == 1 else np.broadcast_to(f0, (v.shape[0], 3))

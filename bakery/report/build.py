@@ -19,8 +19,13 @@ import numpy as np
 
 import bakery
 from bakery.api import open_store
-from bakery.errors import InputError
-from bakery.files import atomic_replace
+from bakery.files import (
+    OutputError,
+    atomic_replace,
+    check_output_file,
+    folder_problem,
+    os_error_message,
+)
 from bakery.report import quality, render, svg
 from bakery.report.memory import memory_summary
 from bakery.report.page import render_page
@@ -82,6 +87,11 @@ def build_report(store_path: str | os.PathLike[str], environment: str | os.PathL
         "reflection_alpha_curves": curves,
         "sanitized_texels": (np.asarray(store.diagnostics["input/sanitized_texels"]).sum(axis=0).tolist()
                              if "input/sanitized_texels" in store.diagnostics else None),
+        # issue 11: the relative SH noise each rendered probe's capture achieved (NaN: loaded from an image)
+        "capture_sh_noise": ({"summary": quality.summarise(np.asarray(store.diagnostics["capture/sh_noise"],
+                                                                      dtype=np.float64)),
+                              "target": store.attributes.get("capture_target_noise")}
+                             if "capture/sh_noise" in store.diagnostics else None),
         "warnings": json.loads(store.attributes.get("warnings", "[]") or "[]"),
     }
     plots: dict[str, str] = {}
@@ -168,17 +178,54 @@ def _previews(store: Any, errors: dict[str, np.ndarray], references: list[Any] |
     return out
 
 
+def _report_refusal(path: Path) -> str | None:
+    """Why an existing file must not be replaced by a report file (None: a previous bakery report)."""
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(1 << 20)
+    except OSError as error:
+        return f"exists and cannot be read ({os_error_message(error)})"
+    if path.suffix == ".html":
+        return None if b"<title>bakery report:" in head else "exists and is not a bakery report page"
+    try:
+        data = json.loads(head.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError):
+        return "exists and is not a bakery report (not JSON)"
+    if isinstance(data, dict) and {"store", "bakery_version", "memory"} <= set(data):
+        return None
+    return "exists and is not a bakery report"
+
+
+def check_report_output(out: Path, inputs: list[Path], force: bool = False) -> None:
+    """The output policy for ``bakery report -o DIR``: DIR is new or a folder; report.html/report.json in it are
+    new or previous bakery reports (``force``: anything but an input)."""
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"{out}: report output exists and is not a directory; refusing to replace it")
+    if not out.exists():
+        parent = out.parent if str(out.parent) else Path(".")
+        while not parent.exists() and parent != parent.parent:
+            parent = parent.parent
+        problem = folder_problem(parent)
+        if problem:
+            raise OutputError(f"{out}: cannot create the report folder: {parent} {problem}")
+        return
+    for name in ("report.html", "report.json"):
+        check_output_file(out / name, "report", inputs=inputs, refusal=_report_refusal, force=force)
+
+
 def write_report(store: str | os.PathLike[str], out_dir: str | os.PathLike[str],
-                 environment: str | os.PathLike[str] | None = None, previews: bool = True) -> dict[str, Any]:
+                 environment: str | os.PathLike[str] | None = None, previews: bool = True,
+                 force: bool = False) -> dict[str, Any]:
     """Write ``report.html`` and ``report.json`` for ``store`` into ``out_dir`` (created if missing).
 
     Returns {"html": path, "json": path, "data": report data}. Raises :class:`bakery.errors.StoreFormatError` for
-    an unreadable store and :class:`bakery.errors.InputError` when ``out_dir`` cannot be written; in both cases
+    an unreadable store (or one that fails its checksums) and :class:`bakery.files.OutputError` when ``out_dir``
+    cannot be written or holds files that are not previous bakery reports (unless ``force``); in every case
     nothing in ``out_dir`` is changed.
     """
     out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"{out}: report output exists and is not a directory")
+    inputs = [Path(store)] + ([Path(environment)] if environment is not None else [])
+    check_report_output(out, inputs, force)
     data, page = build_report(store, environment=environment, previews=previews)
     html_path, json_path = out / "report.html", out / "report.json"
     try:
@@ -188,5 +235,5 @@ def write_report(store: str | os.PathLike[str], out_dir: str | os.PathLike[str],
             json_tmp.write_text(json.dumps(data, indent=1, allow_nan=False), encoding="utf-8")
             html_tmp.write_text(page, encoding="utf-8")
     except OSError as error:
-        raise InputError(f"{out}: cannot write the report: {error.strerror or error}") from error
+        raise OutputError(f"{out}: cannot write the report: {os_error_message(error)}") from None
     return {"html": html_path, "json": json_path, "data": data}

@@ -60,6 +60,24 @@ def _memory_section(m: dict[str, Any]) -> str:
     return "\n".join(out)
 
 
+def _alpha_table(curves: dict[str, Any]) -> str:
+    """Per encoding and material, per α: relative MSE vs the reference and the signed brightness bias (mean over
+    probes) — the reflection bench's per-α table for this store."""
+    from bakery.report.quality import alpha_table
+
+    alphas = curves.get("alphas", [])
+    rows = []
+    for row in alpha_table(curves):
+        bias = row["bias"] or [None] * len(alphas)
+        rows.append([row["encoding"], row["material"],
+                     *[f"{m:.3g} ({100 * b:+.0f}%)" if b is not None and m is not None else "–"
+                       for m, b in zip(row["relative_mse"], bias, strict=True)]])
+    table = _table(["encoding", "material", *[f"α={a:g}" for a in alphas]], rows, left=2)
+    return (table + '<p class="note">Cells: relative MSE ΣΔE²/ΣE<sub>ref</sub>² over '
+            f'{curves.get("rows_per_alpha", 0)} (v, n) rows (signed brightness bias ΣE/ΣE<sub>ref</sub> − 1), mean '
+            "over probes; reference: brute force over the full-resolution capture (α = 0: the mirror).</p>")
+
+
 def _preview_section(title: str, previews: dict[str, Any]) -> str:
     out = [f"<h3>{escape(title)}</h3>"]
     for role, p in previews.items():
@@ -96,7 +114,7 @@ def render_page(data: dict[str, Any], plots: dict[str, str], previews: dict[str,
         parts.append('<p class="note">Irradiance: relative RMSE √Σ(E−E<sub>ref</sub>)²/√ΣE<sub>ref</sub>² over 1024 '
                      'Fibonacci normals and RGB against the brute-force irradiance of the full-resolution capture. '
                      'Reflection: relative MSE ΣΔE²/ΣE<sub>ref</sub>² over 128 (v, n) rows per α, averaged over '
-                     'α ∈ [0.25, 1] and chrome/glass (seed 000 Fig. 4–7 protocol).</p>')
+                     'α ∈ [0, 1] and chrome/glass (seed 000 Fig. 4–7 protocol, extended to α < 0.25).</p>')
         parts.append('<div class="plots">' + "".join(plots.get(k, "") for k in (
             "error-vs-memory", "error-distribution", "error-vs-memory-reflection", "error-distribution-reflection"))
             + "</div>")
@@ -127,6 +145,7 @@ def render_page(data: dict[str, Any], plots: dict[str, str], previews: dict[str,
         parts.append(_table(["quantized", "float source", "mean rel. RMSE", "max rel. RMSE"], rows, left=2))
     if data["reflection_alpha_curves"]:
         parts.append("<h3>Reflection error per roughness</h3>")
+        parts.append(_alpha_table(data["reflection_alpha_curves"]))
         parts.append('<div class="plots">' + "".join(v for k, v in plots.items() if k.startswith("alpha-"))
                      + "</div>")
     elif any(e["kind"] == "reflection" for e in data["memory"]["encodings"].values()):

@@ -25,8 +25,9 @@ from bakery.sphere.fibonacci import fibonacci_directions
 
 #: Normals of the quality metrics (same size as the bake's default diagnostics).
 QUALITY_DIRECTIONS = 1024
-#: Perceptually spaced GGX α of the per-α curves: α = r², r ∈ [0.5, 1] (seed 000: α ∈ [0.25, 1]).
-CURVE_ALPHAS = tuple(float(r * r) for r in np.linspace(0.5, 1.0, 6))
+#: GGX α of the per-α curves: the reflection bench's grid over the whole range (issue 12: 0 … 1, not only the paper's
+#: α ≥ 0.25), α = 0 the mirror.
+CURVE_ALPHAS = (0.0, 0.02, 0.04, 0.0625, 0.1, 0.16, 0.25, 0.36, 0.49, 0.64, 0.81, 1.0)
 #: F0 of the chrome and glass spheres (seed 000 Fig. 4).
 MATERIALS = {"chrome": 1.0, "glass": 0.04}
 
@@ -155,30 +156,71 @@ def curve_rows(count: int = 128, seed: int = 0) -> tuple[np.ndarray, np.ndarray]
     return v / np.linalg.norm(v, axis=1, keepdims=True), n
 
 
+def _reference_reflection(samples: Any, v: np.ndarray, n: np.ndarray, alpha: float) -> tuple[np.ndarray, np.ndarray]:
+    """(E0, E1) (M, C) of the brute-force reference; α = 0: the mirror, L(r) of the nearest full-resolution sample."""
+    from bakery.brdf.ggx import reflect
+    from bakery.reflection.reference import integrate_reflection
+
+    if alpha > 0:
+        return integrate_reflection(samples, v, n, np.full(len(v), alpha))
+    r = reflect(v, n)
+    directions = np.asarray(samples.directions, dtype=np.float32).T
+    nearest = np.concatenate([np.argmax(r[s : s + 16].astype(np.float32) @ directions, axis=1)
+                              for s in range(0, len(r), 16)])
+    radiance = np.asarray(samples.radiance, dtype=np.float64)[nearest]
+    nv = np.clip(np.sum(v * n, axis=1), 0.0, 1.0)[:, None]
+    return radiance, radiance * (1.0 - nv) ** 5
+
+
 def reflection_alpha_curves(store: Any, references: list[Any] | None, rows_per_alpha: int = 128) -> dict[str, Any]:
-    """Per reflection encoding, material and α: relative MSE vs the brute-force reference (needs the capture)."""
+    """Per reflection encoding, material and α: relative MSE and signed brightness bias (Σ E / Σ E_ref − 1) vs the
+    brute-force reference (needs the capture): ``encodings[name][material]`` and ``bias[name][material]``, each
+    (P_k, len(alphas))."""
     names = encodings_of_kind(store, "reflection")
     if not names or references is None:
         return {}
-    from bakery.reflection.reference import integrate_reflection, reflected_radiance
+    from bakery.reflection.reference import reflected_radiance
 
     v, n = curve_rows(rows_per_alpha)
-    out: dict[str, Any] = {"alphas": list(CURVE_ALPHAS), "rows_per_alpha": rows_per_alpha, "encodings": {}}
+    out: dict[str, Any] = {"alphas": list(CURVE_ALPHAS), "rows_per_alpha": rows_per_alpha, "encodings": {},
+                           "bias": {}}
+    cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
     for name in names:
         rows = probe_rows(store, name)
         per_material = {m: np.zeros((len(rows), len(CURVE_ALPHAS))) for m in MATERIALS}
+        bias = {m: np.zeros((len(rows), len(CURVE_ALPHAS))) for m in MATERIALS}
         for j, alpha in enumerate(CURVE_ALPHAS):
             a = np.full(len(v), alpha)
             for r, i in enumerate(rows):
-                e0, e1 = integrate_reflection(references[i], v, n, a)
+                key = (int(i), j)
+                if key not in cache:
+                    cache[key] = _reference_reflection(references[i], v, n, alpha)
+                e0, e1 = cache[key]
                 for material, f0 in MATERIALS.items():
                     ref = reflected_radiance(e0, e1, np.full(len(v), f0))
                     est = store.evaluate_reflection(name, v, n, a, np.full(len(v), f0),
                                                     probes=[store.probe_names[i]])[0]
                     den = float(np.sum(ref**2))
                     per_material[material][r, j] = float(np.sum((est - ref) ** 2)) / den if den > 0 else 0.0
+                    total = float(np.sum(ref))
+                    bias[material][r, j] = float(np.sum(est)) / total - 1.0 if total > 0 else 0.0
         out["encodings"][name] = {m: per_material[m].tolist() for m in MATERIALS}
+        out["bias"][name] = {m: bias[m].tolist() for m in MATERIALS}
     return out
+
+
+def alpha_table(curves: dict[str, Any]) -> list[dict[str, Any]]:
+    """Rows of the report's per-α table: {"encoding", "material", "relative_mse": [per α, mean over probes],
+    "bias": [per α, mean over probes]}."""
+    rows = []
+    for name, per_material in curves.get("encodings", {}).items():
+        for material, values in per_material.items():
+            bias = curves.get("bias", {}).get(name, {}).get(material)
+            rows.append({"encoding": name, "material": material,
+                         "relative_mse": np.mean(np.asarray(values, dtype=np.float64), axis=0).tolist(),
+                         "bias": (np.mean(np.asarray(bias, dtype=np.float64), axis=0).tolist()
+                                  if bias is not None else None)})
+    return rows
 
 
 def pick_probes(store: Any, errors: dict[str, np.ndarray], kind: str) -> dict[str, int]:

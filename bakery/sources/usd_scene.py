@@ -66,7 +66,8 @@ def _renderer(location: str, digest: str, settings: CaptureSettings):  # noqa: A
     from bakery.capture.snapshot import read_capture_scene
 
     scene = read_capture_scene(Path(location))
-    return scene, ProbeRenderer(scene, samples=settings.samples, bounces=settings.bounces, base_seed=settings.seed)
+    return scene, ProbeRenderer(scene, samples=settings.samples, bounces=settings.bounces, base_seed=settings.seed,
+                                target_noise=settings.target_noise, max_samples=settings.max_samples or None)
 
 
 class UsdSceneSource(Source):
@@ -91,7 +92,8 @@ class UsdSceneSource(Source):
         from bakery.pipeline.roughness import fit_alpha_range, visible_roughness
         from bakery.usd.scene import read_scene
 
-        reading = read_scene(self.path)
+        reading = read_scene(self.path, time=self.capture_settings.time,
+                             subdivision=self.capture_settings.subdivision)
         if reading.errors:
             listing = "\n".join(f"  {issue}" for issue in reading.errors)
             raise SceneError(f"{self.path}: {len(reading.errors)} error(s); the bake cannot be trusted:\n{listing}")
@@ -131,6 +133,12 @@ class UsdSceneSource(Source):
             "scene_up_axis": reading.up_axis, "scene_meters_per_unit": reading.meters_per_unit,
             "capture_samples": self.capture_settings.samples, "capture_bounces": self.capture_settings.bounces,
             "capture_seed": self.capture_settings.seed, "scene_lights": _json_attribute(self._lights),
+            "capture_target_noise": self.capture_settings.target_noise,
+            "capture_max_samples": self.capture_settings.max_samples,
+            "capture_subdivision": self.capture_settings.subdivision,
+            "capture_time": "default" if reading.scene.time_code is None else float(reading.scene.time_code),
+            "capture_working_space": reading.scene.working_space,
+            "capture_texture_color_spaces": _json_attribute(sorted({t.color_space for t in reading.scene.textures})),
         }
         if roughness_notes:
             attributes["roughness_ranges"] = _json_attribute(roughness_notes)
@@ -181,13 +189,15 @@ class UsdSceneSource(Source):
         for prim in self._prim_of.values():
             expected[prim] = expected.get(prim, 0) + 1
         baked: list[BakedPrim] = []
+        # store row -> encoding row, once per encoding (not per prim: a scene has thousands of reflection prims)
+        index_of = {encoding: {int(r): k for k, r in enumerate(merged.rows[encoding])} for encoding in merged.encoded}
         for prim, rows in rows_of_prim.items():
             if len(rows) != expected.get(prim, len(rows)):
                 continue  # part of a volume failed: its arrays would be incomplete
             fields: dict[str, np.ndarray] = {}
             names: list[str] = []
             for encoding, values in merged.encoded.items():
-                index = {int(r): k for k, r in enumerate(merged.rows[encoding])}
+                index = index_of[encoding]
                 if not all(r in index for r in rows):
                     continue
                 kind = ENCODINGS[encoding].kind
@@ -212,6 +222,7 @@ class UsdSceneSource(Source):
         if probe.name != spec.name:
             raise SceneError(f"{spec.name}: the scene snapshot does not hold this probe (got {probe.name})")
         n = probe.resolution or face_size
+        diagnostics: dict[str, np.ndarray] = {}
         if probe.image:
             cube = load_captured_cube(probe.image, np.asarray(probe.rotation), n)
             stats = {"capture_loaded": 1.0}
@@ -219,9 +230,11 @@ class UsdSceneSource(Source):
             cube, render_stats = renderer.render(np.asarray(probe.position), n, probe.name)
             stats = {"capture_rays": float(render_stats.rays), "capture_seconds": float(render_stats.seconds),
                      "capture_rendered": 1.0}
+            diagnostics = {"capture/sh_noise": np.asarray(render_stats.sh_noise, dtype=np.float32),
+                           "capture/samples": np.asarray(render_stats.samples, dtype=np.float32)}
         if cube.shape[1] != face_size:
             cube = resample_cube(cube, face_size)
-        return Capture(np.asarray(cube, dtype=np.float32), stats=stats)
+        return Capture(np.asarray(cube, dtype=np.float32), stats=stats, diagnostics=diagnostics)
 
 
 register_source(UsdSceneSource)

@@ -1,14 +1,25 @@
-"""Writing and reading bakery probe stores (HDF5), format ``bakery.probe-store`` 1.0.0 (``schemas/store-v1.md``).
+"""Writing and reading bakery probe stores (HDF5), format ``bakery.probe-store`` 1.2.0 (``schemas/store-v1.md``).
 
 Writers write only the newest version; readers accept any 1.x (a newer *minor* may add groups/attributes a reader
 ignores) and refuse a newer major with a message that says what to do. Writes are atomic: the file is written
 next to the target under a temporary name, flushed, fsync'ed and renamed over the target, so a crash at any point
 leaves the previous store intact. Datasets are written without HDF5 timestamps (``track_times=False``) so the same
 inputs give the same bytes.
+
+Integrity (1.2.0; ``schemas/store-v1.md``, "Integrity")
+    Every fixed-size dataset is chunked with HDF5's fletcher32 filter (bit rot and damaged copies fail on read; the
+    variable-length string datasets cannot carry filters, HDF5 refuses them). ``/checksums/probe`` (P, 32) uint8
+    holds a SHA-256 per probe over its identity row and its row of every encoding, so a damaged probe is found and
+    only it is re-baked; ``/checksums/datasets`` lists the SHA-256, dtype and shape of every other dataset and of
+    every group's attributes, so the damaged dataset is named. :func:`read_store` verifies both: ``strict``
+    (default: ``inspect``, ``diff``, ``report``, ``migrate``, the API) raises :class:`StoreIntegrityError` naming
+    the datasets; ``strict=False`` (the previous store of a bake) returns the findings in
+    ``StoreContents.integrity`` instead.
 """
 
 from __future__ import annotations
 
+import io
 import json
 import os
 from dataclasses import dataclass, field
@@ -18,13 +29,55 @@ from typing import Any
 import h5py
 import numpy as np
 
-from bakery.errors import StoreFormatError
-from bakery.files import atomic_replace
+from bakery.errors import BakeryWarning, StoreFormatError
+from bakery.files import (
+    atomic_replace,
+    os_error_message,
+    sha256_array,
+    sha256_bytes,
+    sha256_digest,
+    with_filename,
+)
 
 FORMAT_NAME = "bakery.probe-store"
-FORMAT_VERSION = "1.1.0"
+FORMAT_VERSION = "1.2.0"
+#: Oldest format version with ``/checksums`` and fletcher32 filters.
+CHECKSUM_VERSION = "1.2.0"
 
 _STR = h5py.string_dtype("utf-8")
+_CHECKSUMS = "checksums"
+#: ``/history`` columns every store has (1.1.0); later columns (1.2.0: ``scene_lights``) are written when present.
+HISTORY_COLUMNS = ("time_utc", "bakery_version", "settings_hash", "layers")
+
+
+class StoreIntegrityError(StoreFormatError):
+    """A store's contents do not match their checksums (damaged file, or edited outside bakery)."""
+
+
+class StoreIntegrityWarning(BakeryWarning):
+    """The previous store of a bake failed its integrity check; the affected probes are re-baked."""
+
+
+@dataclass
+class StoreIntegrity:
+    """What :func:`read_store` found when it verified a store.
+
+    Attributes:
+        verified: the store carries checksums (format ≥ 1.2.0) and they were checked.
+        problems: one line per finding, each naming the dataset (or attributes) concerned.
+        bad_probes: probes whose stored values do not match their per-probe checksum.
+        whole_store: a finding that cannot be attributed to probes (shared tables, diagnostics, history,
+            attributes, missing checksums): nothing of the store can be trusted.
+    """
+
+    verified: bool = False
+    problems: list[str] = field(default_factory=list)
+    bad_probes: set[str] = field(default_factory=set)
+    whole_store: bool = False
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
 
 
 @dataclass
@@ -50,8 +103,108 @@ class StoreContents:
     probe_hashes: list[str] | None = None
     #: (P,) index into ``history`` of the bake that produced each probe (1.1.0).
     probe_bake_ids: np.ndarray | None = None
-    #: bakes that produced the probes: {"time_utc", "bakery_version", "settings_hash", "layers"} (1.1.0).
+    #: bakes that produced the probes: {"time_utc", "bakery_version", "settings_hash", "layers"} (1.1.0), plus
+    #: ``scene_lights`` (1.2.0: the light table a scene bake used; "" when unknown).
     history: list[dict[str, str]] = field(default_factory=list)
+    #: what reading found when it verified the checksums (1.2.0; set by :func:`read_store`).
+    integrity: StoreIntegrity | None = None
+
+
+def version_tuple(version: str) -> tuple[int, int, int]:
+    """``"1.2.0"`` → (1, 2, 0); raises :class:`StoreFormatError` for anything else."""
+    try:
+        parts = [int(p) for p in str(version).split(".")]
+    except ValueError:
+        raise StoreFormatError(f"unreadable format version {version!r}") from None
+    if not 1 <= len(parts) <= 3 or any(p < 0 for p in parts):
+        raise StoreFormatError(f"unreadable format version {version!r}")
+    return tuple(parts + [0] * (3 - len(parts)))  # type: ignore[return-value]
+
+
+# ------------------------------------------------------------------------------------------------ checksums
+def _le(array: np.ndarray) -> np.ndarray:
+    array = np.asarray(array)
+    if array.dtype.kind in "fiuc" and array.dtype.byteorder == ">":
+        array = array.astype(array.dtype.newbyteorder("<"))
+    return np.ascontiguousarray(array)
+
+
+def probe_checksums(names: list[str], kinds: list[str], positions: np.ndarray, hashes: list[str],
+                    bake_ids: np.ndarray, encodings: dict[str, dict[str, Any]]) -> np.ndarray:
+    """(P, 32) uint8: per probe, SHA-256 over its identity row (name, kinds, position, content hash, bake id) and,
+    for every encoding (by name) that has a row for it, the encoding name and each field's name, dtype, row shape
+    and row bytes (fields by name, ``probe_index`` excluded: the row's attribution is the probe it hashes into)."""
+    count = len(names)
+    positions = _le(np.asarray(positions, dtype=np.float64).reshape(-1, 3))
+    bake_ids = _le(np.asarray(bake_ids, dtype=np.int32).reshape(-1))
+    parts: list[list[bytes]] = []
+    for i in range(count):
+        parts.append([b"probe\0", names[i].encode(), b"\0", kinds[i].encode(), b"\0", positions[i].tobytes(),
+                      hashes[i].encode(), b"\0", bake_ids[i].tobytes()])
+    for name in sorted(encodings):
+        fields = encodings[name]["fields"]
+        index = np.asarray(fields.get("probe_index", np.zeros(0, dtype=np.int32))).reshape(-1)
+        keys = sorted(k for k in fields if k != "probe_index")
+        arrays = {k: _le(fields[k]) for k in keys if fields[k] is not None}
+        for row, probe in enumerate(index.tolist()):
+            if not 0 <= probe < count:
+                continue
+            chunk = [b"encoding\0", name.encode(), b"\0"]
+            for key in keys:
+                array = arrays.get(key)
+                if array is None or row >= len(array):
+                    chunk += [key.encode(), b"\0<missing>"]
+                    continue
+                value = array[row]
+                chunk += [key.encode(), b"\0", value.dtype.str.encode(), repr(value.shape).encode(), value.tobytes()]
+            parts[probe] += chunk
+    out = np.zeros((count, 32), dtype=np.uint8)
+    for i, chunk in enumerate(parts):
+        out[i] = np.frombuffer(sha256_digest(*chunk), dtype=np.uint8)
+    return out
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        return {"__ndarray__": value.tolist(), "dtype": value.dtype.str}
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, bytes):
+        return value.decode("utf-8", "replace")
+    return value
+
+
+def _attributes_digest(node: h5py.HLObject) -> str:
+    values = {k: _jsonable(v) for k, v in node.attrs.items()}
+    return sha256_bytes(json.dumps(values, sort_keys=True, default=repr).encode())
+
+
+def _describe(dataset: h5py.Dataset) -> str:
+    return f"{dataset.dtype.str if dataset.dtype.kind != 'O' else 'str'} {tuple(dataset.shape)}"
+
+
+def _dataset_digest(dataset: h5py.Dataset, values: Any) -> str:
+    if dataset.dtype.kind == "O" or h5py.check_string_dtype(dataset.dtype) is not None:
+        strings = [v.decode("utf-8", "replace") if isinstance(v, bytes) else str(v)
+                   for v in np.asarray(values, dtype=object).reshape(-1).tolist()]
+        return sha256_bytes(json.dumps([list(dataset.shape), strings]).encode())
+    return sha256_array(_le(values))
+
+
+def _checksum_table(f: h5py.File) -> list[list[str]]:
+    """[path, sha256, "dtype shape"] of every dataset and group-attribute set outside ``/checksums``."""
+    rows: list[list[str]] = [["@/", _attributes_digest(f), "attributes"]]
+
+    def visit(name: str, item: Any) -> None:
+        if name == _CHECKSUMS or name.startswith(_CHECKSUMS + "/"):
+            return
+        if isinstance(item, h5py.Dataset):
+            rows.append([f"/{name}", _dataset_digest(item, item[()]), _describe(item)])
+        elif isinstance(item, h5py.Group) and len(item.attrs):
+            rows.append([f"@/{name}", _attributes_digest(item), "attributes"])
+
+    f.visititems(visit)
+    return rows
 
 
 def _write_attributes(node: h5py.HLObject, attributes: dict[str, Any]) -> None:
@@ -62,11 +215,19 @@ def _write_attributes(node: h5py.HLObject, attributes: dict[str, Any]) -> None:
 
 
 def _dataset(group: h5py.Group, name: str, data: np.ndarray, **kwargs: Any) -> h5py.Dataset:
+    """A dataset of fixed-size values: chunked with the fletcher32 filter (gzip + shuffle from 4096 values)."""
     data = np.asarray(data)
     options: dict[str, Any] = {"track_times": False}
-    if data.dtype.kind in "fiub" and data.size >= 4096:
-        options.update(compression="gzip", compression_opts=4, shuffle=True, chunks=True)
+    if data.ndim > 0 and data.dtype.kind in "fiubS":
+        options.update(chunks=True, fletcher32=True)
+        if data.dtype.kind in "fiub" and data.size >= 4096:
+            options.update(compression="gzip", compression_opts=4, shuffle=True)
     return group.create_dataset(name, data=data, **options, **kwargs)
+
+
+def _strings(group: h5py.Group, name: str, values: list[str]) -> h5py.Dataset:
+    """Variable-length UTF-8 strings (HDF5 cannot filter these; covered by ``/checksums``)."""
+    return group.create_dataset(name, data=np.array(values, dtype=object), dtype=_STR, track_times=False)
 
 
 def write_store(path: str | os.PathLike[str], contents: StoreContents) -> Path:
@@ -78,54 +239,92 @@ def write_store(path: str | os.PathLike[str], contents: StoreContents) -> Path:
     if not directory.is_dir():
         raise StoreFormatError(f"{path}: output directory {directory} does not exist")
     try:
-        with atomic_replace(path) as tmp, h5py.File(tmp, "w", track_order=True, libver=("earliest", "v110")) as f:
-            _write_attributes(f, {**contents.attributes, "format": FORMAT_NAME, "format_version": FORMAT_VERSION})
-            probes = f.create_group("probes")
-            probes.attrs["count"] = len(contents.probe_names)
-            probes.create_dataset("name", data=np.array(contents.probe_names, dtype=object), dtype=_STR,
-                                  track_times=False)
-            probes.create_dataset("kinds", data=np.array(contents.probe_kinds, dtype=object), dtype=_STR,
-                                  track_times=False)
-            _dataset(probes, "position", np.asarray(contents.probe_positions, dtype=np.float64).reshape(-1, 3))
-            count = len(contents.probe_names)
-            hashes = contents.probe_hashes if contents.probe_hashes is not None else [""] * count
-            probes.create_dataset("content_hash", data=np.array(hashes, dtype=object), dtype=_STR, track_times=False)
-            bake_ids = contents.probe_bake_ids if contents.probe_bake_ids is not None else np.zeros(count)
-            _dataset(probes, "bake_id", np.asarray(bake_ids, dtype=np.int32))
-            history = f.create_group("history")
-            for key in ("time_utc", "bakery_version", "settings_hash", "layers"):
-                history.create_dataset(key, data=np.array([str(h.get(key, "")) for h in contents.history],
-                                                          dtype=object), dtype=_STR, track_times=False)
-            encodings = f.create_group("encodings")
-            for name in sorted(contents.encodings):
-                entry = contents.encodings[name]
-                group = encodings.create_group(name)
-                _write_attributes(group, entry["attributes"])
-                for field_name, array in entry["fields"].items():
-                    ds = _dataset(group, field_name, array)
-                    description = entry.get("descriptions", {}).get(field_name)
-                    if description:
-                        ds.attrs["description"] = description
-                if entry.get("shared"):
-                    shared = group.create_group("shared")
-                    for table, array in sorted(entry["shared"].items()):
-                        _dataset(shared, table, array)
-            diagnostics = f.create_group("diagnostics")
-            for key in sorted(contents.diagnostics):
-                parent, _, leaf = key.rpartition("/")
-                target = diagnostics.require_group(parent) if parent else diagnostics
-                _dataset(target, leaf, contents.diagnostics[key])
-            f.flush()
+        with atomic_replace(path) as tmp:
+            write_store_file(tmp, contents)
     except OSError as error:
-        raise StoreFormatError(f"{path}: cannot write the store: {error.strerror or error}") from error
+        raise StoreFormatError(f"{path}: cannot write the store: {os_error_message(error)}") from error
     return path
 
 
-def _major(version: str) -> int:
+def write_store_file(path: str | os.PathLike[str], contents: StoreContents) -> Path:
+    """Write ``contents`` to exactly ``path`` (no rename; fsync'ed): the staged half of a commit that writes the
+    store together with other files (:func:`bakery.files.commit_staged`). Raises ``OSError`` on I/O failure.
+
+    The HDF5 file is built in memory and then written with plain file I/O: HDF5 does not survive a write error
+    (a full disk leaves its metadata cache inconsistent and the process crashes on close), plain writes fail with
+    a clean ``OSError``."""
+    path = Path(path)
+    image = _file_image(contents)
     try:
-        return int(str(version).split(".")[0])
-    except ValueError:
-        raise StoreFormatError(f"unreadable format version {version!r}") from None
+        with open(path, "wb") as handle:
+            handle.write(image)
+            handle.flush()
+            os.fsync(handle.fileno())
+    except OSError as error:
+        path.unlink(missing_ok=True)
+        raise with_filename(error, path) from None
+    except BaseException:
+        path.unlink(missing_ok=True)
+        raise
+    return path
+
+
+def _file_image(contents: StoreContents) -> bytes:
+    """The bytes of the store file for ``contents``."""
+    buffer = io.BytesIO()
+    _write_file(buffer, contents)
+    return buffer.getvalue()
+
+
+def _write_file(target: Any, contents: StoreContents) -> None:
+    with h5py.File(target, "w", track_order=True, libver=("v110", "v110")) as f:
+        _write_attributes(f, {**contents.attributes, "format": FORMAT_NAME, "format_version": FORMAT_VERSION})
+        probes = f.create_group("probes")
+        probes.attrs["count"] = len(contents.probe_names)
+        _strings(probes, "name", list(contents.probe_names))
+        _strings(probes, "kinds", list(contents.probe_kinds))
+        positions = np.asarray(contents.probe_positions, dtype=np.float64).reshape(-1, 3)
+        _dataset(probes, "position", positions)
+        count = len(contents.probe_names)
+        hashes = list(contents.probe_hashes) if contents.probe_hashes is not None else [""] * count
+        _strings(probes, "content_hash", hashes)
+        bake_ids = np.asarray(contents.probe_bake_ids if contents.probe_bake_ids is not None else np.zeros(count),
+                              dtype=np.int32)
+        _dataset(probes, "bake_id", bake_ids)
+        history = f.create_group("history")
+        extra = sorted({k for h in contents.history for k in h} - set(HISTORY_COLUMNS))
+        for key in (*HISTORY_COLUMNS, *extra):
+            _strings(history, key, [str(h.get(key, "")) for h in contents.history])
+        encodings = f.create_group("encodings")
+        for name in sorted(contents.encodings):
+            entry = contents.encodings[name]
+            group = encodings.create_group(name)
+            _write_attributes(group, entry["attributes"])
+            for field_name, array in entry["fields"].items():
+                ds = _dataset(group, field_name, array)
+                description = entry.get("descriptions", {}).get(field_name)
+                if description:
+                    ds.attrs["description"] = description
+            if entry.get("shared"):
+                shared = group.create_group("shared")
+                for table, array in sorted(entry["shared"].items()):
+                    _dataset(shared, table, array)
+        diagnostics = f.create_group("diagnostics")
+        for key in sorted(contents.diagnostics):
+            parent, _, leaf = key.rpartition("/")
+            target = diagnostics.require_group(parent) if parent else diagnostics
+            _dataset(target, leaf, contents.diagnostics[key])
+        # Integrity: per-probe checksums from the values written, the dataset table from the file itself (the
+        # reader recomputes both the same way).
+        checksums = f.create_group(_CHECKSUMS)
+        written = {name: {"fields": {k: np.asarray(v) for k, v in entry["fields"].items()}}
+                   for name, entry in contents.encodings.items()}
+        _dataset(checksums, "probe", probe_checksums(list(contents.probe_names), list(contents.probe_kinds),
+                                                     positions, hashes, bake_ids, written))
+        table = _checksum_table(f)
+        checksums.create_dataset("datasets", data=np.array(table, dtype=object).reshape(-1, 3), dtype=_STR,
+                                 track_times=False)
+        f.flush()
 
 
 def _read_attributes(node: h5py.HLObject) -> dict[str, Any]:
@@ -139,56 +338,122 @@ def _read_attributes(node: h5py.HLObject) -> dict[str, Any]:
     return out
 
 
-def read_store(path: str | os.PathLike[str], load_fields: bool = True) -> StoreContents:
-    """Read a store. Raises :class:`StoreFormatError` for a missing, corrupt, foreign or newer-major file."""
+def overwrite_refusal(path: str | os.PathLike[str]) -> str | None:
+    """Why an existing file at ``path`` must not be replaced by a new store (None: it is a bakery store of a
+    format version this bakery reads and writes, i.e. a previous output). Used by the output policy."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as handle:
+            signature = handle.read(8)
+    except OSError as error:
+        return f"exists and cannot be read ({os_error_message(error)})"
+    if signature != b"\x89HDF\r\n\x1a\n":
+        return "exists and is not an HDF5 file (not a bakery store)"
+    try:
+        with h5py.File(path, "r") as f:
+            attributes = _read_attributes(f)
+    except OSError:
+        return "exists and is not a readable HDF5 file (truncated or corrupt?)"
+    if attributes.get("format") != FORMAT_NAME:
+        return "exists and is an HDF5 file but not a bakery probe store"
+    version = str(attributes.get("format_version", ""))
+    try:
+        newer = version_tuple(version) > version_tuple(FORMAT_VERSION)
+    except StoreFormatError:
+        return f"is a bakery store with an unreadable format version {version!r}"
+    if newer:
+        return (f"is a bakery store of format {version}, newer than this bakery writes ({FORMAT_VERSION}); "
+                "replacing it would lose data (upgrade bakery)")
+    return None
+
+
+def _integrity_error(path: Path, integrity: StoreIntegrity) -> StoreIntegrityError:
+    shown = "; ".join(integrity.problems[:4]) + (f"; … ({len(integrity.problems)} findings)"
+                                                 if len(integrity.problems) > 4 else "")
+    return StoreIntegrityError(f"{path}: failed its integrity check: {shown}. The file is damaged or was edited "
+                               "outside bakery; re-bake it (bakery bake re-computes the affected probes) or restore "
+                               "a copy")
+
+
+def read_store(path: str | os.PathLike[str], load_fields: bool = True, *, strict: bool = True) -> StoreContents:
+    """Read a store and verify its checksums (module docstring).
+
+    Raises :class:`StoreFormatError` for a missing, corrupt, foreign or newer-major file, and (``strict``)
+    :class:`StoreIntegrityError` naming the datasets that fail their checksums. With ``strict=False`` the findings
+    are returned in ``integrity`` (a dataset that cannot be read at all is then treated as damaged, not raised)."""
     path = Path(path)
     if not path.is_file():
         raise StoreFormatError(f"{path}: store not found")
     try:
         f = h5py.File(path, "r")
     except OSError as error:
-        raise StoreFormatError(f"{path}: not a readable HDF5 file (truncated or corrupt?): {error}") from error
+        raise StoreFormatError(f"{path}: not a readable HDF5 file (truncated or corrupt?): "
+                               f"{os_error_message(error)}") from error
+    integrity = StoreIntegrity()
+    unreadable: dict[str, str] = {}
+
+    def value(item: h5py.Dataset) -> Any:
+        """The dataset's values; a read failure (fletcher32 mismatch, damaged chunk) is recorded, not raised."""
+        try:
+            return item[()]
+        except (OSError, ValueError) as error:
+            unreadable[item.name] = os_error_message(error)
+            if strict:
+                raise StoreIntegrityError(f"{path}: dataset {item.name} cannot be read: {unreadable[item.name]}; "
+                                          "the file is damaged — re-bake it or restore a copy") from None
+            return None
+
     with f:
         attributes = _read_attributes(f)
         if attributes.get("format") != FORMAT_NAME:
             raise StoreFormatError(f"{path}: not a bakery probe store (format attribute {attributes.get('format')!r})")
         version = str(attributes.get("format_version", ""))
         try:
-            major = _major(version)
+            parsed = version_tuple(version)
         except StoreFormatError as error:
             raise StoreFormatError(f"{path}: {error}") from None
-        if major > _major(FORMAT_VERSION):
+        if parsed[0] > version_tuple(FORMAT_VERSION)[0]:
             raise StoreFormatError(
                 f"{path}: store format {version} is newer than this bakery reads ({FORMAT_VERSION}); "
                 f"upgrade bakery to read it"
             )
+
+        def strings(item: h5py.Dataset) -> list[str]:
+            values = value(item)
+            return [] if values is None else [v.decode() if isinstance(v, bytes) else str(v)
+                                              for v in np.asarray(values, dtype=object).reshape(-1).tolist()]
+
         try:
-            names = [n.decode() if isinstance(n, bytes) else str(n) for n in f["probes/name"][()]]
-            kinds = [k.decode() if isinstance(k, bytes) else str(k) for k in f["probes/kinds"][()]]
-            positions = f["probes/position"][()]
+            names = strings(f["probes/name"])
+            kinds = strings(f["probes/kinds"])
+            positions = value(f["probes/position"])
+            count = len(names)
+            if positions is None:
+                positions = np.full((count, 3), np.nan)
             encodings: dict[str, dict[str, Any]] = {}
             for name, group in f["encodings"].items():
                 entry: dict[str, Any] = {"attributes": _read_attributes(group), "fields": {}, "shared": {},
                                          "descriptions": {}}
                 for key, item in group.items():
                     if isinstance(item, h5py.Dataset):
-                        entry["fields"][key] = item[()] if load_fields else None
+                        entry["fields"][key] = value(item) if load_fields else None
                         if "description" in item.attrs:
                             entry["descriptions"][key] = str(item.attrs["description"])
                 if "shared" in group:
-                    entry["shared"] = {k: v[()] for k, v in group["shared"].items()}
+                    entry["shared"] = {k: value(v) for k, v in group["shared"].items()}
                 encodings[name] = entry
-            count = len(names)
             if "content_hash" in f["probes"]:
-                hashes = [h.decode() if isinstance(h, bytes) else str(h) for h in f["probes/content_hash"][()]]
-                bake_ids = f["probes/bake_id"][()]
+                hashes = strings(f["probes/content_hash"])
+                bake_ids = value(f["probes/bake_id"])
+                if bake_ids is None:
+                    bake_ids = np.zeros(count, dtype=np.int32)
             else:
                 hashes, bake_ids = [""] * count, np.zeros(count, dtype=np.int32)
             history: list[dict[str, str]] = []
             if "history" in f:
-                columns = {k: [v.decode() if isinstance(v, bytes) else str(v) for v in f["history"][k][()]]
-                           for k in f["history"]}
-                history = [{k: columns[k][i] for k in columns} for i in range(len(next(iter(columns.values()), [])))]
+                columns = {k: strings(f["history"][k]) for k in f["history"]}
+                history = [{k: columns[k][i] if i < len(columns[k]) else "" for k in columns}
+                           for i in range(max((len(c) for c in columns.values()), default=0))]
             elif "bake_time_utc" in attributes:
                 history = [{"time_utc": str(attributes["bake_time_utc"]),
                             "bakery_version": str(attributes.get("bakery_version", "")),
@@ -197,13 +462,128 @@ def read_store(path: str | os.PathLike[str], load_fields: bool = True) -> StoreC
             if "diagnostics" in f:
                 def visit(name: str, item: Any) -> None:
                     if isinstance(item, h5py.Dataset):
-                        diagnostics[name] = item[()]
+                        values = value(item)
+                        if values is not None:
+                            diagnostics[name] = values
 
                 f["diagnostics"].visititems(visit)
-        except (KeyError, OSError) as error:
+            if parsed >= version_tuple(CHECKSUM_VERSION):
+                _verify(f, integrity, unreadable, names, kinds, positions, hashes, bake_ids, encodings, load_fields)
+            elif unreadable:
+                integrity.problems += [f"dataset {k} cannot be read: {v}" for k, v in sorted(unreadable.items())]
+                integrity.whole_store = True
+        except KeyError as error:
             raise StoreFormatError(f"{path}: store is missing required data or is corrupt: {error}") from error
+        except OSError as error:
+            raise StoreFormatError(f"{path}: store is corrupt: {os_error_message(error)}") from error
+    if len(hashes) != count or len(kinds) != count or np.shape(positions) != (count, 3) \
+            or np.shape(bake_ids) != (count,):
+        if strict or not integrity.problems:
+            raise StoreFormatError(f"{path}: store is corrupt: /probes datasets disagree on the number of probes")
+        integrity.whole_store = True
+        hashes = (list(hashes) + [""] * count)[:count]
+        bake_ids = np.zeros(count, dtype=np.int32)
+        positions = np.zeros((count, 3))
+        kinds = (list(kinds) + [""] * count)[:count]
+    if strict and integrity.problems:
+        raise _integrity_error(path, integrity)
     return StoreContents(attributes, names, kinds, np.asarray(positions), encodings, diagnostics, hashes,
-                         np.asarray(bake_ids, dtype=np.int32), history)
+                         np.asarray(bake_ids, dtype=np.int32), history, integrity)
+
+
+def _verify(f: h5py.File, integrity: StoreIntegrity, unreadable: dict[str, str], names: list[str], kinds: list[str],
+            positions: np.ndarray, hashes: list[str], bake_ids: np.ndarray, encodings: dict[str, dict[str, Any]],
+            load_fields: bool) -> None:
+    """Check ``/checksums`` against what was read (module docstring); findings go into ``integrity``."""
+    integrity.verified = True
+    problems = integrity.problems
+    field_paths = {f"/encodings/{e}/{k}": e for e, entry in encodings.items() for k in entry["fields"]}
+    if _CHECKSUMS not in f or "probe" not in f[_CHECKSUMS] or "datasets" not in f[_CHECKSUMS]:
+        problems.append("/checksums is missing (a 1.2 store always has it)")
+        integrity.whole_store = True
+        return
+    mismatched: dict[str, str] = {}  # field dataset path → encoding (localized by the per-probe checksums)
+    for path, reason in sorted(unreadable.items()):
+        problems.append(f"dataset {path} cannot be read: {reason}")
+        if path not in field_paths:
+            integrity.whole_store = True
+    try:
+        table = np.asarray(f[_CHECKSUMS]["datasets"][()], dtype=object).reshape(-1, 3)
+        stored = np.asarray(f[_CHECKSUMS]["probe"][()])
+    except (OSError, ValueError) as error:
+        problems.append(f"/checksums cannot be read: {os_error_message(error)}")
+        integrity.whole_store = True
+        return
+    listed = set()
+    for row in table.tolist():
+        path, digest, description = (v.decode() if isinstance(v, bytes) else str(v) for v in row)
+        listed.add(path)
+        if path in unreadable:
+            continue
+        if path.startswith("@"):
+            node_path = path[1:]
+            if node_path not in f:
+                problems.append(f"group {node_path} is missing")
+                integrity.whole_store = True
+            elif _attributes_digest(f[node_path]) != digest:
+                problems.append(f"the attributes of {node_path} do not match their checksum")
+                integrity.whole_store = True
+            continue
+        is_field = path.startswith("/encodings/") and path.count("/") == 3
+        if path not in f or not isinstance(f[path], h5py.Dataset):
+            problems.append(f"dataset {path} ({description}) is missing")
+            if is_field:
+                mismatched[path] = path.split("/")[2]
+            else:
+                integrity.whole_store = True
+            continue
+        if is_field and not load_fields:
+            continue
+        item = f[path]
+        values = item[()]
+        if _dataset_digest(item, values) != digest:
+            actual = _describe(item)
+            detail = f"is {actual}, written as {description}" if actual != description else "holds other values"
+            if item.dtype.kind == "f" and not np.all(np.isfinite(values)):
+                detail += f", {int(np.sum(~np.isfinite(values)))} of them non-finite"
+            problems.append(f"dataset {path} does not match its checksum ({detail})")
+            if is_field:
+                mismatched[path] = path.split("/")[2]
+            else:
+                integrity.whole_store = True
+    for path, encoding in field_paths.items():
+        if path not in listed:
+            problems.append(f"dataset {path} was not written by bakery")
+            mismatched[path] = encoding
+    if not load_fields:
+        if mismatched:
+            integrity.whole_store = True
+        return
+    count = len(names)
+    try:
+        computed = probe_checksums(names, kinds, positions, hashes, bake_ids, encodings)
+    except (ValueError, TypeError) as error:
+        problems.append(f"per-probe checksums cannot be computed: {error}")
+        integrity.whole_store = True
+        return
+    if stored.shape != (count, 32):
+        problems.append(f"dataset /checksums/probe has shape {stored.shape}, expected ({count}, 32)")
+        integrity.whole_store = True
+        return
+    bad = np.flatnonzero(np.any(computed != stored, axis=1))
+    integrity.bad_probes = {names[i] for i in bad.tolist()}
+    if integrity.bad_probes:
+        shown = ", ".join(sorted(integrity.bad_probes)[:5]) + (" …" if len(bad) > 5 else "")
+        problems.append(f"{len(bad)} probe(s) do not match /checksums/probe: {shown}")
+    elif mismatched:
+        integrity.whole_store = True  # a field changed where no probe's checksum can see it (unattributed rows)
+
+
+#: What each upgrade adds (:func:`migrate_store`).
+MIGRATION_STEPS = {
+    "1.0.0": "add /probes/content_hash, /probes/bake_id, /history",
+    "1.1.0": "add fletcher32 filters and /checksums (per-probe and per-dataset SHA-256)",
+}
 
 
 def migrate_store(source: str | os.PathLike[str], target: str | os.PathLike[str] | None = None,
@@ -212,12 +592,26 @@ def migrate_store(source: str | os.PathLike[str], target: str | os.PathLike[str]
 
     1.0.0 → 1.1.0: adds ``/probes/content_hash`` (empty: the probes will be re-baked on the next incremental bake),
     ``/probes/bake_id`` (0) and ``/history`` with one entry from the root attributes.
+    1.1.0 → 1.2.0: rewrites every dataset with the fletcher32 filter and adds ``/checksums`` (of the values as they
+    are: a 1.1 store has nothing to verify them against).
+
+    A store that fails its integrity check, or of a newer format, is refused (:class:`StoreFormatError`). The
+    caller applies the output policy to ``target`` (``bakery migrate -o``).
     """
     contents = read_store(source)
     version = str(contents.attributes.get("format_version"))
-    if version == FORMAT_VERSION:
+    if version_tuple(version) > version_tuple(FORMAT_VERSION):
+        raise StoreFormatError(f"{source}: store format {version} is newer than this bakery writes "
+                               f"({FORMAT_VERSION}); nothing to migrate")
+    if version_tuple(version) == version_tuple(FORMAT_VERSION):
+        if target is not None and Path(target).resolve() != Path(source).resolve() and not dry_run:
+            write_store(target, contents)
         return []
-    steps = [f"{version} -> {FORMAT_VERSION}: add /probes/content_hash, /probes/bake_id, /history"]
+    steps = []
+    for step_from, what in MIGRATION_STEPS.items():
+        if version_tuple(version) <= version_tuple(step_from):
+            steps.append(what)
+    steps = [f"{version} -> {FORMAT_VERSION}: " + "; ".join(steps)]
     if not dry_run:
         write_store(target or source, contents)
     return steps

@@ -3,12 +3,15 @@
 Outcomes
     *could not run*  the stage cannot be opened: one "error" issue on "/" (the CLI exits non-zero);
     *failed*         any "error" issue: the bake refuses to run (its result could not be trusted);
-    *warnings*       documented fallbacks (MaterialX-only materials, missing material textures, unapplied
-                     color temperature, unsupported gprims or lights, unauthored metersPerUnit, ...).
+    *warnings*       what a bake would silently change: documented fallbacks and approximations (textures averaged
+                     where a mesh has no texture coordinates, unreadable or missing textures, float textures without
+                     colour-space information, unmodelled material lobes and normal maps, partial opacity,
+                     subdivision surfaces baked as their cage, unsupported gprims, light types and light inputs,
+                     unauthored metersPerUnit, ...).
 
 Checks are those of the scene reader (:mod:`bakery.usd.scene`) — the same code the bake runs, so ``check`` and
-``bake`` never disagree — plus the stage's composition errors (unresolvable references, payloads, sublayers) as
-warnings.
+``bake`` never disagree — including the stage's composition errors (a sublayer that fails to parse, an
+unresolvable reference or payload), which are errors: their contents would silently be missing from the bake.
 """
 
 from __future__ import annotations
@@ -27,14 +30,7 @@ def check_scene(path: str | Path) -> list[Issue]:
         stage = open_stage(path)
     except SceneError as exc:
         return [Issue("error", "/", str(exc))]
-    issues: list[Issue] = []
-    for error in stage.GetCompositionErrors():
-        text = str(error).splitlines()[0] if str(error) else type(error).__name__
-        site = getattr(error, "rootSite", None)
-        prim = str(site.path) if site is not None and str(getattr(site, "path", "")) else "/"
-        issues.append(Issue("warning", prim, f"composition: {text}"))
-    reading = SceneReader(stage, load_textures=True).read()
-    issues.extend(reading.issues)
+    issues: list[Issue] = list(SceneReader(stage, load_textures=True).read().issues)
     order = {"error": 0, "warning": 1}
     return sorted(dict.fromkeys(issues), key=lambda i: (order.get(i.severity, 2), i.prim))
 

@@ -7,7 +7,9 @@ through), each with the ``BakeryBakedProbeAPI`` schema applied and:
 attribute                                   value
 ==========================================  ====================================================================
 ``bakery:<kind>:<encoding>:<field>``        the field's values: float3[] when the last axis is RGB, else float[]
-                                            (uchar[] for 8-bit, int[] for other integer fields); customData
+                                            (uchar[] for 8-bit, int[] for other integer fields,
+                                            :func:`usd_type_for`), declared with its type and documentation
+                                            by ``BakeryBakedProbeAPI`` (generated from the registry); customData
                                             ``shape`` = per-probe shape, ``probeCount`` = probes in the array
 ``bakery:baked:store``                      asset path of the HDF5 store (relative to the layer)
 ``bakery:baked:contentHash``                SHA-256 of the prim's baked values (see :func:`content_hash`)
@@ -21,7 +23,8 @@ attribute                                   value
 
 A probe volume gets one ``over`` whose arrays hold its probes one after another in the volume's flat order
 (i fastest). The layer copies the scene's ``upAxis`` and ``metersPerUnit`` (so it composes without metrics
-warnings) and records the scene and store in ``customLayerData["bakery"]``. Use it by sublayering it above the
+warnings), sets ``defaultPrim`` (the scene's, when it is one of the layer's roots) and records the scene and store
+in ``customLayerData["bakery"]``. Use it by sublayering it above the
 scene, e.g. a session or shot layer with ``subLayers = [@scene.bake.usda@, @scene.usda@]``.
 """
 
@@ -82,21 +85,47 @@ def content_hash(fields: dict[str, np.ndarray]) -> str:
     return sha256_bytes(b"".join(parts))
 
 
+def usd_type_for(dtype: str | np.dtype, shape: tuple[int, ...]) -> Sdf.ValueTypeName:
+    """USD type of a field of per-probe ``shape`` and ``dtype``: float3[] when the last axis is RGB, else float[]
+    (float16/32/64 are written as float32), uchar[] for uint8, int[] for other integers. The layer writer and the
+    generated schema (:func:`bakery.usd.plugin.baked_field_attributes`) both use it, so they agree."""
+    kind = np.dtype(dtype)
+    if kind.kind == "f":
+        return Sdf.ValueTypeNames.Float3Array if len(shape) >= 1 and shape[-1] == 3 else Sdf.ValueTypeNames.FloatArray
+    if kind == np.uint8:
+        return Sdf.ValueTypeNames.UCharArray
+    if kind.kind in "iu":
+        return Sdf.ValueTypeNames.IntArray
+    raise SceneError(f"cannot write a {kind} array as a USD attribute")
+
+
 def _usd_value(array: np.ndarray) -> tuple[Sdf.ValueTypeName, object, np.ndarray]:
-    """USD type, Vt value and the exact numpy array written (after any dtype conversion)."""
+    """USD type (:func:`usd_type_for`), Vt value and the exact numpy array written (after any dtype conversion)."""
     array = np.asarray(array)
-    if array.dtype.kind == "f":
+    type_name = usd_type_for(array.dtype, array.shape[1:])
+    if type_name == Sdf.ValueTypeNames.Float3Array:
         data = np.ascontiguousarray(array, dtype=np.float32)
-        if array.ndim >= 2 and array.shape[-1] == 3:
-            return Sdf.ValueTypeNames.Float3Array, Vt.Vec3fArray.FromNumpy(data.reshape(-1, 3)), data
-        return Sdf.ValueTypeNames.FloatArray, Vt.FloatArray.FromNumpy(data.reshape(-1)), data
-    if array.dtype == np.uint8:
+        return type_name, Vt.Vec3fArray.FromNumpy(data.reshape(-1, 3)), data
+    if type_name == Sdf.ValueTypeNames.FloatArray:
+        data = np.ascontiguousarray(array, dtype=np.float32)
+        return type_name, Vt.FloatArray.FromNumpy(data.reshape(-1)), data
+    if type_name == Sdf.ValueTypeNames.UCharArray:
         data = np.ascontiguousarray(array)
-        return Sdf.ValueTypeNames.UCharArray, Vt.UCharArray.FromNumpy(data.reshape(-1)), data
-    if array.dtype.kind in "iu":
-        data = np.ascontiguousarray(array, dtype=np.int32)
-        return Sdf.ValueTypeNames.IntArray, Vt.IntArray.FromNumpy(data.reshape(-1)), data
-    raise SceneError(f"cannot write a {array.dtype} array as a USD attribute")
+        return type_name, Vt.UCharArray.FromNumpy(data.reshape(-1)), data
+    data = np.ascontiguousarray(array, dtype=np.int32)
+    return type_name, Vt.IntArray.FromNumpy(data.reshape(-1)), data
+
+
+def _default_prim(prims: list[BakedPrim], scene_path: str | os.PathLike[str]) -> str:
+    """The layer's defaultPrim: the scene's own when it is among the layer's root prims, else the first root."""
+    roots = sorted({Sdf.Path(baked.path).GetPrefixes()[0].name for baked in prims})
+    scene_default = ""
+    try:
+        scene = Sdf.Layer.FindOrOpen(str(scene_path))
+        scene_default = scene.defaultPrim if scene is not None else ""
+    except Exception:  # noqa: BLE001 - a scene layer USD cannot open has no defaultPrim to copy
+        scene_default = ""
+    return scene_default if scene_default in roots else (roots[0] if roots else "")
 
 
 #: File formats of the baked layer: text, crate (binary), or crate under the generic extension.
@@ -131,6 +160,9 @@ def write_bake_layer(
     pseudo = layer.pseudoRoot
     pseudo.SetInfo(UsdGeom.Tokens.upAxis, up_axis)
     pseudo.SetInfo(UsdGeom.Tokens.metersPerUnit, float(meters_per_unit))
+    default_prim = _default_prim(prims, scene_path)
+    if default_prim:  # a layer opened or referenced on its own needs one (OpenUSD's StageMetadataChecker)
+        layer.defaultPrim = default_prim
     conventions = json.dumps(CONVENTIONS, sort_keys=True)
     for baked in prims:
         spec = Sdf.CreatePrimInLayer(layer, Sdf.Path(baked.path))
@@ -189,3 +221,42 @@ def read_baked_values(stage_or_path: Usd.Stage | str | os.PathLike[str]) -> dict
             values[name] = data.reshape((count, *shape))
         result[str(prim.GetPath())] = values
     return result
+
+
+def add_export_attributes(layer_path: str | os.PathLike[str], assets: dict[str, dict[str, str]],
+                          store_path: str | os.PathLike[str] | None = None) -> Path:
+    """Add ``bakery:export:<key>`` asset attributes to the probe ``over`` specs of an existing baked layer, atomically
+    (temporary file + rename), for ``bakery export``.
+
+    ``assets`` maps a probe name to {key: asset path relative to the layer}, e.g.
+    ``{"/Room/Probes/TableReflection": {"ktx2": "exports/Room_Probes_TableReflection.ktx2"}}``. A probe volume's
+    probes (``/Vol[i,j,k]``) map onto the volume prim ``/Vol``. Probes without an ``over`` in the layer are
+    skipped. With ``store_path``, the layer must record that store (``customLayerData["bakery"]["store"]``), so an
+    unrelated layer is never edited. Returns the layer path."""
+    layer_path = Path(layer_path).resolve()
+    layer = Sdf.Layer.FindOrOpen(str(layer_path))
+    if layer is None:
+        raise SceneError(f"{layer_path}: not a USD layer bakery can open")
+    recorded = (layer.customLayerData or {}).get("bakery", {}).get("store")
+    if store_path is not None and recorded is not None:
+        if (layer_path.parent / recorded).resolve() != Path(store_path).resolve():
+            raise SceneError(f"{layer_path}: this layer was baked into {recorded}, not {store_path}; pass the "
+                             f"store's own layer (--layer)")
+    copy = Sdf.Layer.CreateAnonymous(layer_path.suffix)
+    copy.TransferContent(layer)
+    for probe, entries in sorted(assets.items()):
+        prim_path = probe.split("[", 1)[0] if probe.endswith("]") else probe
+        spec = copy.GetPrimAtPath(Sdf.Path(prim_path))
+        if spec is None:
+            continue
+        for key, asset in sorted(entries.items()):
+            name = f"bakery:export:{key}"
+            attr = spec.attributes.get(name) if hasattr(spec.attributes, "get") else None
+            if attr is None:
+                attr = Sdf.AttributeSpec(spec, name, Sdf.ValueTypeNames.Asset, Sdf.VariabilityUniform)
+            attr.default = Sdf.AssetPath(asset)
+    with atomic_replace(layer_path, suffix=layer_path.suffix) as tmp:
+        if not copy.Export(str(tmp)):
+            raise SceneError(f"{layer_path}: USD could not write the layer")
+    layer.Reload(force=True)
+    return layer_path

@@ -1,27 +1,53 @@
-"""UsdPreviewSurface → :class:`bakery.capture.scene.Material` (diffuse, emission, roughness, metallic).
+"""Bound materials → :class:`bakery.capture.scene.Material` (UsdPreviewSurface and MaterialX), textures as arrays.
 
-Inputs are read as authored, else UsdPreviewSurface's fallbacks (diffuseColor 0.18, emissiveColor 0, roughness 0.5,
-metallic 0). An input connected to a ``UsdUVTexture`` takes the texture's mean (scale · mean + bias, the connected
-output's channels), decoding sRGB-encoded 8-bit images to linear first; an input connected to a
-``UsdPrimvarReader`` takes the mean of the gprim's primvar (e.g. ``displayColor``). A missing texture falls back to
-the input's authored value or fallback, with a warning. Materials with no universal (UsdPreviewSurface) surface but
-a MaterialX one, or bindings to MaterialX materials that could not be composed (the usd-core wheel reads no
-``.mtlx``), warn and fall back to the gprim's ``displayColor`` or the defaults.
+Binding
+    ``UsdShadeMaterialBindingAPI.ComputeBoundMaterial("full")``: the ``full`` purpose (baking is a full render),
+    falling back to the all-purpose binding, with collection bindings and ``bindMaterialAs`` strength as UsdShade
+    resolves them.
+
+Surfaces, in order of preference
+    1. a MaterialX surface (``outputs:mtlx:surface``) authored as USD shaders (``ND_standard_surface_surfaceshader``,
+       ``ND_open_pbr_surface_surfaceshader``, ``ND_UsdPreviewSurface_surfaceshader``);
+    2. a ``.mtlx`` document the material references — which the usd-core wheel cannot compose — read with the
+       ``MaterialX`` package (:mod:`bakery.usd.mtlx`);
+    3. the universal ``UsdPreviewSurface``.
+    All map onto the capture's one model (diffuse, emission, metallic, roughness, specular workflow, ior,
+    opacity/opacityThreshold); what does not fit (clearcoat, transmission, sheen, normal maps, …) is reported per
+    prim. A gprim with no usable material uses its ``displayColor`` (else UsdPreviewSurface's 0.18 grey).
+
+Inputs
+    Authored values, else the shader's fallbacks. An input connected to a ``UsdUVTexture`` becomes a texture map
+    (``Material.maps``) evaluated per ray hit in the capture: ``scale``·texel + ``bias``, ``wrapS``/``wrapT``
+    (``useMetadata`` = repeat: image files carry no wrap metadata we read), ``fallback``, the output's channels,
+    and texture coordinates from the ``UsdPrimvarReader_float2`` on its ``st`` input (any ``varname``; default
+    ``st``). The material's constant value for such an input is the texture's mean (used where a mesh has no
+    texture coordinates, and for reports). Inputs connected to a ``UsdPrimvarReader`` use the gprim's primvar mean.
+
+Colour
+    ``sourceColorSpace`` "sRGB" decodes sRGB; "raw" leaves data alone; "auto" decodes 8-bit images as sRGB and
+    reads float images as linear. A ``colorSpace`` on the file attribute (or inherited from the layer, e.g.
+    ``ACEScg``) converts colour inputs into the bake's linear Rec.709 with OpenColorIO (:mod:`bakery.usd.color`);
+    data inputs (roughness, metallic, opacity, …) are never colour-converted. Textures larger than
+    :data:`MAX_TEXTURE_SIZE` are box-filtered down (the capture mip-maps from there).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom, UsdShade
 
-from bakery.capture.scene import Material
+from bakery.capture.scene import Material, Texture
 from bakery.environment.io import read_image
 from bakery.errors import ImageError
 from bakery.usd.assets import local_asset_path
+from bakery.usd.color import ColorSpaceError, canonical_name, to_working_space
 
 _T = Usd.TimeCode.EarliestTime()
+#: Largest texture side kept in the snapshot (larger textures are box-filtered to it).
+MAX_TEXTURE_SIZE = 1024
 
 #: UsdPreviewSurface fallbacks of the inputs bakery reads.
 PREVIEW_FALLBACKS = {
@@ -29,166 +55,354 @@ PREVIEW_FALLBACKS = {
     "emissiveColor": (0.0, 0.0, 0.0),
     "roughness": 0.5,
     "metallic": 0.0,
+    "specularColor": (0.0, 0.0, 0.0),
+    "useSpecularWorkflow": 0,
+    "ior": 1.5,
+    "opacity": 1.0,
+    "opacityThreshold": 0.0,
 }
+COLOR_INPUTS = ("diffuseColor", "emissiveColor", "specularColor")
+#: UsdPreviewSurface inputs the capture does not model (reported when authored away from their fallbacks).
+UNMODELLED = {"clearcoat": 0.0, "displacement": 0.0, "occlusion": 1.0}
+
+
+@dataclass
+class Surface:
+    """A surface in the capture's model before it becomes a :class:`Material`: per input a constant value, and
+    optionally a texture map (a dict as in ``Material.maps``)."""
+
+    values: dict[str, object] = field(default_factory=dict)
+    maps: dict[str, dict] = field(default_factory=dict)
+    primvar: str | None = None
+    notes: list[str] = field(default_factory=list)
 
 
 @dataclass
 class MaterialReader:
-    """Resolves bound materials of gprims, caching materials and texture means.
+    """Resolves bound materials of gprims, caching materials and textures.
 
-    ``issues`` collects (severity, prim path, message) tuples for the caller.
-    """
+    ``issues`` collects (severity, prim path, message) tuples; ``textures`` the texture arrays (by index);
+    ``files`` every file read (for dependency hashes)."""
 
+    time: Usd.TimeCode = field(default_factory=lambda: _T)
+    load_textures: bool = True
     issues: list[tuple[str, str, str]] = field(default_factory=list)
-    _materials: dict[str, tuple[Material, bool]] = field(default_factory=dict)
-    _textures: dict[str, np.ndarray | None] = field(default_factory=dict)
+    textures: list[Texture] = field(default_factory=list)
+    files: set[str] = field(default_factory=set)
+    _materials: dict[str, tuple[Material, bool, str | None]] = field(default_factory=dict)
+    _texture_index: dict[tuple[str, str], int | None] = field(default_factory=dict)
+    _means: dict[int, np.ndarray] = field(default_factory=dict)
 
-    def material_for(self, gprim: Usd.Prim) -> Material:
-        display = _display_color(gprim)
+    def material_for(self, gprim: Usd.Prim) -> tuple[Material, str | None]:
+        """The gprim's material and the name of the primvar its textures read (None if untextured)."""
+        display = _display_color(gprim, self.time)
         binding = UsdShade.MaterialBindingAPI(gprim)
-        material, _rel = binding.ComputeBoundMaterial()
+        material, _rel = binding.ComputeBoundMaterial(UsdShade.Tokens.full)
         if not material:
             targets = _binding_targets(gprim)
+            for target in targets:
+                mtlx = _materialx_source(gprim.GetStage(), target)
+                if mtlx is not None:
+                    key = str(target)
+                    if key not in self._materials:
+                        self._materials[key] = self._read_mtlx_document(key, *mtlx)
+                    result, use_display, primvar = self._materials[key]
+                    return (_default_material(display, name=result.name), None) if use_display else (result, primvar)
             if targets:
-                target = targets[0]
-                if _is_materialx_target(gprim.GetStage(), target):
-                    self._warn_once(str(target), f"material {target} is MaterialX-only (its .mtlx could not be "
-                                    "read); falling back to displayColor/defaults")
-                else:
-                    self._warn_once(str(target), f"bound material {target} does not exist; using defaults")
-            return _default_material(display)
+                self._warn_once(str(targets[0]), f"bound material {targets[0]} does not exist; using defaults")
+            return _default_material(display), None
         key = str(material.GetPath())
         if key not in self._materials:
             self._materials[key] = self._read_material(material)
-        result, use_display = self._materials[key]
-        return _default_material(display, name=result.name) if use_display else result
+        result, use_display, primvar = self._materials[key]
+        return (_default_material(display, name=result.name), None) if use_display else (result, primvar)
 
     # ------------------------------------------------------------------------------------------------------------
-    def _warn_once(self, prim: str, message: str) -> None:
-        issue = ("warning", prim, message)
+    def _warn_once(self, prim: str, message: str, severity: str = "warning") -> None:
+        issue = (severity, prim, message)
         if issue not in self.issues:
             self.issues.append(issue)
 
-    def _read_material(self, material: UsdShade.Material) -> tuple[Material, bool]:
+    def _read_material(self, material: UsdShade.Material) -> tuple[Material, bool, str | None]:
         path = str(material.GetPath())
+        mtlx_shader = None
+        output = material.GetSurfaceOutput("mtlx")
+        if output and output.GetAttr().IsAuthored():
+            for attr in output.GetValueProducingAttributes():
+                if UsdShade.Output.IsOutput(attr):
+                    mtlx_shader = UsdShade.Shader(attr.GetPrim())
+        if mtlx_shader:
+            shader_id = mtlx_shader.GetShaderId() or ""
+            from bakery.usd.mtlx import surface_from_usd_shader
+
+            surface = surface_from_usd_shader(self, mtlx_shader, shader_id)
+            if surface is not None:
+                return self._finish(path, surface)
         shader, _name, _type = material.ComputeSurfaceSource()
         if not shader:
-            mtlx, _, _ = material.ComputeSurfaceSource("mtlx")
-            if mtlx:
-                self._warn_once(path, "MaterialX-only material (no UsdPreviewSurface); falling back to "
-                                "displayColor/defaults")
+            if mtlx_shader:
+                self._warn_once(path, f"MaterialX-only material with an unsupported surface "
+                                f"{mtlx_shader.GetShaderId()!r}; falling back to displayColor/defaults")
             else:
                 self._warn_once(path, "material has no surface shader; falling back to displayColor/defaults")
-            return Material(name=path), True
+            return Material(name=path), True, None
         shader_id = shader.GetShaderId() or ""
         if shader_id != "UsdPreviewSurface":
             self._warn_once(path, f"surface shader {shader.GetPath()} is {shader_id or 'untyped'!r}, not "
                             "UsdPreviewSurface; falling back to displayColor/defaults")
-            return Material(name=path), True
-        values = {name: self._input_value(shader, name, fallback) for name, fallback in PREVIEW_FALLBACKS.items()}
-        return (
-            Material(
-                name=path,
-                diffuse=tuple(float(x) for x in np.broadcast_to(values["diffuseColor"], 3)),
-                emission=tuple(float(x) for x in np.broadcast_to(values["emissiveColor"], 3)),
-                roughness=float(np.mean(values["roughness"])),
-                metallic=float(np.mean(values["metallic"])),
-            ),
-            False,
+            return Material(name=path), True, None
+        surface = Surface()
+        for name, fallback in PREVIEW_FALLBACKS.items():
+            self._preview_input(shader, name, fallback, surface)
+        for name, neutral in UNMODELLED.items():
+            shader_input = shader.GetInput(name)
+            value = shader_input.Get(self.time) if shader_input else None
+            if shader_input and (shader_input.HasConnectedSource() or (
+                    value is not None and float(np.mean(value)) != neutral)):
+                surface.notes.append(f"{name} is not modelled by the capture")
+        normal = shader.GetInput("normal")
+        if normal and normal.HasConnectedSource():
+            surface.notes.append("normal maps are not modelled by the capture (geometric normals are used)")
+        return self._finish(path, surface)
+
+    def _finish(self, path: str, surface: Surface) -> tuple[Material, bool, str | None]:
+        v = {**PREVIEW_FALLBACKS, **surface.values}
+        for note in surface.notes:
+            self._warn_once(path, note)
+        opacity, threshold = float(np.mean(v["opacity"])), float(np.mean(v["opacityThreshold"]))
+        if threshold <= 0 and (opacity < 1.0 or "opacity" in surface.maps):
+            self._warn_once(path, f"partial opacity ({opacity:g}) without opacityThreshold is not modelled "
+                            "(the surface is opaque in the capture)")
+        maps = []
+        for name, entry in surface.maps.items():
+            maps.append(dict(entry, input=name))
+        material = Material(
+            name=path,
+            diffuse=_color(v["diffuseColor"]),
+            emission=_color(v["emissiveColor"]),
+            roughness=float(np.mean(v["roughness"])),
+            metallic=float(np.mean(v["metallic"])),
+            specular=_color(v["specularColor"]),
+            use_specular_workflow=bool(int(np.mean(v["useSpecularWorkflow"]))),
+            ior=float(np.mean(v["ior"])),
+            opacity=opacity,
+            opacity_threshold=threshold,
+            maps=tuple(sorted(maps, key=lambda m: m["input"])),
         )
+        return material, False, surface.primvar if maps else None
 
-    def _input_value(self, shader: UsdShade.Shader, name: str, fallback):
+    # ------------------------------------------------------------------------------------------------------------
+    def _producer(self, shader_input: UsdShade.Input):  # noqa: ANN202
+        """(value, upstream shader, output name) at the end of the input's connections (interface inputs followed)."""
+        attrs = shader_input.GetValueProducingAttributes()
+        if not attrs:
+            return shader_input.Get(self.time), None, None
+        attr = attrs[0]
+        if UsdShade.Output.IsOutput(attr):
+            output = UsdShade.Output(attr)
+            return None, UsdShade.Shader(output.GetPrim()), output.GetBaseName()
+        return attr.Get(self.time), None, None
+
+    def _preview_input(self, shader: UsdShade.Shader, name: str, fallback, surface: Surface) -> None:  # noqa: ANN001
         shader_input = shader.GetInput(name)
-        fallback_arr = np.asarray(fallback, dtype=np.float64)
         if not shader_input:
-            return fallback_arr
-        authored = shader_input.Get(_T)
-        base = fallback_arr if authored is None else np.asarray(authored, dtype=np.float64)
-        if not shader_input.HasConnectedSource():
-            return base
-        sources = shader_input.GetConnectedSources()[0]
-        if not sources:
-            return base
-        source = sources[0]
-        upstream = UsdShade.Shader(source.source.GetPrim())
-        upstream_id = upstream.GetShaderId() or "" if upstream else ""
-        output = str(source.sourceName)
+            return
+        value, upstream, output = self._producer(shader_input)
+        if upstream is None:
+            if value is not None:
+                surface.values[name] = value
+            return
+        upstream_id = upstream.GetShaderId() or ""
         if upstream_id == "UsdUVTexture":
-            mean = self._texture_mean(upstream, output)
-            if mean is None:
-                return base
-            return mean if fallback_arr.ndim else np.asarray(mean).mean()
-        # Constant inputs passed through (e.g. a material interface input) or primvar readers: use the authored
-        # upstream value if any, else the base value.
-        value = upstream.GetInput("fallback").Get(_T) if upstream and upstream.GetInput("fallback") else None
-        return base if value is None else np.asarray(value, dtype=np.float64)
+            entry, mean, primvar = self._uv_texture(upstream, output, name in COLOR_INPUTS)
+            if entry is None:
+                if value is not None:
+                    surface.values[name] = value
+                return
+            surface.maps[name] = entry
+            surface.values[name] = mean if np.ndim(fallback) else float(np.mean(mean))
+            if primvar:
+                if surface.primvar and surface.primvar != primvar:
+                    surface.notes.append(f"textures read different primvars ({surface.primvar}, {primvar}); "
+                                         f"{surface.primvar} is used for all")
+                surface.primvar = surface.primvar or primvar
+            return
+        if upstream_id.startswith("UsdPrimvarReader"):
+            fb = upstream.GetInput("fallback")
+            fb_value = fb.Get(self.time) if fb else None
+            if fb_value is not None:
+                surface.values[name] = fb_value
+            return
+        self._warn_once(str(shader.GetPath()), f"input {name} is connected to {upstream_id or 'an untyped shader'}, "
+                        "which the capture does not evaluate; its value is used")
 
-    def _texture_mean(self, texture: UsdShade.Shader, output: str) -> np.ndarray | float | None:
-        file_input = texture.GetInput("file")
-        asset = file_input.Get(_T) if file_input else None
+    def _uv_texture(self, texture: UsdShade.Shader, output: str, is_color: bool):  # noqa: ANN202
+        """(map entry, mean value of the output, primvar name) of a UsdUVTexture, or (None, None, None)."""
         path = str(texture.GetPath())
+        file_input = texture.GetInput("file")
+        asset = self._producer(file_input)[0] if file_input else None
         if not isinstance(asset, Sdf.AssetPath) or not asset.path:
             self._warn_once(path, "UsdUVTexture has no inputs:file; using the input's value")
-            return None
+            return None, None, None
         resolved = local_asset_path(asset)
         if resolved is None:
             self._warn_once(path, f"texture {asset.path!r} not found; using the input's value")
-            return None
-        color_space = str(texture.GetInput("sourceColorSpace").Get(_T) or "auto") if texture.GetInput(
-            "sourceColorSpace") else "auto"
-        rgba = self._read_mean(resolved, color_space, path)
-        if rgba is None:
-            return None
-        scale = _input4(texture, "scale", (1.0, 1.0, 1.0, 1.0))
-        bias = _input4(texture, "bias", (0.0, 0.0, 0.0, 0.0))
-        rgba = rgba * scale + bias
-        channels = {"r": 0, "g": 1, "b": 2, "a": 3}
-        if output in channels:
-            return float(rgba[channels[output]])
-        return rgba[:3]
+            return None, None, None
+        source_cs = _token(texture, "sourceColorSpace", "auto", self.time)
+        color_space = file_input.GetAttr().GetColorSpace() if file_input else ""
+        if not color_space:
+            color_space = _inherited_color_space(texture.GetPrim())
+        index = self.texture_index(resolved, source_cs, path, color_space, is_color)
+        if index is None:
+            return None, None, None
+        scale = _value4(texture, "scale", (1.0, 1.0, 1.0, 1.0), self.time)
+        bias = _value4(texture, "bias", (0.0, 0.0, 0.0, 0.0), self.time)
+        fallback = _value4(texture, "fallback", (0.0, 0.0, 0.0, 1.0), self.time)
+        wrap = tuple(_wrap_mode(_token(texture, w, "useMetadata", self.time)) for w in ("wrapS", "wrapT"))
+        channels = output if output in ("r", "g", "b", "a") else "rgb"
+        mean = self._means[index] * scale + bias
+        mean_out = float(mean[{"r": 0, "g": 1, "b": 2, "a": 3}[channels]]) if channels != "rgb" else mean[:3]
+        primvar = "st"
+        st_input = texture.GetInput("st")
+        if st_input:
+            _value, reader, _out = self._producer(st_input)
+            if reader is not None and (reader.GetShaderId() or "").startswith("UsdPrimvarReader"):
+                varname = reader.GetInput("varname")
+                name = self._producer(varname)[0] if varname else None
+                if name:
+                    primvar = str(name)
+        entry = {"texture": index, "channels": channels, "scale": tuple(map(float, scale)),
+                 "bias": tuple(map(float, bias)), "fallback": tuple(map(float, fallback)), "wrap": wrap}
+        return entry, mean_out, primvar
 
-    def _read_mean(self, filename: str, color_space: str, prim: str) -> np.ndarray | None:
-        key = f"{filename}|{color_space}"
-        if key in self._textures:
-            return self._textures[key]
+    def texture_index(self, filename: str, source_cs: str, prim: str, color_space: str = "",
+                      is_color: bool = True) -> int | None:
+        """Index in :attr:`textures` of a file read as linear Rec.709 RGBA (None if unreadable)."""
+        key = (filename, f"{source_cs}|{color_space}|{int(is_color)}")
+        if key in self._texture_index:
+            return self._texture_index[key]
+        self.files.add(filename)
         try:
             image = read_image(filename, channels=4)
         except ImageError as error:
             self._warn_once(prim, f"texture cannot be read: {error}")
-            self._textures[key] = None
+            self._texture_index[key] = None
             return None
-        pixels, is_8bit = image.pixels.astype(np.float64), image.is_8bit
-        c = pixels.shape[2]
-        if c == 1:
-            pixels = np.concatenate([np.repeat(pixels, 3, axis=2), np.ones_like(pixels)], axis=2)
-        elif c == 2:
-            pixels = np.concatenate([np.repeat(pixels[..., :1], 3, axis=2), pixels[..., 1:2]], axis=2)
-        elif c == 3:
-            pixels = np.concatenate([pixels, np.ones_like(pixels[..., :1])], axis=2)
-        if color_space == "sRGB" or (color_space == "auto" and is_8bit):
+        pixels = _rgba(image.pixels.astype(np.float64))
+        label = "raw"
+        decode_srgb = source_cs == "sRGB" or (source_cs == "auto" and not color_space and image.is_8bit)
+        if source_cs == "raw":
+            pass
+        elif decode_srgb:
             pixels[..., :3] = srgb_to_linear(pixels[..., :3])
-        mean = pixels.reshape(-1, 4).mean(axis=0)
-        self._textures[key] = mean
-        return mean
+            label = "srgb_texture"
+        elif is_color and color_space:
+            try:
+                canonical_name(color_space)
+                pixels[..., :3] = to_working_space(pixels[..., :3], color_space)
+                label = color_space
+            except ColorSpaceError as error:
+                self._warn_once(prim, f"{error}; texture read as linear Rec.709")
+                label = "lin_rec709"
+        elif is_color:
+            label = "lin_rec709"
+            self._warn_once(prim, f"{Path(filename).name}: no colour-space information (float image, "
+                            "sourceColorSpace auto); read as linear Rec.709")
+        self._means[len(self.textures)] = pixels.reshape(-1, 4).mean(axis=0)
+        pixels = _downsample(pixels, MAX_TEXTURE_SIZE)
+        self.textures.append(Texture(name=filename, pixels=pixels.astype(np.float32), color_space=label))
+        self._texture_index[key] = len(self.textures) - 1
+        return len(self.textures) - 1
+
+    def texture_mean(self, index: int) -> np.ndarray:
+        return self._means[index]
+
+    # ------------------------------------------------------------------------------------------------------------
+    def _read_mtlx_document(self, target: str, document: str, material_name: str) -> tuple[Material, bool, str | None]:
+        from bakery.usd.mtlx import MaterialXError, surface_from_document
+
+        self.files.add(document)
+        try:
+            surface = surface_from_document(self, document, material_name, target)
+        except MaterialXError as error:
+            self._warn_once(target, f"MaterialX material {material_name!r} in {Path(document).name}: {error}; "
+                            "falling back to displayColor/defaults")
+            return Material(name=target), True, None
+        return self._finish(target, surface)
+
+
+def _rgba(pixels: np.ndarray) -> np.ndarray:
+    c = pixels.shape[2]
+    if c == 1:
+        return np.concatenate([np.repeat(pixels, 3, axis=2), np.ones_like(pixels)], axis=2)
+    if c == 2:
+        return np.concatenate([np.repeat(pixels[..., :1], 3, axis=2), pixels[..., 1:2]], axis=2)
+    if c == 3:
+        return np.concatenate([pixels, np.ones_like(pixels[..., :1])], axis=2)
+    return pixels[..., :4].copy()
+
+
+def _downsample(pixels: np.ndarray, limit: int) -> np.ndarray:
+    while max(pixels.shape[:2]) > limit:
+        h, w = pixels.shape[:2]
+        h2, w2 = max(1, h // 2), max(1, w // 2)
+        pixels = pixels[: h2 * 2 if h > 1 else 1, : w2 * 2 if w > 1 else 1]
+        pixels = pixels.reshape(h2, -1, w2, pixels.shape[1] // w2, 4).mean(axis=(1, 3))
+    return pixels
 
 
 def srgb_to_linear(values: np.ndarray) -> np.ndarray:
     """IEC 61966-2-1 sRGB decoding of values in [0, 1]."""
     values = np.asarray(values)
-    return np.where(values <= 0.04045, values / 12.92, ((values + 0.055) / 1.055) ** 2.4)
+    return np.where(values <= 0.04045, values / 12.92, ((np.maximum(values, 0.0) + 0.055) / 1.055) ** 2.4)
 
 
-def _input4(shader: UsdShade.Shader, name: str, fallback) -> np.ndarray:
+def _color(value) -> tuple[float, float, float]:  # noqa: ANN001
+    return tuple(float(x) for x in np.broadcast_to(np.asarray(value, dtype=np.float64), 3))
+
+
+def _token(shader: UsdShade.Shader, name: str, fallback: str, time: Usd.TimeCode) -> str:
     shader_input = shader.GetInput(name)
-    value = shader_input.Get(_T) if shader_input else None
-    return np.asarray(fallback if value is None else value, dtype=np.float64)
+    value = shader_input.Get(time) if shader_input else None
+    return str(value) if value else fallback
 
 
-def _display_color(gprim: Usd.Prim) -> tuple[float, float, float] | None:
+def _value4(shader: UsdShade.Shader, name: str, fallback, time: Usd.TimeCode) -> np.ndarray:  # noqa: ANN001
+    shader_input = shader.GetInput(name)
+    value = shader_input.Get(time) if shader_input else None
+    array = np.asarray(fallback if value is None else value, dtype=np.float64).reshape(-1)
+    if array.size < 4:
+        array = np.concatenate([array, np.asarray(fallback, dtype=np.float64)[array.size:]])
+    return array[:4]
+
+
+def _wrap_mode(token: str) -> str:
+    return {"black": "black", "clamp": "clamp", "mirror": "mirror"}.get(token, "repeat")
+
+
+def _inherited_color_space(prim: Usd.Prim) -> str:
+    """``colorSpace`` metadata on the prim or its ancestors (UsdShade/UsdColorSpaceAPI style), else ""."""
+    while prim and not prim.IsPseudoRoot():
+        for key in ("colorSpace",):
+            if prim.HasMetadata(key):
+                return str(prim.GetMetadata(key))
+        attr = prim.GetAttribute("colorSpace:name")
+        if attr and attr.HasAuthoredValue():
+            return str(attr.Get())
+        prim = prim.GetParent()
+    layer = prim.GetStage().GetRootLayer() if prim else None
+    if layer is not None:
+        value = layer.customLayerData.get("colorSpace") if layer.customLayerData else None
+        if value:
+            return str(value)
+    return ""
+
+
+def _display_color(gprim: Usd.Prim, time: Usd.TimeCode = _T) -> tuple[float, float, float] | None:
     primvar = UsdGeom.PrimvarsAPI(gprim).GetPrimvar("displayColor")
     if not primvar or not primvar.HasAuthoredValue():
         return None
-    value = primvar.ComputeFlattened(_T)
+    value = primvar.ComputeFlattened(time)
     if value is None or len(value) == 0:
         return None
     return tuple(float(x) for x in np.asarray(value, dtype=np.float64).reshape(-1, 3).mean(axis=0))
@@ -201,21 +415,19 @@ def _default_material(display: tuple[float, float, float] | None, name: str = "<
 
 
 def _binding_targets(gprim: Usd.Prim) -> list[Sdf.Path]:
-    rel = UsdShade.MaterialBindingAPI(gprim).GetDirectBindingRel()
-    return list(rel.GetTargets()) if rel else []
+    api = UsdShade.MaterialBindingAPI(gprim)
+    targets: list[Sdf.Path] = []
+    for purpose in (UsdShade.Tokens.full, UsdShade.Tokens.allPurpose):
+        rel = api.GetDirectBindingRel(purpose)
+        if rel:
+            targets.extend(t for t in rel.GetTargets() if t not in targets)
+    return targets
 
 
-def _is_materialx_target(stage: Usd.Stage, target: Sdf.Path) -> bool:
-    """Whether a missing binding target sits under a prim whose composition failed on a ``.mtlx`` asset."""
-    prefixes = {str(p) for p in target.GetPrefixes()}
-    for error in stage.GetCompositionErrors():
-        text = str(error)
-        if ".mtlx" not in text:
-            continue
-        if any(f"<{p}>" in text or f"{p}>" in text for p in prefixes):
-            return True
-    # The binding points into a prim that references a .mtlx file.
-    for prefix in target.GetPrefixes():
+def _materialx_source(stage: Usd.Stage, target: Sdf.Path) -> tuple[str, str] | None:
+    """(.mtlx file, material name) for a binding target under a prim that references a ``.mtlx`` document, as
+    usdMtlx maps it (materials at ``<root>/Materials/<name>``), or None."""
+    for prefix in reversed(target.GetPrefixes()):
         prim = stage.GetPrimAtPath(prefix)
         if not prim:
             continue
@@ -223,6 +435,18 @@ def _is_materialx_target(stage: Usd.Stage, target: Sdf.Path) -> bool:
             for ref in list(spec.referenceList.GetAddedOrExplicitItems()) + list(
                 spec.payloadList.GetAddedOrExplicitItems()
             ):
-                if ref.assetPath.lower().endswith(".mtlx"):
-                    return True
-    return False
+                if not ref.assetPath.lower().endswith(".mtlx"):
+                    continue
+                layer_dir = Path(spec.layer.realPath or spec.layer.identifier).parent
+                document = (layer_dir / ref.assetPath).resolve()
+                if not document.is_file():
+                    resolved = local_asset_path(Sdf.AssetPath(str(layer_dir / ref.assetPath)))
+                    if resolved is None:
+                        continue
+                    document = Path(resolved)
+                relative = target.MakeRelativePath(prefix)
+                parts = [p for p in str(relative).split("/") if p and p != "."]
+                ref_target = str(ref.primPath) if ref.primPath and not ref.primPath.isEmpty else "/MaterialX"
+                full = [p for p in ref_target.split("/") if p] + parts
+                return str(document), full[-1]
+    return None

@@ -8,9 +8,15 @@ Where the files live
     :func:`register_schemas` calls ``Plug.Registry().RegisterPlugins(<package>/schema)``. ``bakery.usd`` calls it
     on import, before any stage is opened.
 
-Regenerating after editing ``schema.usda`` (from the repository root)::
+Regenerating after editing ``schema.usda`` or adding an encoding or a field (from the repository root)::
 
     python -m bakery.usd.sync_schemas
+
+The ``BakeryBakedProbeAPI`` attributes of every encoding's fields, ``bakery:<kind>:<encoding>:<field>``, are not
+written by hand: :func:`baked_field_block` generates them from the encodings' declarations (the registry, default
+parameters, :func:`bakery.usd.layer.usd_type_for` — the type the layer writer uses) between the markers
+:data:`BEGIN_GENERATED` / :data:`END_GENERATED` of ``schema.usda``; ``tests/usd/test_usd_schema.py`` fails when the
+registry declares a field the schema does not.
 
 OpenUSD builds its schema registry once, on first use; plugins registered after that are not seen by
 ``UsdSchemaRegistry`` (prim definitions, fallbacks). bakery's scene reader does not rely on the registry: it reads
@@ -26,6 +32,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+import numpy as np
 from pxr import Plug, Tf, Usd
 
 from bakery.files import write_bytes_atomic
@@ -48,6 +55,10 @@ FALLBACKS: dict[str, object] = {
     "bakery:volume:counts": (2, 2, 2),
 }
 
+#: Markers of the generated block of ``schema.usda`` (inside ``BakeryBakedProbeAPI``).
+BEGIN_GENERATED = "    # BEGIN generated from bakery.encodings by `python -m bakery.usd.sync_schemas`: do not edit by hand"
+END_GENERATED = "    # END generated"
+
 _registered = False
 
 
@@ -69,6 +80,50 @@ def schemas_registered() -> bool:
     ) and bool(Tf.Type.FindByName(PROBE_TYPES[0]))
 
 
+def baked_field_attributes() -> list[tuple[str, str, str]]:
+    """(attribute name, USD type name, documentation) of every field of every registered encoding, with the
+    encoding's default parameters, in registration order."""
+    from bakery.encodings import ENCODINGS
+    from bakery.usd.layer import MAX_VALUES_PER_PROBE, attribute_name, usd_type_for
+
+    attributes = []
+    for cls in ENCODINGS.values():
+        encoding = cls()
+        for spec in encoding.field_specs():
+            type_name = str(usd_type_for(spec.dtype, spec.shape))
+            values = int(np.prod(spec.shape, dtype=np.int64))
+            shape = "(" + ", ".join(str(d) for d in spec.shape) + ("," if len(spec.shape) == 1 else "") + ")"
+            doc = (f"{cls.kind} encoding {cls.name} {cls.version}, field {spec.name}: {spec.description}; per probe "
+                   f"{shape} {spec.dtype} at the default settings, written as {type_name} (C order)")
+            if values > MAX_VALUES_PER_PROBE:
+                doc += f", store only above {MAX_VALUES_PER_PROBE} values per probe"
+            doc += f". Encoding: {cls.description}"
+            attributes.append((attribute_name(cls.kind, cls.name, spec.name), type_name, doc))
+    return attributes
+
+
+def baked_field_block() -> str:
+    """The generated block of ``schema.usda``: one attribute declaration per :func:`baked_field_attributes`."""
+    lines = [BEGIN_GENERATED]
+    for name, type_name, doc in baked_field_attributes():
+        text = doc.replace("\\", "\\\\").replace('"', "'")
+        lines += [f"    {type_name} {name} (",
+                  f'        doc = """{text}"""',
+                  f'        customData = {{ string userDocBrief = """{text}""" }}',
+                  "    )"]
+    lines.append(END_GENERATED)
+    return "\n".join(lines) + "\n"
+
+
+def update_schema_source(text: str) -> str:
+    """``schema.usda`` text with its generated block replaced by :func:`baked_field_block`."""
+    start = text.find(BEGIN_GENERATED)
+    end = text.find(END_GENERATED)
+    if start < 0 or end < start:
+        raise ValueError("schema.usda has no generated block (BEGIN/END markers inside BakeryBakedProbeAPI)")
+    return text[:start] + baked_field_block() + text[end + len(END_GENERATED) + 1:]
+
+
 def _fix_plug_info(path: Path) -> None:
     """Replace the CMake placeholders usdGenSchema leaves in plugInfo.json with a resource-only plugin's paths."""
     text = path.read_text()
@@ -82,8 +137,14 @@ def _fix_plug_info(path: Path) -> None:
 
 
 def sync_schemas(source_dir: Path) -> None:
-    """Run usdGenSchema on ``source_dir/schema.usda``; write the results to ``source_dir`` and :data:`PLUGIN_DIR`."""
+    """Regenerate the encoding-field block of ``source_dir/schema.usda`` from the registry, run usdGenSchema on it
+    and write the results to ``source_dir`` and :data:`PLUGIN_DIR`."""
     source_dir = Path(source_dir)
+    schema = source_dir / "schema.usda"
+    text = schema.read_text()
+    updated = update_schema_source(text)
+    if updated != text:
+        write_bytes_atomic(schema, updated.encode())
     with tempfile.TemporaryDirectory() as tmp:
         subprocess.run(
             [sys.executable, "-m", "pxr.Usd.usdGenSchema", str(source_dir / "schema.usda"), tmp],

@@ -14,26 +14,33 @@ DomeLight orientation
     ``DomeLight_1`` has ``poleAxis``: "Y" as above; "Z" (or "scene" on a Z-up stage) first turns the pole from
     local +Y to local +Z (rotateX 90°).
 
-What is read
-    Probes (bakery schema types), UsdLux Dome/Distant/Sphere/Rect/Disk lights (``inputs:*`` attributes, else the
-    legacy un-namespaced ones), meshes (fan-triangulated), Sphere and Cube gprims (tessellated), point instancers
-    and native instances (instance proxies), with payloads loaded; UsdPreviewSurface materials
-    (:mod:`bakery.usd.materials`). Invisible prims and ``guide``/``proxy`` purposes are skipped.
+What is read (``docs/capture.md``)
+    Probes (bakery schema types); every UsdLux light through its class in :mod:`bakery.capture.lights`
+    (Sphere, Disk, Rect with texture, Cylinder, Distant; ShapingAPI; color temperature; ``inputs:*`` attributes,
+    else the legacy un-namespaced ones), Dome/DomeLight_1, GeometryLight (emission on its meshes), PortalLight (a
+    dome sampling guide); meshes (fan-triangulated, catmullClark refined ``subdivision`` levels), Sphere and Cube
+    gprims (tessellated), point instancers and native instances (instance proxies), with payloads loaded;
+    texture coordinates for textured materials; UsdPreviewSurface and MaterialX materials
+    (:mod:`bakery.usd.materials`, :mod:`bakery.usd.mtlx`). Invisible prims and ``guide``/``proxy`` purposes are
+    skipped. Composition errors (unparsable sublayers, missing references and payloads) are errors. The stage is
+    read at ``time`` (default: authored defaults, else each attribute's earliest time sample).
 """
 
 from __future__ import annotations
 
-import math
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
 
+from bakery.capture.lights import LIGHT_MODELS, Placement
 from bakery.capture.scene import CaptureScene, Dome, Light, Mesh, ProbeSpec
 from bakery.environment.io import is_8bit_image, read_environment
 from bakery.errors import ImageError, SceneError
 from bakery.usd.assets import local_asset_path
+from bakery.usd.color import WORKING_SPACE, ColorSpaceError, to_working_space
 from bakery.usd.materials import MaterialReader, srgb_to_linear
 from bakery.usd.plugin import FALLBACKS, PROBE_TYPES
 
@@ -111,6 +118,15 @@ class _Frame:
         return (m3 @ self.axes).T
 
 
+def blackbody_rgb(kelvin: float) -> np.ndarray:
+    """Linear Rec.709 colour of a blackbody at ``kelvin`` with luminance 1 (Gf's Planckian locus, normalised to the
+    Rec.709 luminance of (1, 1, 1) as HdEmbree's ``_BlackbodyTemperatureAsRgb``)."""
+    color = Gf.Color(Gf.ColorSpace(Gf.ColorSpaceNames.LinearRec709))
+    color.SetFromPlanckianLocus(float(kelvin), 1.0)
+    rgb = np.asarray(color.GetRGB(), dtype=np.float64)
+    return rgb / float(rgb @ np.array([0.2126, 0.7152, 0.0722]))
+
+
 def _orthonormalize(m3: np.ndarray) -> np.ndarray:
     u, _s, vt = np.linalg.svd(m3)
     r = u @ vt
@@ -127,17 +143,23 @@ def _matrix(gf: Gf.Matrix4d) -> np.ndarray:
 class SceneReader:
     """Reads one stage; collects issues instead of failing on the first problem."""
 
-    def __init__(self, stage: Usd.Stage, load_textures: bool = True) -> None:
+    def __init__(self, stage: Usd.Stage, load_textures: bool = True, time: float | None = None,
+                 subdivision: int = 0) -> None:
         self.stage = stage
+        self.subdivision = int(subdivision)
+        self.time_code = time
+        self.time = Usd.TimeCode(time) if time is not None else _T
         self.frame = _Frame(stage)
-        self.xforms = UsdGeom.XformCache(_T)
-        self.materials = MaterialReader()
+        self.xforms = UsdGeom.XformCache(self.time)
+        self.materials = MaterialReader(time=self.time, load_textures=load_textures)
         self.load_textures = load_textures
         self.issues: list[Issue] = []
         self.meshes: list[Mesh] = []
         self.lights: list[Light] = []
         self.domes: list[Dome] = []
         self.probes: list[ProbeSpec] = []
+        self.portals: list[Light] = []
+        self.geometry_lights: list[tuple[str, list[str], np.ndarray, bool]] = []
 
     def issue(self, severity: str, prim: Usd.Prim | str, message: str) -> None:
         path = prim if isinstance(prim, str) else str(prim.GetPath())
@@ -147,7 +169,22 @@ class SceneReader:
         return _matrix(self.xforms.GetLocalToWorldTransform(prim))
 
     # ------------------------------------------------------------------------------------------------------------
+    def _composition_issues(self) -> None:
+        """Composition errors are errors (a sublayer that fails to parse, a missing reference or payload silently
+        drops its contents from the bake), except ``.mtlx`` references, which are read with the MaterialX package."""
+        for error in self.stage.GetCompositionErrors():
+            text = str(error).splitlines()[0] if str(error) else type(error).__name__
+            site = getattr(error, "rootSite", None)
+            path = str(getattr(site, "path", "")) if site is not None else ""
+            prim = path if path.startswith("/") else "/"
+            if ".mtlx" in text:
+                self.issue("warning", prim, "composition: a .mtlx reference cannot be composed by usd-core; its "
+                           "materials are read with the MaterialX package")
+                continue
+            self.issue("error", prim, f"composition: {text.strip()}")
+
     def read(self) -> SceneReading:
+        self._composition_issues()
         if not UsdGeom.StageHasAuthoredMetersPerUnit(self.stage):
             self.issue("warning", "/", f"metersPerUnit is not authored; using UsdGeom's fallback {self.frame.mpu}")
         predicate = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)
@@ -182,6 +219,7 @@ class SceneReader:
                     self.issue("warning", prim, f"{type_name} gprims are not supported by the capture; skipped")
             except SceneError as exc:
                 self.issue("error", prim, str(exc))
+        self._apply_geometry_lights()
         self._check_encodings()
         for severity, path, message in self.materials.issues:
             self.issue(severity, path, message)
@@ -194,6 +232,7 @@ class SceneReader:
             self.issue("warning", self.domes[1].name, f"{len(self.domes)} dome lights; only {self.domes[0].name} "
                        "is used")
         names = [p.name for p in self.probes]
+        textures = self._used_textures()
         scene = CaptureScene(
             meshes=tuple(self.meshes),
             lights=tuple(self.lights),
@@ -201,6 +240,10 @@ class SceneReader:
             probes=tuple(self.probes),
             meters_per_unit=self.frame.mpu,
             up_axis=self.frame.up,
+            textures=textures,
+            portals=tuple(self.portals),
+            working_space=WORKING_SPACE,
+            time_code=self.time_code,
         )
         assert len(set(names)) == len(names)
         return SceneReading(
@@ -213,11 +256,25 @@ class SceneReader:
             assets=tuple(sorted(self._assets())),
         )
 
+    def _used_textures(self) -> tuple:
+        """The textures some mesh map or light uses (others, e.g. of meshes without texture coordinates, are dropped
+        from the snapshot), with the indices in materials and lights renumbered."""
+        used = sorted({int(e["texture"]) for m in self.meshes for e in m.material.maps}
+                      | {light.texture for light in self.lights if light.texture >= 0})
+        index = {old: new for new, old in enumerate(used)}
+        for i, mesh in enumerate(self.meshes):
+            if mesh.material.maps:
+                maps = tuple(dict(e, texture=index[int(e["texture"])]) for e in mesh.material.maps)
+                self.meshes[i] = dataclasses.replace(mesh, material=dataclasses.replace(mesh.material, maps=maps))
+        self.lights = [dataclasses.replace(light, texture=index[light.texture]) if light.texture >= 0 else light
+                       for light in self.lights]
+        return tuple(self.materials.textures[k] for k in used)
+
     def _assets(self) -> set[str]:
         """Files other than layers that the capture reads: dome texture, captured images, material textures."""
         files = {d.source for d in self.domes if d.source}
         files |= {p.image for p in self.probes if p.image}
-        files |= {key.split("|", 1)[0] for key in self.materials._textures}
+        files |= set(self.materials.files)
         return files
 
     def _check_encodings(self) -> None:
@@ -244,7 +301,7 @@ class SceneReader:
     # Probes
     def _attr(self, prim: Usd.Prim, name: str):
         attr = prim.GetAttribute(name)
-        value = attr.Get(_T) if attr else None
+        value = attr.Get(self.time) if attr else None
         return FALLBACKS.get(name) if value is None else value
 
     def _probe_placement(self, prim: Usd.Prim) -> np.ndarray | None:
@@ -264,7 +321,7 @@ class SceneReader:
             self.issue("error", prim, f"bakery:capture:resolution must be >= 0, got {resolution}")
             return
         encodings_attr = prim.GetAttribute("bakery:encodings")
-        encodings = tuple(str(e) for e in (encodings_attr.Get(_T) or ())) if encodings_attr else ()
+        encodings = tuple(str(e) for e in (encodings_attr.Get(self.time) or ())) if encodings_attr else ()
         rotation = tuple(map(tuple, self.frame.rotation(matrix)))
         path = str(prim.GetPath())
         if type_name == "BakeryIrradianceProbeVolume":
@@ -272,7 +329,7 @@ class SceneReader:
             return
         image = ""
         image_attr = prim.GetAttribute("bakery:capture:image")
-        asset = image_attr.Get(_T) if image_attr else None
+        asset = image_attr.Get(self.time) if image_attr else None
         if isinstance(asset, Sdf.AssetPath) and asset.path:
             image = local_asset_path(asset) or ""
             if not image:
@@ -343,28 +400,49 @@ class SceneReader:
         for attr_name in (f"inputs:{name}", name):
             attr = prim.GetAttribute(attr_name)
             if attr and attr.HasAuthoredValue():
-                return attr.Get(_T)
+                return attr.Get(self.time)
         attr = prim.GetAttribute(f"inputs:{name}")
-        value = attr.Get(_T) if attr else None
+        value = attr.Get(self.time) if attr else None
         return fallback if value is None else value
 
     def _emission_scale(self, prim: Usd.Prim) -> np.ndarray:
         intensity = float(self._input(prim, "intensity", 1.0))
         exposure = float(self._input(prim, "exposure", 0.0))
         color = np.asarray(self._input(prim, "color", (1.0, 1.0, 1.0)), dtype=np.float64)
+        scale = intensity * 2.0**exposure * color
         if bool(self._input(prim, "enableColorTemperature", False)):
-            self.issue("warning", prim, "enableColorTemperature is not applied (color temperature ignored)")
+            scale = scale * blackbody_rgb(float(self._input(prim, "colorTemperature", 6500.0)))
         unapplied = sorted(
             a.GetName() for a in prim.GetAuthoredAttributes()
-            if a.GetName().startswith(("inputs:shaping:", "shaping:", "inputs:shadow:", "shadow:"))
-            or a.GetName() in ("inputs:diffuse", "diffuse")
+            if a.GetName().startswith(("inputs:shaping:ies:", "shaping:ies:", "inputs:shadow:", "shadow:"))
+            or a.GetName() in ("inputs:diffuse", "diffuse", "inputs:specular", "specular")
         )
         if unapplied:
             self.issue("warning", prim, f"not applied by the capture: {', '.join(unapplied)}")
-        scale = intensity * 2.0**exposure * color
         if not np.all(np.isfinite(scale)) or (scale < 0).any():
             raise SceneError(f"light emission {scale.tolist()} is negative or not finite")
         return scale
+
+    def _shaping(self, prim: Usd.Prim) -> tuple[float, ...]:
+        """UsdLuxShapingAPI inputs as (cone angle°, softness, focus, tint r, g, b), or () if not shaped."""
+        names = ("shaping:cone:angle", "shaping:cone:softness", "shaping:focus", "shaping:focusTint")
+        applied = prim.HasAPI(UsdLux.ShapingAPI)
+        authored = any((prim.GetAttribute(f"inputs:{n}") and prim.GetAttribute(f"inputs:{n}").HasAuthoredValue())
+                       or (prim.GetAttribute(n) and prim.GetAttribute(n).HasAuthoredValue()) for n in names)
+        if not (applied or authored):
+            return ()
+        cone = float(self._input(prim, "shaping:cone:angle", 90.0))
+        softness = float(self._input(prim, "shaping:cone:softness", 0.0))
+        focus = float(self._input(prim, "shaping:focus", 0.0))
+        tint = tuple(float(c) for c in self._input(prim, "shaping:focusTint", (0.0, 0.0, 0.0)))
+        return (cone, softness, focus, *tint)
+
+    def _placement(self, matrix: np.ndarray) -> Placement:
+        x, y, z = (self.frame.vectors(np.eye(3)[i], matrix) for i in range(3))
+        lengths = tuple(float(np.linalg.norm(v)) for v in (x, y, z))
+        axes = tuple(tuple(float(c) for c in v / max(n, 1e-300)) for v, n in zip((x, y, z), lengths))
+        position = tuple(float(c) for c in self.frame.points(np.zeros(3), matrix))
+        return Placement(position, axes, lengths, self.frame.mpu)
 
     def _read_light(self, prim: Usd.Prim) -> None:
         matrix = self.world(prim)
@@ -372,62 +450,81 @@ class SceneReader:
             self.issue("error", prim, "non-invertible world transform; light skipped")
             return
         name = str(prim.GetPath())
+        if prim.IsA(UsdLux.PortalLight):
+            width = float(self._input(prim, "width", 1.0))
+            height = float(self._input(prim, "height", 1.0))
+            placement = self._placement(matrix)
+            self.portals.append(Light("rect", name, position=placement.position, axes=placement.axes,
+                                      size=(width * placement.lengths[0], height * placement.lengths[1])))
+            return
         scale = self._emission_scale(prim)
         normalize = bool(self._input(prim, "normalize", False))
         if prim.IsA(UsdLux.DomeLight) or prim.IsA(UsdLux.DomeLight_1):
             self._read_dome(prim, matrix, scale)
             return
-        x, y, z = (self.frame.vectors(np.eye(3)[i], matrix) for i in range(3))
-        lengths = [float(np.linalg.norm(v)) for v in (x, y, z)]
-        axes = tuple(tuple(float(c) for c in v / max(n, 1e-300)) for v, n in zip((x, y, z), lengths))
-        position = tuple(float(c) for c in self.frame.points(np.zeros(3), matrix))
-        if prim.IsA(UsdLux.DistantLight):
-            angle = float(self._input(prim, "angle", 0.53))
-            alpha = math.radians(0.5 * angle)
-            illuminance = scale if normalize else scale * math.pi * math.sin(alpha) ** 2
-            if not normalize and angle <= 0:
-                self.issue("warning", prim, "DistantLight with angle 0 and normalize off emits nothing (its "
-                           "illuminance is radiance × the disc's solid angle); set inputs:normalize = 1")
-            self.lights.append(Light("distant", name, illuminance=tuple(illuminance), axes=axes, angle=angle))
+        if prim.IsA(UsdLux.GeometryLight):
+            targets = [str(t) for t in UsdLux.GeometryLight(prim).GetGeometryRel().GetTargets()]
+            if not targets:
+                self.issue("warning", prim, "GeometryLight has no geometry targets; skipped")
+            self.geometry_lights.append((name, targets, scale, normalize))
             return
-        if prim.IsA(UsdLux.SphereLight):
-            radius = float(self._input(prim, "radius", 0.5)) * float(np.mean(lengths))
-            light = Light("sphere", name, position=position, axes=axes, size=(radius, 0.0))
-            if bool(self._input(prim, "treatAsPoint", False)) or radius <= 0:
-                # a point of the same radiant intensity I = L·πr² as the sphere, drawn as a tiny sphere
-                tiny = 1e-4
-                base = scale / light.area if normalize and light.area > 0 else scale
-                factor = (radius / tiny) ** 2 if radius > 0 else 1.0 / (math.pi * tiny**2)
-                self.lights.append(
-                    Light("sphere", name, radiance=tuple(base * factor), position=position, axes=axes,
-                          size=(tiny, 0.0), visible=False)
-                )
-                return
-        elif prim.IsA(UsdLux.RectLight):
-            width = float(self._input(prim, "width", 1.0)) * lengths[0]
-            height = float(self._input(prim, "height", 1.0)) * lengths[1]
-            light = Light("rect", name, position=position, axes=axes, size=(width, height))
-            tex = self._input(prim, "texture:file", None)
-            if isinstance(tex, Sdf.AssetPath) and tex.path:
-                self.issue("warning", prim, "RectLight textures are not applied (uniform emission used)")
-        elif prim.IsA(UsdLux.DiskLight):
-            radius = float(self._input(prim, "radius", 0.5)) * 0.5 * (lengths[0] + lengths[1])
-            light = Light("disk", name, position=position, axes=axes, size=(radius, 0.0))
-        else:
+        cls = next((c for c in LIGHT_MODELS.values()
+                    if any(prim.IsA(getattr(UsdLux, t)) for t in c.usd_types if hasattr(UsdLux, t))), None)
+        if cls is None:
             self.issue("warning", prim, f"{prim.GetTypeName()} lights are not supported by the capture; skipped")
             return
-        radiance = scale / light.area if normalize and light.area > 0 else scale
-        self.lights.append(
-            Light(light.kind, name, radiance=tuple(float(c) for c in radiance), position=position, axes=axes,
-                  size=light.size)
-        )
+        inputs = {key: self._input(prim, key, fallback) for key, fallback in cls.usd_inputs.items()}
+        light, notes = cls.from_usd(name, inputs, self._placement(matrix), scale, normalize)
+        for note in notes:
+            self.issue("warning", prim, note)
+        shaping = self._shaping(prim) if cls.kind != "distant" else ()
+        if cls.kind == "distant" and self._shaping(prim):
+            self.issue("warning", prim, "ShapingAPI on a DistantLight has no effect")
+        texture = -1
+        tex = self._input(prim, "texture:file", None)
+        if isinstance(tex, Sdf.AssetPath) and tex.path:
+            if cls.kind != "rect":
+                self.issue("warning", prim, f"texture:file on a {prim.GetTypeName()} is not applied")
+            else:
+                texture = self._light_texture(prim, tex)
+        self.lights.append(dataclasses.replace(light, shaping=shaping, texture=texture))
+
+    def _light_texture(self, prim: Usd.Prim, asset: Sdf.AssetPath) -> int:
+        resolved = local_asset_path(asset)
+        if resolved is None:
+            self.issue("warning", prim, f"light texture {asset.path!r} not found; uniform emission used")
+            return -1
+        if not self.load_textures:
+            return -1
+        index = self.materials.texture_index(resolved, "auto", str(prim.GetPath()))
+        return -1 if index is None else index
+
+    def _apply_geometry_lights(self) -> None:
+        """GeometryLight: its emission (intensity·2^exposure·color, ÷ area in stage units² when normalized) is
+        added to the emission of the meshes under its geometry targets."""
+        for name, targets, scale, normalize in self.geometry_lights:
+            found = False
+            for i, mesh in enumerate(self.meshes):
+                base = mesh.name.split("#", 1)[0]
+                if not any(base == t or base.startswith(t + "/") for t in targets):
+                    continue
+                found = True
+                tris = np.asarray(mesh.triangles, dtype=np.float64)
+                area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=-1).sum()
+                area_su = area / self.frame.mpu**2
+                radiance = scale / area_su if normalize and area_su > 0 else scale
+                emission = tuple(float(a + b) for a, b in zip(mesh.material.emission, radiance))
+                material = dataclasses.replace(mesh.material, emission=emission)
+                self.meshes[i] = dataclasses.replace(mesh, material=material)
+            if not found and targets:
+                self.issue("warning", name, f"GeometryLight targets {targets} hold no meshes the capture reads")
 
     def _read_dome(self, prim: Usd.Prim, matrix: np.ndarray, scale: np.ndarray) -> None:
         pre = None
         if prim.IsA(UsdLux.DomeLight_1):
             pole = str(self._input(prim, "poleAxis", "scene") or "scene")
             attr = prim.GetAttribute("poleAxis")
-            pole = str(attr.Get(_T)) if attr and attr.Get(_T) else pole
+            pole = str(attr.Get(self.time)) if attr and attr.Get(self.time) else pole
             if pole == "Z" or (pole == "scene" and self.frame.up == "Z"):
                 pre = _POLE_Y_TO_Z
         rotation = tuple(map(tuple, self.frame.rotation(matrix, pre)))
@@ -454,8 +551,15 @@ class SceneReader:
             self.issue("error", prim, str(exc))
             return
         pixels = image.pixels
+        attr = prim.GetAttribute("inputs:texture:file") or prim.GetAttribute("texture:file")
+        color_space = attr.GetColorSpace() if attr else ""
         if is_8bit_image(resolved):  # 8-bit textures are sRGB-encoded (sourceColorSpace "auto", as in Hydra)
             pixels = srgb_to_linear(pixels).astype(np.float32)
+        elif color_space:
+            try:
+                pixels = to_working_space(pixels, color_space).astype(np.float32)
+            except ColorSpaceError as error:
+                self.issue("warning", prim, f"dome texture: {error}; read as linear Rec.709")
         replaced = report.nan + report.positive_inf + report.negative_inf + report.negative
         if replaced:
             self.issue("warning", prim, f"dome texture: {replaced} non-finite or negative texels replaced")
@@ -465,9 +569,11 @@ class SceneReader:
 
     # ------------------------------------------------------------------------------------------------------------
     # Geometry
-    def _triangulate(self, prim: Usd.Prim, points: np.ndarray, counts: np.ndarray, indices: np.ndarray) -> np.ndarray:
+    def _triangulate(self, prim: Usd.Prim, points: np.ndarray, counts: np.ndarray, indices: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Fan triangulation: point indices (T, 3), face-vertex positions (T, 3) and face index (T,) per triangle."""
         if counts.size == 0:
-            return np.zeros((0, 3), dtype=np.int64)
+            return np.zeros((0, 3), dtype=np.int64), np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int64)
         if (counts < 3).any() or counts.sum() != indices.size:
             raise SceneError(f"faceVertexCounts (sum {counts.sum()}) do not match {indices.size} faceVertexIndices "
                              "or a face has fewer than 3 vertices")
@@ -478,38 +584,96 @@ class SceneReader:
         face_of_tri = np.repeat(np.arange(counts.size), per_face)
         j = np.arange(per_face.sum()) - np.repeat(np.cumsum(per_face) - per_face, per_face)
         s = starts[face_of_tri]
-        return np.stack([indices[s], indices[s + j + 1], indices[s + j + 2]], axis=-1)
+        corners = np.stack([s, s + j + 1, s + j + 2], axis=-1)
+        return indices[corners], corners, face_of_tri
 
-    def _mesh_triangles(self, prim: Usd.Prim) -> np.ndarray:
-        """Local-space triangles (T, 3, 3) of a Mesh, Sphere or Cube prim."""
+    def _mesh_geometry(self, prim: Usd.Prim) -> tuple[np.ndarray, tuple | None]:
+        """Local-space triangles (T, 3, 3) of a Mesh, Sphere or Cube prim, and for meshes the triangulation
+        (point indices, face-vertex positions, face indices) for primvar interpolation."""
         if prim.IsA(UsdGeom.Mesh):
             mesh = UsdGeom.Mesh(prim)
-            points = np.asarray(mesh.GetPointsAttr().Get(_T) or [], dtype=np.float64).reshape(-1, 3)
-            counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(_T) or [], dtype=np.int64)
-            indices = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(_T) or [], dtype=np.int64)
-            tris = self._triangulate(prim, points, counts, indices)
-            return points[tris]
+            points = np.asarray(mesh.GetPointsAttr().Get(self.time) or [], dtype=np.float64).reshape(-1, 3)
+            counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(self.time) or [], dtype=np.int64)
+            indices = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(self.time) or [], dtype=np.int64)
+            scheme_attr = mesh.GetSubdivisionSchemeAttr()
+            scheme = str(scheme_attr.Get()) if scheme_attr and scheme_attr.HasAuthoredValue() else "none"
+            if scheme not in ("none", "bilinear"):
+                levels = self.subdivision
+                if levels > 0 and scheme == "catmullClark":
+                    points, counts, indices = catmull_clark(points, counts, indices, levels)
+                    self.issue("warning", prim, f"catmullClark subdivision refined {levels} level(s) (creases and "
+                               "boundary rules simplified; primvars are read on the control cage)")
+                    tris, corners, faces = self._triangulate(prim, points, counts, indices)
+                    return points[tris], None
+                self.issue("warning", prim, f"subdivisionScheme {scheme!r}: baked as its control cage "
+                           + ("(set the recipe's capture.subdivision to refine)" if scheme == "catmullClark" else
+                              "(only catmullClark can be refined)"))
+            tris, corners, faces = self._triangulate(prim, points, counts, indices)
+            return points[tris], (tris, corners, faces, counts.size)
         if prim.IsA(UsdGeom.Sphere):
-            return _uv_sphere(float(UsdGeom.Sphere(prim).GetRadiusAttr().Get(_T)))
-        return _cube(float(UsdGeom.Cube(prim).GetSizeAttr().Get(_T)))
+            return _uv_sphere(float(UsdGeom.Sphere(prim).GetRadiusAttr().Get(self.time))), None
+        return _cube(float(UsdGeom.Cube(prim).GetSizeAttr().Get(self.time))), None
+
+    def _mesh_triangles(self, prim: Usd.Prim) -> np.ndarray:
+        return self._mesh_geometry(prim)[0]
 
     def _read_mesh(self, prim: Usd.Prim) -> None:
-        self._add_mesh(prim, self._mesh_triangles(prim), self.world(prim), str(prim.GetPath()))
+        local, topology = self._mesh_geometry(prim)
+        self._add_mesh(prim, local, self.world(prim), str(prim.GetPath()), topology)
 
     _read_gprim = _read_mesh
 
-    def _add_mesh(self, prim: Usd.Prim, local: np.ndarray, matrix: np.ndarray, name: str) -> None:
+    def _corner_primvar(self, prim: Usd.Prim, name: str, topology) -> np.ndarray | None:  # noqa: ANN001
+        """A float2 primvar at every triangle corner (T, 3, 2), or None (reported) if it cannot be read."""
+        primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar(name)
+        if not primvar or not primvar.HasValue():
+            self.issue("warning", prim, f"textures read primvar {name!r}, which the mesh does not have; the "
+                       "textures' mean values are used")
+            return None
+        values = np.asarray(primvar.ComputeFlattened(self.time), dtype=np.float64)
+        if values.ndim != 2 or values.shape[1] < 2:
+            self.issue("warning", prim, f"primvar {name!r} is not float2; the textures' mean values are used")
+            return None
+        values = values[:, :2]
+        tris, corners, faces, face_count = topology
+        interpolation = primvar.GetInterpolation()
+        try:
+            if interpolation == UsdGeom.Tokens.faceVarying:
+                return values[corners]
+            if interpolation in (UsdGeom.Tokens.vertex, UsdGeom.Tokens.varying):
+                return values[tris]
+            if interpolation == UsdGeom.Tokens.uniform:
+                return np.repeat(values[faces][:, None, :], 3, axis=1)
+            return np.broadcast_to(values[0], tris.shape + (2,)).copy()
+        except IndexError:
+            self.issue("warning", prim, f"primvar {name!r} has too few values for its {interpolation} "
+                       "interpolation; the textures' mean values are used")
+            return None
+
+    def _add_mesh(self, prim: Usd.Prim, local: np.ndarray, matrix: np.ndarray, name: str,
+                  topology=None) -> None:  # noqa: ANN001
         if local.size == 0:
             return
         if not np.all(np.isfinite(local)):
             raise SceneError("mesh points are not finite")
         tris = self.frame.points(local.reshape(-1, 3), matrix).reshape(-1, 3, 3).astype(np.float32)
-        self.meshes.append(Mesh(name, tris, self.materials.material_for(prim)))
+        material, primvar = self.materials.material_for(prim)
+        uvs = None
+        if primvar is not None:
+            if topology is None:
+                self.issue("warning", prim, f"{prim.GetTypeName()} gprims have no texture coordinates; the textures' "
+                           "mean values are used")
+            else:
+                corner = self._corner_primvar(prim, primvar, topology)
+                uvs = None if corner is None else corner.astype(np.float32)
+        if uvs is None and material.maps:
+            material = dataclasses.replace(material, maps=())
+        self.meshes.append(Mesh(name, tris, material, uvs))
 
     def _read_point_instancer(self, prim: Usd.Prim) -> None:
         instancer = UsdGeom.PointInstancer(prim)
-        transforms = instancer.ComputeInstanceTransformsAtTime(_T, _T)
-        proto_indices = np.asarray(instancer.GetProtoIndicesAttr().Get(_T) or [], dtype=np.int64)
+        transforms = instancer.ComputeInstanceTransformsAtTime(self.time, self.time)
+        proto_indices = np.asarray(instancer.GetProtoIndicesAttr().Get(self.time) or [], dtype=np.int64)
         prototypes = instancer.GetPrototypesRel().GetTargets()
         if transforms is None or len(proto_indices) == 0:
             return
@@ -525,11 +689,69 @@ class SceneReader:
             for sub in Usd.PrimRange(proto, Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)):
                 if not (sub.IsA(UsdGeom.Mesh) or sub.IsA(UsdGeom.Sphere) or sub.IsA(UsdGeom.Cube)):
                     continue
-                local = self._mesh_triangles(sub)
+                local, topology = self._mesh_geometry(sub)
                 to_proto = self.world(sub) @ parent_inv  # mesh → prototype-parent space (row vectors)
                 for n in chosen:
                     instance = _matrix(transforms[int(n)])
-                    self._add_mesh(sub, local, to_proto @ instance @ instancer_world, f"{sub.GetPath()}#{n}")
+                    self._add_mesh(sub, local, to_proto @ instance @ instancer_world, f"{sub.GetPath()}#{n}",
+                                   topology)
+
+
+def catmull_clark(points: np.ndarray, counts: np.ndarray, indices: np.ndarray, levels: int
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``levels`` steps of Catmull-Clark refinement of a polygon mesh (points (P, 3), faceVertexCounts,
+    faceVertexIndices) → a quad mesh. Boundary edges and their vertices follow the cubic B-spline boundary rules
+    (edge midpoints, ¾ + ⅛ + ⅛ vertices: UsdGeom's "edgeAndCorner" boundaries without creases)."""
+    for _ in range(levels):
+        counts = np.asarray(counts, dtype=np.int64)
+        indices = np.asarray(indices, dtype=np.int64)
+        n_pts, n_faces = len(points), counts.size
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        face_of = np.repeat(np.arange(n_faces), counts)
+        nxt = np.arange(indices.size) + 1
+        nxt[np.cumsum(counts) - 1] = starts
+        a, b = indices, indices[nxt]
+        face_points = np.zeros((n_faces, 3))
+        np.add.at(face_points, face_of, points[a])
+        face_points /= counts[:, None]
+        key = np.minimum(a, b) * n_pts + np.maximum(a, b)
+        edges, edge_of = np.unique(key, return_inverse=True)
+        e0, e1 = edges // n_pts, edges % n_pts
+        edge_faces = np.bincount(edge_of, minlength=edges.size)
+        fp_sum = np.zeros((edges.size, 3))
+        np.add.at(fp_sum, edge_of, face_points[face_of])
+        boundary = edge_faces == 1
+        edge_points = np.where(boundary[:, None], 0.5 * (points[e0] + points[e1]),
+                               (points[e0] + points[e1] + fp_sum) / np.maximum(edge_faces + 2, 1)[:, None])
+        # vertex points
+        valence = np.bincount(np.concatenate([e0, e1]), minlength=n_pts).astype(np.float64)
+        f_sum = np.zeros((n_pts, 3))
+        f_cnt = np.bincount(a, minlength=n_pts).astype(np.float64)
+        np.add.at(f_sum, a, face_points[face_of])
+        mid = 0.5 * (points[e0] + points[e1])
+        r_sum = np.zeros((n_pts, 3))
+        np.add.at(r_sum, e0, mid)
+        np.add.at(r_sum, e1, mid)
+        nval = np.maximum(valence, 1.0)[:, None]
+        new_vertices = (f_sum / np.maximum(f_cnt, 1.0)[:, None] + 2.0 * r_sum / nval + (nval - 3.0) * points) / nval
+        on_boundary = np.zeros(n_pts, dtype=bool)
+        on_boundary[e0[boundary]] = True
+        on_boundary[e1[boundary]] = True
+        b_sum = np.zeros((n_pts, 3))
+        np.add.at(b_sum, e0[boundary], points[e1[boundary]])
+        np.add.at(b_sum, e1[boundary], points[e0[boundary]])
+        new_vertices = np.where(on_boundary[:, None], 0.75 * points + 0.125 * b_sum, new_vertices)
+        # quads: (vertex, edge to next, face point, edge from previous)
+        prev = np.arange(indices.size) - 1
+        prev[starts] = np.cumsum(counts) - 1
+        vi = a
+        e_next = n_pts + edge_of
+        e_prev = n_pts + edge_of[prev]
+        fi = n_pts + edges.size + face_of
+        points = np.concatenate([new_vertices, edge_points, face_points])
+        indices = np.stack([vi, e_next, fi, e_prev], axis=-1).reshape(-1)
+        counts = np.full(indices.size // 4, 4, dtype=np.int64)
+    return points, counts, indices
 
 
 def _uv_sphere(radius: float, rings: int = 12, segments: int = 24) -> np.ndarray:
@@ -549,8 +771,10 @@ def _cube(size: float) -> np.ndarray:
     return corners[np.array(tris)]
 
 
-def read_scene(path: str | Path, load_textures: bool = True) -> SceneReading:
-    """Read a USD scene for capture. Raises SceneError only if the stage cannot be opened; everything else is
-    reported in ``SceneReading.issues``."""
+def read_scene(path: str | Path, load_textures: bool = True, time: float | None = None,
+               subdivision: int = 0) -> SceneReading:
+    """Read a USD scene for capture at USD time ``time`` (None: authored defaults, else each attribute's earliest
+    time sample), refining catmullClark meshes ``subdivision`` levels. Raises SceneError only if the stage cannot
+    be opened; everything else is reported in ``SceneReading.issues``."""
     stage = open_stage(path)
-    return SceneReader(stage, load_textures=load_textures).read()
+    return SceneReader(stage, load_textures=load_textures, time=time, subdivision=subdivision).read()

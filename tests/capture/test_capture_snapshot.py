@@ -14,7 +14,7 @@ import pytest
 
 from bakery.capture import capture_probes
 from bakery.capture.render import ProbeRenderer
-from bakery.capture.scene import LIGHT_TYPES, CaptureScene, Dome, Light, Material, Mesh, ProbeSpec
+from bakery.capture.scene import LIGHT_TYPES, CaptureScene, Dome, Light, Material, Mesh, ProbeSpec, Texture
 from bakery.capture.snapshot import read_capture_scene, scene_content_hash, write_capture_scene
 from bakery.errors import InputError
 
@@ -61,9 +61,17 @@ def _box(lo, hi) -> np.ndarray:
 def hand_scene() -> CaptureScene:
     rng = np.random.default_rng(7)
     rot = tuple(map(tuple, np.eye(3)[[0, 2, 1]] * np.array([1.0, 1.0, -1.0])))  # np.float64 entries, as USD gives
+    floor_uvs = rng.uniform(-1.0, 2.0, (12, 3, 2)).astype(np.float32)
+    textured = Material("/Looks/Floor", diffuse=(0.5, 0.4, 0.3), roughness=0.7, metallic=0.1, ior=1.45,
+                        opacity_threshold=0.5, maps=(
+                            {"input": "diffuseColor", "texture": 0, "channels": "rgb", "scale": (1.0, 1.0, 1.0, 1.0),
+                             "bias": (0.0, 0.0, 0.0, 0.0), "fallback": (0.0, 0.0, 0.0, 1.0),
+                             "wrap": ("repeat", "mirror")},
+                            {"input": "opacity", "texture": 0, "channels": "a", "scale": (1.0, 1.0, 1.0, 1.0),
+                             "bias": (0.0, 0.0, 0.0, 0.0), "fallback": (0.0, 0.0, 0.0, 1.0),
+                             "wrap": ("clamp", "black")}))
     meshes = (
-        Mesh("/World/Floor", _box((-3, -0.1, -3), (3, 0.0, 3)),
-             Material("/Looks/Floor", diffuse=(0.5, 0.4, 0.3), roughness=0.7, metallic=0.1)),
+        Mesh("/World/Floor", _box((-3, -0.1, -3), (3, 0.0, 3)), textured, uvs=floor_uvs),
         Mesh("/World/Lamp", _box((0.5, 0.5, 0.5), (0.7, 0.7, 0.7)),
              Material("/Looks/Emitter", diffuse=(0.1 + 0.2, 0.0, 1e-300), emission=(4.0, 3.5, -0.0))),
         Mesh("/World/Empty", np.zeros((0, 3, 3), np.float32)),
@@ -73,8 +81,16 @@ def hand_scene() -> CaptureScene:
         Light("sphere", "/Lights/Bulb", radiance=(50.0, 40.0, 30.0), position=(0.0, 1.5, 0.0), size=(0.1, 0.0)),
         Light("rect", "/Lights/Panel", radiance=(5.0, 5.0, 5.0), position=(1.0, 2.0, 0.0), size=(0.5, 0.25)),
         Light("disk", "/Lights/Spot", radiance=(8.0, 8.0, 9.0), position=(-1.0, 2.0, 0.5), size=(0.2, 0.0),
-              visible=False),
+              visible=False, shaping=(30.0, 0.2, 1.5, 0.5, 0.25, 0.0)),
+        Light("cylinder", "/Lights/Tube", radiance=(3.0, 3.0, 3.0), position=(0.0, 2.5, 1.0), size=(0.05, 1.2)),
+        Light("rect", "/Lights/Window", radiance=(2.0, 2.0, 2.0), position=(0.0, 1.0, -2.0), size=(1.0, 1.0),
+              texture=1),
     )
+    textures = (
+        Texture("/tmp/floor.png", rng.uniform(0.0, 1.0, (8, 16, 4)).astype(np.float32), "srgb_texture"),
+        Texture("/tmp/window.exr", rng.uniform(0.0, 4.0, (4, 4, 4)).astype(np.float32), "ACEScg"),
+    )
+    portals = (Light("rect", "/Lights/Portal", position=(0.0, 1.0, -2.9), size=(1.0, 2.0)),)
     assert {light.kind for light in lights} == set(LIGHT_TYPES)
     dome = Dome("/Lights/Dome", scale=(0.5, 0.5, 0.5), rotation=rot,
                 pixels=rng.uniform(0.0, 2.0, (8, 16, 3)).astype(np.float32), source="/tmp/sky.hdr")
@@ -93,7 +109,8 @@ def hand_scene() -> CaptureScene:
                   volume_index=(i, j, 0), encodings=("zh3",))
         for i in range(2) for j in range(2)
     )
-    return CaptureScene(meshes=meshes, lights=lights, dome=dome, probes=probes, meters_per_unit=0.01, up_axis="Z")
+    return CaptureScene(meshes=meshes, lights=lights, dome=dome, probes=probes, meters_per_unit=0.01, up_axis="Z",
+                        textures=textures, portals=portals, time_code=12.5)
 
 
 @pytest.fixture(scope="module")
@@ -253,7 +270,9 @@ def test_worker_reads_the_snapshot_without_pxr(usd_scenes, tmp_path):
         f"np.save({str(tmp_path / 'cube.npy')!r}, cube)\n"
         "print('pxr' in sys.modules, 'h5py' in sys.modules)\n"
     )
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=tmp_path,
+                            env=env)
     assert result.returncode == 0, result.stderr
     assert result.stdout.split() == ["False", "False"]
     assert np.load(tmp_path / "cube.npy").tobytes() == expected.tobytes()

@@ -187,7 +187,9 @@ def test_output_parent_is_a_file(good_exr, tmp_path):
     assert "s.h5" in result.stderr
 
 
-@pytest.mark.skipif(hasattr(os, "geteuid") and os.geteuid() == 0, reason="root ignores directory permissions")
+@pytest.mark.skipif(hasattr(os, "geteuid") and os.geteuid() == 0,
+                    reason="root ignores directory permissions; tests/faults/test_filesystems.py covers read-only "
+                           "and immutable folders with a tmpfs")
 def test_output_directory_not_writable(good_exr, tmp_path):
     locked = tmp_path / "locked"
     locked.mkdir()

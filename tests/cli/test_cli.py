@@ -10,6 +10,7 @@ import numpy as np
 import OpenImageIO as oiio
 
 import bakery
+import bakery.store
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "environments" / "city_512.hdr"
 IRRADIANCE = ["-e", "sh2", "-e", "sh3", "-e", "zh3", "-e", "zh3_deringed", "-e", "zh3_hallucinated",
@@ -41,7 +42,7 @@ def test_bake_and_inspect_the_shipped_example(tmp_path):
     inspected = run("inspect", store, "--json")
     assert inspected.returncode == 0, inspected.stderr
     info = json.loads(inspected.stdout)
-    assert info["format_version"] == "1.1.0" and info["probes"] == 1
+    assert info["format_version"] == bakery.store.FORMAT_VERSION and info["probes"] == 1
     assert info["conventions"]["cube_face_order"] == "+X,-X,+Y,-Y,+Z,-Z"
     assert "zh3" in run("inspect", store).stdout
 

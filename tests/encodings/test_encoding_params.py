@@ -23,7 +23,7 @@ from bakery.sphere.cubemap import cube_texel_directions
 from bakery.sphere.fibonacci import fibonacci_directions
 
 WHERE = "scene.toml: encoding_settings"
-MODULES = ("sh", "zh3", "quantized", "splitsum", "shexp")
+MODULES = ("sh", "zh3", "zh3_hallucinated_solved", "quantized", "splitsum", "shexp", "hybrid")
 
 
 # ------------------------------------------------------------------------------------------------ round trips
@@ -74,7 +74,7 @@ BAD = [
     ("splitsum", {"n_levels": -3}, "n_levels"),
     ("splitsum", {"face_size": 0}, "face_size"),
     ("shexp", {"alpha_min": 0.8, "alpha_max": 0.5}, "alpha_min"),
-    ("shexp", {"alpha_min": 0.0}, "alpha_min"),
+    ("shexp", {"alpha_min": -0.1}, "alpha_min"),
     ("shexp", {"n_normals": 2, "n_views": 2, "n_alphas": 2}, "n_alphas"),  # 8 design rows < 33 coefficients
     ("shexp_lights", {"alpha_max": 1.5}, "alpha_max"),
     ("shexp_lights", {"max_lights": True}, "max_lights"),
@@ -207,11 +207,13 @@ CAPABILITIES = {
     "zh3_solved": (2, "radiance_sh", False, False),
     "zh3_deringed": (2, "radiance_sh", False, False),
     "zh3_hallucinated": (1, "radiance_sh", False, False),
+    "zh3_hallucinated_solved": (1, "radiance_sh", False, False),
     "zh3_quantized": (2, None, False, False),
     "sh3_quantized": (2, None, False, False),
     "splitsum": (None, None, False, True),
     "shexp": (None, None, True, False),
     "shexp_lights": (None, None, True, False),
+    "shexp_hybrid": (None, None, True, True),
 }
 
 
@@ -220,7 +222,8 @@ def test_capabilities(name):
     cls = ENCODINGS[name]
     assert (cls.max_band, cls.radiance_sh_field, cls.accepts_alpha_range, cls.follows_bake_face_size) == \
         CAPABILITIES[name]
-    assert cls.worse_than == (("hallucination_hurts", SH2) if name == "zh3_hallucinated" else None)
+    flags = {"zh3_hallucinated": "hallucination_hurts", "zh3_hallucinated_solved": "solved_hallucination_hurts"}
+    assert cls.worse_than == ((flags[name], SH2) if name in flags else None)
     if cls.radiance_sh_field is not None:
         spec = {s.name: s for s in cls().field_specs()}[cls.radiance_sh_field]
         assert spec.dtype == "float32" and spec.shape in ((4, 3), (9, 3))

@@ -63,8 +63,8 @@ def test_fields_match_specs_and_memory_accounting(key, encoded):
 
 def test_shexp_default_memory_is_33_coefficients_per_channel():
     enc = SHExp()
-    assert enc.bytes_per_probe() == 33 * 3 * 4
-    assert [s.shape for s in enc.field_specs()] == [(25, 3), (8, 3)]
+    assert enc.bytes_per_probe() == 33 * 3 * 4 + 2 * 4  # + the fitted α range
+    assert [s.shape for s in enc.field_specs()] == [(25, 3), (8, 3), (2,)]
     levels = SplitSum(face_size=128).field_specs()
     assert [s.shape[1] for s in levels] == [128, 64, 32, 32, 32, 32]
     assert SplitSum(face_size=128).bytes_per_probe() == 6 * 3 * 2 * (128**2 + 64**2 + 4 * 32**2)

@@ -162,3 +162,57 @@ def test_reference_irradiance_of_a_constant_and_a_linear_environment():
     normals = fibonacci_directions(64)
     expected = np.pi + (2 * np.pi / 3) * normals[:, 2]
     np.testing.assert_allclose(reference_irradiance(samples, normals)[:, 0], expected, rtol=2e-4)
+
+
+def test_batched_bfgs_finds_the_minimisers_of_independent_quadratics():
+    """P quadratics ½(x − m)ᵀH(x − m) with known minimisers m and very different conditioning (so they finish at
+    different iterations and the running set shrinks): every problem reaches its own m."""
+    from bakery.irradiance.zh3 import batched_bfgs
+
+    rng = np.random.default_rng(0)
+    p, n = 12, 5
+    q, _ = np.linalg.qr(rng.normal(size=(p, n, n)))
+    eigenvalues = 10.0 ** (np.linspace(0.0, 1.0, n)[None, :] * np.arange(p)[:, None] / 3.0)  # condition 1 … 10^3.7
+    h = (q * eigenvalues[:, None, :]) @ np.swapaxes(q, 1, 2)
+    m = rng.normal(size=(p, n))
+    calls = []
+
+    def objective(x, rows):
+        calls.append(len(rows))
+        d = x - m[rows]
+        g = np.einsum("pij,pj->pi", h[rows], d)
+        return 0.5 * np.sum(d * g, axis=1), g
+
+    x, _ = batched_bfgs(objective, np.zeros((p, n)), iterations=200, gradient_tolerance=1e-10)
+    np.testing.assert_allclose(x, m, atol=1e-7)
+    assert min(calls) < p  # converged problems are no longer evaluated
+
+
+def test_blended_axis_error_is_eq11_at_lambda_1_and_its_gradient_matches_finite_differences():
+    from bakery.irradiance.zh3 import axis_error_blended
+
+    sh = np.concatenate([random_positive_radiance_sh(np.random.default_rng(s), 3) for s in range(4)])
+    target = sh * cosine_lobe_band_factors(2)[[0, 1, 1, 1, 2, 2, 2, 2, 2]][None, :, None]
+    rng = np.random.default_rng(1)
+    f = target[:, 1:4] + 0.2 * rng.normal(size=target[:, 1:4].shape) * np.abs(target[:, :1])
+    scale = np.sum(target**2, axis=(1, 2))
+    np.testing.assert_allclose(axis_error_blended(f, target, 1.0)[0], axis_error(f, target), atol=1e-12 * scale.max())
+    for lam in (0.0, 0.5):
+        _, grad = axis_error_blended(f, target, lam)
+        direction = rng.normal(size=f.shape)
+        h = 1e-6 * np.abs(f).max()
+        numeric = (axis_error_blended(f + h * direction, target, lam)[0]
+                   - axis_error_blended(f - h * direction, target, lam)[0]) / (2 * h)
+        np.testing.assert_allclose(np.einsum("pjc,pjc->p", grad, direction), numeric, rtol=1e-5, atol=1e-9 * scale.max())
+
+
+def test_tetrahedral_starts_put_the_luminance_axis_on_each_vertex():
+    from bakery.irradiance.zh3 import TETRAHEDRON_AXES, linear_band_vector, tetrahedral_starts
+
+    sh = random_positive_radiance_sh(np.random.default_rng(2), 3)
+    starts = tetrahedral_starts(linear_band_vector(sh))
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    for vertex, start in zip(TETRAHEDRON_AXES, starts, strict=True):
+        u = start[0] @ lum  # the luminance vector of the start
+        np.testing.assert_allclose(np.abs(u @ vertex), np.linalg.norm(u), rtol=1e-12)
+        np.testing.assert_allclose(start[0].T @ vertex, linear_band_vector(sh)[0].T @ vertex, rtol=1e-12)

@@ -321,7 +321,7 @@ def _reflection_rows():
 
 
 @pytest.mark.parametrize("name", REFLECTION_PARAMS)
-@pytest.mark.parametrize("alpha", [0.0, 1e-4, 0.25, 1.0, 1.5])
+@pytest.mark.parametrize("alpha", [0.0, 1e-4, 0.25, 1.0])
 def test_reflection_extremes_stay_finite_and_non_negative(name, alpha):
     rng = np.random.default_rng(2)
     cubes = rng.uniform(0.0, 2.0, size=(2, 6, 8, 8, 3)).astype(np.float32)
@@ -334,6 +334,17 @@ def test_reflection_extremes_stay_finite_and_non_negative(name, alpha):
         assert out.shape == (2, len(v), 3)
         assert np.all(np.isfinite(out)), (alpha, f0)
         assert np.all(out >= 0.0), (alpha, f0)
+
+
+@pytest.mark.parametrize("name", REFLECTION_PARAMS)
+@pytest.mark.parametrize("alpha", [1.5, -0.1, np.nan, np.inf])
+def test_reflection_alpha_outside_0_1_is_refused_naming_the_argument(name, alpha):
+    """schemas/store-reflection.md "Evaluation inputs": α must be finite and in [0, 1]."""
+    enc = encoding(name)
+    fields = enc.encode(ProbeBatch(np.ones((1, 6, 8, 8, 3), dtype=np.float32)))
+    v, n = _reflection_rows()
+    with pytest.raises(ValueError, match="alpha"):
+        enc.evaluate_reflection(fields, enc.shared_tables(), v, n, np.full(len(v), alpha), np.full(len(v), 0.04))
 
 
 @pytest.mark.parametrize("name", REFLECTION_PARAMS)

@@ -17,7 +17,7 @@ import pytest
 import bakery
 from bakery.errors import ConfigError
 from bakery.pipeline.recipe import load_recipe
-from bakery.store.format import migrate_store, read_store
+from bakery.store.format import FORMAT_VERSION, migrate_store, read_store
 
 ENV = {**os.environ, "SOURCE_DATE_EPOCH": "1700000000"}
 ENCODINGS = ["-e", "sh2", "-e", "zh3", "-e", "zh3_quantized"]
@@ -191,8 +191,8 @@ def test_newer_major_is_refused_and_migrate_round_trips(tmp_path, environments):
         f.attrs["format_version"] = "1.0.0"
         del f["probes/content_hash"], f["probes/bake_id"], f["history"]
     assert bakery.open_store(store).format_version == "1.0.0"
-    assert "1.0.0 -> 1.1.0" in bakery_cli("migrate", store, "--dry-run").stdout
-    assert migrate_store(store) and read_store(store).attributes["format_version"] == "1.1.0"
+    assert f"1.0.0 -> {FORMAT_VERSION}" in bakery_cli("migrate", store, "--dry-run").stdout
+    assert migrate_store(store) and read_store(store).attributes["format_version"] == FORMAT_VERSION
     after = bakery.open_store(store).fields("zh3")
     for key in before:
         np.testing.assert_array_equal(before[key], after[key])
@@ -201,6 +201,23 @@ def test_newer_major_is_refused_and_migrate_round_trips(tmp_path, environments):
         f.attrs["format_version"] = "2.0.0"
     result = bakery_cli("inspect", store, check=False)
     assert result.returncode == 2 and "newer" in result.stderr
+
+
+def test_migrate_from_1_1_adds_checksums(tmp_path, environments):
+    store = tmp_path / "old.h5"
+    bakery_cli("bake", environments[0], "-o", store, "-e", "zh3", "--face-size", "8")
+    before = bakery.open_store(store).fields("zh3")
+    with h5py.File(store, "r+") as f:  # a 1.1.0 store: no /checksums
+        f.attrs["format_version"] = "1.1.0"
+        del f["checksums"]
+    assert read_store(store).integrity.verified is False  # 1.1 stores carry nothing to verify
+    out = bakery_cli("migrate", store).stdout
+    assert f"1.1.0 -> {FORMAT_VERSION}" in out and "checksums" in out
+    migrated = read_store(store)
+    assert migrated.integrity.verified and migrated.integrity.ok
+    for key, value in before.items():
+        np.testing.assert_array_equal(value, bakery.open_store(store).fields("zh3")[key])
+    assert "already format" in bakery_cli("migrate", store).stdout
 
 
 @pytest.mark.parametrize("text,message", [

@@ -19,7 +19,8 @@ ENV = {**os.environ, "SOURCE_DATE_EPOCH": "1700000000"}
     ([0.9], (0.64, 0.81)),  # r ∈ [0.8, 0.9] after widening to one 0.1 step
     ([0.3, 0.9], (0.09, 0.81)),
     ([0.35, 0.62], (0.09, 0.49)),
-    ([0.0], (0.05, 0.06)),  # sharper than the floor: fitted at the floor
+    ([0.0], (0.0, 0.01)),  # the true range, down to a mirror (SH-exp applies its own fit floor, 0.05)
+    ([0.05, 0.2], (0.0, 0.04)),
     ([], None),
 ])
 def test_alpha_range_from_roughness(roughness, expected):

@@ -11,7 +11,15 @@ from hypothesis import strategies as st
 
 from bakery.errors import StoreFormatError
 from bakery.store.diff import diff_stores
-from bakery.store.format import FORMAT_VERSION, StoreContents, read_store, write_store
+from bakery.store.format import (
+    FORMAT_VERSION,
+    StoreContents,
+    StoreIntegrityError,
+    overwrite_refusal,
+    read_store,
+    write_store,
+    write_store_file,
+)
 
 DTYPES = ["float32", "float16", "uint8", "int32", "float64"]
 
@@ -76,3 +84,65 @@ def test_newer_major_is_refused_with_a_message(tmp_path):
         f.attrs["format_version"] = "9.0.0"
     with pytest.raises(StoreFormatError, match="s.h5"):
         read_store(path)
+
+
+# ------------------------------------------------------------------------------------------------ integrity (1.2.0)
+def test_every_fixed_size_dataset_has_fletcher32_and_checksums_verify(tmp_path):
+    path = tmp_path / "s.h5"
+    write_store(path, contents(np.random.default_rng(4), 6, "float32"))
+    with h5py.File(path, "r") as f:
+        datasets = []
+        f.visititems(lambda name, item: datasets.append(item) if isinstance(item, h5py.Dataset) else None)
+        for item in datasets:
+            if h5py.check_string_dtype(item.dtype) is None and item.shape != ():
+                assert item.fletcher32, item.name
+        assert f["checksums/probe"].shape == (6, 32)
+    read = read_store(path)
+    assert read.integrity.verified and read.integrity.ok
+
+
+@pytest.mark.parametrize("row", [0, 3])
+def test_a_changed_value_names_the_dataset_and_the_probe(tmp_path, row):
+    path = tmp_path / "s.h5"
+    write_store(path, contents(np.random.default_rng(5), 6, "float32"))
+    with h5py.File(path, "r+") as f:
+        f["encodings/e/values"][row, 0, 0] += 1.0
+    with pytest.raises(StoreIntegrityError, match="/encodings/e/values") as error:
+        read_store(path)
+    assert f"/probes/p{row}" in str(error.value)
+    lenient = read_store(path, strict=False)
+    assert lenient.integrity.bad_probes == {f"/probes/p{row}"} and not lenient.integrity.whole_store
+
+
+def test_damaged_shared_tables_and_attributes_distrust_the_whole_store(tmp_path):
+    path = tmp_path / "s.h5"
+    write_store(path, contents(np.random.default_rng(6), 3, "float32"))
+    with h5py.File(path, "r+") as f:
+        f["encodings/e/shared/table"][0, 0] = 7.0
+        f.attrs["settings"] = '{"face_size": 9}'
+    lenient = read_store(path, strict=False)
+    assert lenient.integrity.whole_store
+    assert any("/encodings/e/shared/table" in p for p in lenient.integrity.problems)
+    assert any("attributes of /" in p for p in lenient.integrity.problems)
+
+
+def test_write_store_file_leaves_nothing_on_failure(tmp_path):
+    target = tmp_path / "missing-folder" / "s.h5"
+    with pytest.raises(OSError):
+        write_store_file(target, contents(np.random.default_rng(7), 2, "float32"))
+    assert not target.exists()
+
+
+def test_overwrite_refusal_recognises_only_readable_bakery_stores(tmp_path):
+    store = tmp_path / "s.h5"
+    write_store(store, contents(np.random.default_rng(8), 2, "float32"))
+    assert overwrite_refusal(store) is None
+    other = tmp_path / "other.h5"
+    with h5py.File(other, "w") as f:
+        f["x"] = np.arange(3)
+    assert "not a bakery probe store" in overwrite_refusal(other)
+    (tmp_path / "text.h5").write_text("hello")
+    assert "not an HDF5 file" in overwrite_refusal(tmp_path / "text.h5")
+    with h5py.File(store, "r+") as f:
+        f.attrs["format_version"] = "1.9.0"
+    assert "newer" in overwrite_refusal(store)

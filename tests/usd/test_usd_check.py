@@ -54,8 +54,8 @@ def Material "Mx"
     token outputs:mtlx:surface.connect = </Mx/Surf.outputs:out>
     def Shader "Surf"
     {
-        uniform token info:id = "ND_standard_surface_surfaceshader"
-        color3f inputs:base_color = (0.8, 0.1, 0.1)
+        uniform token info:id = "ND_disney_principled_surfaceshader"
+        color3f inputs:baseColor = (0.8, 0.1, 0.1)
         token outputs:out
     }
 }
@@ -115,3 +115,57 @@ def test_cli_check_exit_codes(tmp_path):
     failed = subprocess.run([sys.executable, "-m", "bakery.cli", "check", str(bad)], capture_output=True, text=True)
     assert failed.returncode != 0
     assert "/Mystery" in failed.stdout
+
+
+def test_composition_errors_are_errors_in_check_and_bake(tmp_path):
+    """A sublayer that fails to parse, a missing sublayer and a missing reference silently drop their contents from
+    a stage; check reports each as an error (not just a pxr warning on stderr) and the bake refuses."""
+    write(tmp_path / "broken.usda", "#usda 1.0\ndef Xform {{{ nonsense\n")
+    text = header(extra='    subLayers = [@./broken.usda@, @./gone.usda@]\n') + probe("P") + """
+def Xform "Asset" (
+    references = @./nothere.usda@
+)
+{
+}
+"""
+    path = write(tmp_path / "root.usda", text)
+    issues = check_scene(path)
+    errors = [i for i in issues if i.severity == "error"]
+    assert any("broken.usda" in i.message and i.prim == "/" for i in errors)
+    assert any("gone.usda" in i.message for i in errors)
+    assert any("nothere.usda" in i.message and i.prim == "/Asset" for i in errors)
+    assert check_exit_code(issues) == CHECK_FAILED_EXIT_CODE
+    with pytest.raises(SceneError, match="composition"):
+        bakery.bake(path, tmp_path / "out.h5", face_size=8, samples=1)
+
+
+def test_check_reports_what_a_bake_would_silently_change(tmp_path):
+    """Averaged textures (no texture coordinates), float textures without colour space, subdivision surfaces baked
+    as their cage, unsupported light types: warnings, per prim."""
+    import numpy as np
+    import OpenImageIO as oiio
+
+    out = oiio.ImageOutput.create(str(tmp_path / "f.exr"))
+    assert out.open(str(tmp_path / "f.exr"), oiio.ImageSpec(2, 2, 3, oiio.FLOAT))
+    out.write_image(np.ones((2, 2, 3), dtype=np.float32))
+    out.close()
+    tex = """
+    def Shader "Tex"
+    {
+        uniform token info:id = "UsdUVTexture"
+        asset inputs:file = @./f.exr@
+        float3 outputs:rgb
+    }
+"""
+    text = header() + material("M", extra=tex).replace(
+        "color3f inputs:diffuseColor = (0.18, 0.18, 0.18)", "color3f inputs:diffuseColor.connect = </M/Tex.outputs:rgb>")
+    text += box_mesh("Box", 1.0, "/M").replace("rel material:binding", 'uniform token subdivisionScheme = "catmullClark"\n'
+                                               '    rel material:binding')
+    text += 'def PluginLight "Custom"\n{\n}\n' + probe("P", (0, 3, 0))
+    issues = check_scene(write(tmp_path / "silent.usda", text))
+    messages = {(i.prim, i.message) for i in issues}
+    assert check_exit_code(issues) == 0
+    assert any(p == "/Box" and "mean" in m for p, m in messages)
+    assert any(p == "/Box" and "control cage" in m for p, m in messages)
+    assert any(p == "/M/Tex" and "colour-space" in m for p, m in messages)
+    assert any(p == "/Custom" and "not supported" in m for p, m in messages)

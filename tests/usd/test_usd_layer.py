@@ -148,7 +148,7 @@ def test_per_probe_capture_resolution_and_constant_radiance_dc(tmp_path):
     from usd_scenes import box_mesh, header, material, probe
 
     c = np.array([0.5, 1.0, 2.0])
-    text = header() + material("M", diffuse=(0.0, 0.0, 0.0), emissive=tuple(c)) + box_mesh("Box", 2.0, "/M")
+    text = header() + material("M", diffuse=(0.0, 0.0, 0.0), emissive=tuple(c), diffuse_only=True) + box_mesh("Box", 2.0, "/M")
     text += probe("P", (0.2, 0.1, -0.3), body="int bakery:capture:resolution = 16")
     summary = bakery.bake(write(tmp_path / "box.usda", text), tmp_path / "box.h5", face_size=8, encodings=["sh3"],
                          samples=1)

@@ -1,0 +1,231 @@
+"""Material parameters at ray hits: per-triangle constants, or textures looked up per hit (mip-mapped).
+
+Each mesh has one :class:`bakery.capture.scene.Material`; its textured inputs (``Material.maps``) are evaluated at
+the hit's texture coordinates (the mesh's ``uvs`` interpolated with the hit's barycentrics), as UsdUVTexture does:
+``value = scale · texel + bias`` with ``wrapS``/``wrapT`` (repeat, mirror, clamp, black; "useMetadata" = repeat)
+and the ``fallback`` where a texture has no coordinates.
+
+Filtering
+    Textures are mip-mapped (2×2 box pyramid, built once per texture) and looked up trilinearly. The level of detail
+    comes from the ray's footprint: a ray of angular spread σ (the probe texel's angular size for primary rays,
+    :data:`BOUNCE_SPREAD` for bounce rays) covers ≈ t·σ metres at distance t, i.e. t·σ·√(A_uv/A_world)·resolution
+    texels of that triangle, so a probe texel averages the texture over its footprint instead of aliasing it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from bakery.capture.scene import CaptureScene, Material
+
+#: Angular spread (radians) assumed for bounce rays (diffuse-like): textures seen after a bounce are blurred.
+BOUNCE_SPREAD = 0.05
+_INPUTS = ("diffuseColor", "emissiveColor", "roughness", "metallic", "specularColor", "opacity", "ior")
+
+
+@dataclass(frozen=True)
+class SurfacePoint:
+    """Material parameters at M hits."""
+
+    albedo: np.ndarray
+    f0: np.ndarray
+    roughness: np.ndarray
+    emission: np.ndarray
+    opacity: np.ndarray
+    threshold: np.ndarray
+
+
+class MipTexture:
+    """A texture as a mip pyramid of (H, W, 4) float64 levels with wrap modes, looked up trilinearly."""
+
+    def __init__(self, pixels: np.ndarray) -> None:
+        level = np.asarray(pixels, dtype=np.float64)
+        if level.ndim == 2:
+            level = level[..., None]
+        c = level.shape[2]
+        if c < 4:
+            rgb = level[..., :3] if c >= 3 else np.repeat(level[..., :1], 3, axis=2)
+            alpha = level[..., 1:2] if c == 2 else np.ones(level.shape[:2] + (1,))
+            level = np.concatenate([rgb, alpha], axis=2)
+        self.levels = [level]
+        while max(level.shape[:2]) > 1:
+            h, w = level.shape[:2]
+            if h > 1:
+                level = 0.5 * (level[0 : h - h % 2 : 2] + level[1 : h - h % 2 + 1 : 2]) if h % 2 == 0 else \
+                    _shrink(level, 0)
+            if w > 1:
+                level = 0.5 * (level[:, 0 : w - w % 2 : 2] + level[:, 1 : w - w % 2 + 1 : 2]) if w % 2 == 0 else \
+                    _shrink(level, 1)
+            self.levels.append(level)
+        self.height, self.width = self.levels[0].shape[:2]
+
+    def lookup(self, st: np.ndarray, lod: np.ndarray, wrap: tuple[str, str]) -> np.ndarray:
+        """RGBA (M, 4) at texture coordinates st (M, 2) (s right, t up: t = 1 is row 0) and level of detail (M,)."""
+        lod = np.clip(lod, 0.0, len(self.levels) - 1.0)
+        l0 = np.floor(lod).astype(np.int64)
+        frac = (lod - l0)[:, None]
+        result = np.zeros((st.shape[0], 4))
+        for level in np.unique(l0):
+            sel = np.flatnonzero(l0 == level)
+            a = self._bilinear(int(level), st[sel], wrap)
+            if level + 1 < len(self.levels):
+                b = self._bilinear(int(level) + 1, st[sel], wrap)
+                result[sel] = a * (1.0 - frac[sel]) + b * frac[sel]
+            else:
+                result[sel] = a
+        return result
+
+    def _bilinear(self, level: int, st: np.ndarray, wrap: tuple[str, str]) -> np.ndarray:
+        image = self.levels[level]
+        h, w = image.shape[:2]
+        x = st[:, 0] * w - 0.5
+        y = (1.0 - st[:, 1]) * h - 0.5
+        x0, y0 = np.floor(x), np.floor(y)
+        fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+        out = np.zeros((st.shape[0], 4))
+        for dx, dy, weight in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy),
+                               (1, 1, fx * fy)):
+            cx, vx = _wrap(x0 + dx, w, wrap[0])
+            cy, vy = _wrap(y0 + dy, h, wrap[1])
+            out += weight * np.where((vx & vy)[:, None], image[cy, cx], 0.0)
+        return out
+
+
+def _shrink(level: np.ndarray, axis: int) -> np.ndarray:
+    """Halve an odd-sized axis by averaging overlapping pairs (keeps the mean close)."""
+    n = level.shape[axis]
+    m = max(1, n // 2)
+    edges = np.linspace(0, n, m + 1)
+    parts = []
+    for i in range(m):
+        lo, hi = int(math.floor(edges[i])), int(math.ceil(edges[i + 1]))
+        parts.append(np.take(level, np.arange(lo, hi), axis=axis).mean(axis=axis, keepdims=True))
+    return np.concatenate(parts, axis=axis)
+
+
+def _wrap(index: np.ndarray, size: int, mode: str) -> tuple[np.ndarray, np.ndarray]:
+    """Wrapped integer texel indices and whether the texel exists (``black`` outside)."""
+    i = index.astype(np.int64)
+    if mode == "clamp":
+        return np.clip(i, 0, size - 1), np.ones(i.shape, dtype=bool)
+    if mode == "black":
+        inside = (i >= 0) & (i < size)
+        return np.clip(i, 0, size - 1), inside
+    if mode == "mirror":
+        period = np.mod(i, 2 * size)
+        return np.where(period < size, period, 2 * size - 1 - period), np.ones(i.shape, dtype=bool)
+    return np.mod(i, size), np.ones(i.shape, dtype=bool)
+
+
+def _channels(rgba: np.ndarray, channels: str) -> np.ndarray:
+    index = {"r": 0, "g": 1, "b": 2, "a": 3}
+    if channels in index:
+        return rgba[:, index[channels]]
+    return rgba[:, :3]
+
+
+class Surfaces:
+    """Per-hit material parameters of a scene (see module docstring)."""
+
+    def __init__(self, scene: CaptureScene, tracer) -> None:  # noqa: ANN001 - SceneTracer
+        self.materials: list[Material] = [mesh.material for mesh in scene.meshes]
+        self.mesh_of = tracer.mesh_of
+        mats = self.materials or [Material()]
+        self.base = {
+            "diffuseColor": np.array([m.diffuse for m in mats], dtype=np.float64).reshape(-1, 3),
+            "emissiveColor": np.array([m.emission for m in mats], dtype=np.float64).reshape(-1, 3),
+            "roughness": np.array([m.roughness for m in mats], dtype=np.float64),
+            "metallic": np.array([m.metallic for m in mats], dtype=np.float64),
+            "specularColor": np.array([m.specular for m in mats], dtype=np.float64).reshape(-1, 3),
+            "opacity": np.array([m.opacity for m in mats], dtype=np.float64),
+            "ior": np.array([m.ior for m in mats], dtype=np.float64),
+        }
+        self.specular_workflow = np.array([m.use_specular_workflow for m in mats], dtype=bool)
+        self.threshold = np.array([m.opacity_threshold for m in mats], dtype=np.float64)
+        self.textured = [i for i, m in enumerate(self.materials) if m.maps]
+        self.cutout = bool(np.any(self.threshold > 0))
+        self._textures: dict[int, MipTexture] = {}
+        self.scene = scene
+        self.triangles = tracer.triangles
+        self.uvs = None
+        self.uv_density = None
+        if self.textured:
+            uvs = [np.asarray(m.uvs, dtype=np.float64).reshape(-1, 3, 2) if m.uvs is not None
+                   else np.zeros((m.triangles.reshape(-1, 3, 3).shape[0], 3, 2)) for m in scene.meshes]
+            self.uvs = np.concatenate(uvs) if uvs else np.zeros((0, 3, 2))
+            tris = self.triangles
+            area_w = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=-1)
+            e1, e2 = self.uvs[:, 1] - self.uvs[:, 0], self.uvs[:, 2] - self.uvs[:, 0]
+            area_uv = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+            self.uv_density = np.sqrt(area_uv / np.maximum(area_w, 1e-300))  # uv units per metre
+
+    def texture(self, index: int) -> MipTexture:
+        if index not in self._textures:
+            self._textures[index] = MipTexture(self.scene.textures[index].pixels)
+        return self._textures[index]
+
+    def at(self, prim: np.ndarray, bu: np.ndarray, bv: np.ndarray, t: np.ndarray | None = None,
+           spread: float | np.ndarray = BOUNCE_SPREAD) -> SurfacePoint:
+        """Material parameters at hits (triangle ``prim``, barycentrics bu, bv, ray distance t, ray spread)."""
+        mi = self.mesh_of[prim] if len(self.materials) else np.zeros(prim.shape, dtype=np.int64)
+        values = {name: array[mi] for name, array in self.base.items()}
+        if self.textured:
+            for k in self.textured:
+                sel = np.flatnonzero(mi == k)
+                if sel.size:
+                    self._apply_maps(k, sel, prim[sel], bu[sel], bv[sel], None if t is None else t[sel],
+                                     spread if np.isscalar(spread) else np.asarray(spread)[sel], values)
+        return self._point(values, mi)
+
+    def cut(self, prim: np.ndarray, bu: np.ndarray, bv: np.ndarray) -> np.ndarray:
+        """Whether hits are cut out: opacity below the material's opacityThreshold (> 0)."""
+        mi = self.mesh_of[prim]
+        result = np.zeros(prim.shape, dtype=bool)
+        sel = np.flatnonzero(self.threshold[mi] > 0)
+        if sel.size:
+            point = self.at(prim[sel], bu[sel], bv[sel])
+            result[sel] = point.opacity < point.threshold
+        return result
+
+    def _apply_maps(self, k: int, sel: np.ndarray, prim: np.ndarray, bu: np.ndarray, bv: np.ndarray,
+                    t: np.ndarray | None, spread, values: dict[str, np.ndarray]) -> None:  # noqa: ANN001
+        uv = self.uvs[prim]
+        st = (1.0 - bu - bv)[:, None] * uv[:, 0] + bu[:, None] * uv[:, 1] + bv[:, None] * uv[:, 2]
+        for entry in self.materials[k].maps:
+            name = entry["input"]
+            if name not in values:
+                continue
+            texture = self.texture(int(entry["texture"]))
+            size = max(texture.width, texture.height)
+            if t is None:
+                lod = np.zeros(sel.size)
+            else:
+                footprint = np.maximum(t * spread * self.uv_density[prim] * size, 1e-12)
+                lod = np.log2(np.maximum(footprint, 1.0))
+            rgba = texture.lookup(st, lod, tuple(entry.get("wrap", ("repeat", "repeat"))))
+            rgba = rgba * np.asarray(entry.get("scale", (1.0, 1.0, 1.0, 1.0))) + np.asarray(
+                entry.get("bias", (0.0, 0.0, 0.0, 0.0)))
+            value = _channels(rgba, entry.get("channels", "rgb"))
+            target = values[name]
+            if target.ndim == 2:
+                target[sel] = value[:, None] if value.ndim == 1 else value
+            else:
+                target[sel] = value if value.ndim == 1 else value @ np.array([0.2126, 0.7152, 0.0722])
+
+    def _point(self, v: dict[str, np.ndarray], mi: np.ndarray) -> SurfacePoint:
+        diffuse = np.clip(v["diffuseColor"], 0.0, None)
+        metallic = np.clip(v["metallic"], 0.0, 1.0)
+        spec_wf = self.specular_workflow[mi]
+        ior = v["ior"]
+        dielectric = np.where(ior > 0, ((ior - 1.0) / (ior + 1.0)) ** 2, 0.0)
+        f0_metal = (1.0 - metallic)[:, None] * dielectric[:, None] + metallic[:, None] * diffuse
+        f0 = np.where(spec_wf[:, None], np.clip(v["specularColor"], 0.0, 1.0), np.clip(f0_metal, 0.0, 1.0))
+        albedo = np.where(spec_wf[:, None], diffuse, diffuse * (1.0 - metallic)[:, None])
+        return SurfacePoint(
+            albedo=np.clip(albedo, 0.0, 1.0), f0=f0, roughness=np.clip(v["roughness"], 0.0, 1.0),
+            emission=np.maximum(v["emissiveColor"], 0.0), opacity=np.clip(v["opacity"], 0.0, 1.0),
+            threshold=self.threshold[mi],
+        )

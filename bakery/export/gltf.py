@@ -1,0 +1,147 @@
+"""glTF 2.0 + ``EXT_lights_image_based`` (Babylon.js is its runtime): one ``.gltf`` per reflection probe.
+
+Per reflection probe ``<slug>.gltf`` with a node at the probe's position (name = probe, ``extras.bakery``), one scene
+referencing the light, and the light [EXT]:
+
+``irradianceCoefficients``  9 × 3 **irradiance** SH: bakery radiance SH × (π, 2π/3, π/4) per band, in bakery's
+                            basis (real, orthonormal, Condon–Shortley signs: Y1,−1 = −c·y …, index l(l+1)+m) — the
+                            basis Babylon's ``SphericalHarmonics`` uses (its loader applies
+                            ``convertIrradianceToLambertianRadiance``, i.e. ÷π, itself). The radiance SH come from the
+                            probe's irradiance encoding when it has one (:mod:`bakery.export.source`), else from the
+                            kept capture.
+``specularImageSize``       face size of mip 0
+``specularImages``          M × 6 image indices, mips of halving sizes, faces +X −X +Y −Y +Z −Z, each a 4-channel PNG
+                            in Babylon's RGBD packing (below), re-prefiltered at the profile's α per mip (default
+                            profile ``babylon``: the loader sets lodGenerationScale = (M − 1)/log2 N)
+``intensity``, ``rotation`` 1, identity
+
+Face images: "each saved image must be flipped about its vertical axis to correspond with the way glTF references
+texture space" [EXT]: every face image is bakery's face (OpenGL orientation) mirrored left↔right, faces in the
+standard order (:func:`flip_images`). Babylon uploads the PNGs as they are; its read-back of every face and mip
+(``RawCubeTexture.readPixels``, rows bottom-up) matches these images decoded, texel for texel (headless Chromium
+test). The irradiance SH are not mirrored: Babylon's shader SH evaluated at n equals the store's E(n)/π.
+
+RGBD (Babylon's ``toRGBD``/``fromRGBD``, 8-bit PNG): D = ⌊max(255 / max(r, g, b), 1)⌋ / 255 (clamped to [1/255, 1]),
+RGB = round(255 · (c·D)^(1/2.2)), A = round(255 · D); decoded c = (RGB/255)^2.2 / (A/255). Range: up to 255 (values
+above clamp); relative quantisation ≈ 2.2 · ½ / 255 / (c·D)^(1/2.2) per channel (≤ 0.6 % for the largest channel).
+
+[EXT] https://github.com/KhronosGroup/glTF/tree/main/extensions/2.0/Vendor/EXT_lights_image_based
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+import zlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from bakery.encodings.base import EncodingParams
+from bakery.export.base import ExportContext, ExportedFile, ExportFormat, register_format, slug
+from bakery.export.source import COSINE_BANDS, profile_chains, radiance_sh
+from bakery.sh.basis import sh_bands
+
+RGBD_MAX_RANGE = 255.0
+GAMMA = 2.2
+
+
+def encode_png_rgba(rgba: np.ndarray) -> bytes:
+    """PNG bytes of an (H, W, 4) uint8 image (colour type 6, 8 bits, filter 0; no gAMA/sRGB chunk)."""
+    rgba = np.ascontiguousarray(rgba, dtype=np.uint8)
+    h, w, c = rgba.shape
+    if c != 4:
+        raise ValueError(f"encode_png_rgba needs (H, W, 4), got {rgba.shape}")
+    raw = b"".join(b"\x00" + rgba[i].tobytes() for i in range(h))
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    header = struct.pack(">IIBBBBB", w, h, 8, 6, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(raw, 9)) + chunk(b"IEND", b"")
+
+
+def encode_rgbd(rgb: np.ndarray) -> np.ndarray:
+    """(..., 3) linear radiance → (..., 4) uint8 RGBD (module docstring)."""
+    c = np.clip(np.nan_to_num(np.asarray(rgb, np.float64), nan=0.0), 0.0, None)
+    max_rgb = np.maximum(c.max(axis=-1), 1e-6)
+    d = np.clip(np.floor(np.maximum(RGBD_MAX_RANGE / max_rgb, 1.0)) / 255.0, 1.0 / 255.0, 1.0)
+    rgb = np.clip(c * d[..., None], 0.0, 1.0) ** (1.0 / GAMMA)
+    out = np.concatenate([np.round(rgb * 255.0), np.round(d * 255.0)[..., None]], axis=-1)
+    return out.astype(np.uint8)
+
+
+def decode_rgbd(rgbd: np.ndarray) -> np.ndarray:
+    q = np.asarray(rgbd, np.float64) / 255.0
+    return (q[..., :3] ** GAMMA) / np.maximum(q[..., 3:4], 1.0 / 255.0)
+
+
+def flip_images(cube: np.ndarray) -> np.ndarray:
+    """Every face image flipped about its vertical axis (left↔right), faces in place: what [EXT] requires."""
+    return np.ascontiguousarray(np.asarray(cube)[:, :, ::-1])
+
+
+#: The face transform applied to every exported mip level (module docstring).
+FACE_TRANSFORM = flip_images
+
+
+def irradiance_coefficients(radiance: np.ndarray) -> np.ndarray:
+    """Irradiance SH (9, 3) = radiance SH × A_l (bakery basis)."""
+    return np.asarray(radiance, np.float64)[:9] * COSINE_BANDS[sh_bands(2)][:, None]
+
+
+@register_format
+class GltfExport(ExportFormat):
+    """glTF 2.0 with EXT_lights_image_based, one file per reflection probe."""
+
+    name = "gltf"
+    description = "glTF 2.0 + EXT_lights_image_based per reflection probe (RGBD PNG faces per mip, irradiance SH)"
+    default_profile = "babylon"
+
+    @dataclass(frozen=True)
+    class Params(EncodingParams):
+        levels: int | None = None
+        face_size: int | None = None
+
+        def validate(self) -> None:
+            if self.levels is not None and self.levels < 1:
+                raise ValueError(f"levels must be >= 1 (or unset: full chain), got {self.levels}")
+
+    def build(self, context: ExportContext) -> list[ExportedFile]:
+        p = context.params
+        chains, caps, record = profile_chains(context.store, context.probes, context.profile, p.levels, p.face_size)
+        files = []
+        for name, chain in chains.items():
+            base = slug(name)
+            radiance, sh_source = radiance_sh(context.store, name, caps[name])
+            images, grid = [], []
+            for i, level in enumerate(chain):
+                row = []
+                for f, face in enumerate(FACE_TRANSFORM(level)):
+                    path = f"{base}/specular_{i}_{f}.png"
+                    files.append(ExportedFile(path, encode_png_rgba(encode_rgbd(face)), (), "image"))
+                    row.append(len(images))
+                    images.append({"uri": path, "mimeType": "image/png"})
+                grid.append(row)
+            position = context.store.probe_positions[context.store.probe_names.index(name)]
+            extras = {"bakery": {**context.provenance(), "probe": name, "profile": record,
+                                 "irradiance_source": sh_source, "encoding": "RGBD (Babylon), 8-bit PNG",
+                                 "faces": "bakery (OpenGL) faces, each image flipped left-right as EXT_lights_image_based requires"}}
+            light = {"name": name, "intensity": 1.0, "rotation": [0.0, 0.0, 0.0, 1.0],
+                     "irradianceCoefficients": [[float(v) for v in row] for row in
+                                                irradiance_coefficients(radiance)],
+                     "specularImageSize": int(chain[0].shape[1]), "specularImages": grid}
+            document = {
+                "asset": {"version": "2.0", "generator": "bakery export"},
+                "extensionsUsed": ["EXT_lights_image_based"],
+                "extensions": {"EXT_lights_image_based": {"lights": [light]}},
+                "images": images,
+                "nodes": [{"name": name, "translation": [float(v) for v in position]}],
+                "scenes": [{"name": name, "nodes": [0], "extensions": {"EXT_lights_image_based": {"light": 0}}}],
+                "scene": 0,
+                "extras": extras,
+            }
+            text = json.dumps(document, indent=1, sort_keys=True) + "\n"
+            files.append(ExportedFile(f"{base}.gltf", text.encode(), (name,), ""))
+        return files
+

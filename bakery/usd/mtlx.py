@@ -1,0 +1,288 @@
+"""MaterialX surfaces → the capture's material model (:class:`bakery.usd.materials.Surface`).
+
+Sources: ``.mtlx`` documents read with the ``MaterialX`` package (the usd-core wheel has no usdMtlx file format, so
+a reference to a ``.mtlx`` file does not compose), and MaterialX shaders authored as USD prims (``info:id`` =
+``ND_<node>_surfaceshader``). Defaults come from MaterialX's own standard library node definitions.
+
+Mapping (metallic workflow of the capture; see ``docs/capture.md``)
+    ===================  ==============================================  ==========================================
+    capture              standard_surface                                open_pbr_surface
+    ===================  ==============================================  ==========================================
+    diffuse              base · base_color                               base_weight · base_color
+    metallic             metalness                                       base_metalness
+    roughness            specular_roughness                              specular_roughness
+    ior                  specular_IOR                                    specular_ior
+    emission             emission · emission_color                       emission_luminance · emission_color
+    opacity              mean(opacity)                                   geometry_opacity
+    ===================  ==============================================  ==========================================
+
+    ``UsdPreviewSurface`` nodes map input for input; ``gltf_pbr`` maps base_color, metallic, roughness, emissive.
+    Inputs connected to ``image``/``tiledimage`` nodes (directly or through a nodegraph output) become texture maps
+    with the node's file, ``colorspace`` (colour inputs are converted with OpenColorIO), address modes and default;
+    a scalar weight multiplying a textured colour (base · base_color) folds into the map's scale. Lobes the
+    capture cannot represent (coat, sheen, transmission, subsurface, thin film, specular weight/colour ≠ 1, normal
+    maps, other node types in a graph) are reported.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from bakery.usd.materials import COLOR_INPUTS, Surface
+
+_SUPPORTED = ("standard_surface", "open_pbr_surface", "UsdPreviewSurface", "gltf_pbr")
+#: Lobe weights the capture does not model: (input, neutral value).
+_UNMODELLED = {
+    "standard_surface": (("coat", 0.0), ("sheen", 0.0), ("transmission", 0.0), ("subsurface", 0.0),
+                         ("thin_film_thickness", 0.0), ("specular", 1.0), ("specular_color", 1.0)),
+    "open_pbr_surface": (("coat_weight", 0.0), ("fuzz_weight", 0.0), ("transmission_weight", 0.0),
+                         ("subsurface_weight", 0.0), ("thin_film_weight", 0.0), ("specular_weight", 1.0),
+                         ("specular_color", 1.0)),
+    "UsdPreviewSurface": (("clearcoat", 0.0), ("displacement", 0.0)),
+    "gltf_pbr": (("clearcoat", 0.0), ("transmission", 0.0), ("sheen_color", 0.0)),
+}
+
+
+class MaterialXError(ValueError):
+    """A MaterialX document or material that cannot be read."""
+
+
+@lru_cache(maxsize=1)
+def _library():  # noqa: ANN202
+    import MaterialX as mx
+
+    library = mx.createDocument()
+    mx.loadLibraries(mx.getDefaultDataLibraryFolders(), mx.getDefaultDataSearchPath(), library)
+    return library
+
+
+def _category(node_def_name: str) -> str:
+    """``ND_standard_surface_surfaceshader`` → ``standard_surface``."""
+    name = node_def_name[3:] if node_def_name.startswith("ND_") else node_def_name
+    return name.rsplit("_surfaceshader", 1)[0]
+
+
+def _defaults(category: str) -> dict[str, object]:
+    library = _library()
+    for node_def in library.getNodeDefs():
+        if node_def.getNodeString() == category and node_def.getType() == "surfaceshader":
+            return {i.getName(): _py(i.getValue()) for i in node_def.getActiveInputs() if i.getValue() is not None}
+    return {}
+
+
+def _py(value):  # noqa: ANN001, ANN202
+    """MaterialX values (Color3, Vector2, float, …) as Python floats / tuples."""
+    if isinstance(value, (int, float, bool, str)):
+        return value
+    try:
+        return tuple(float(x) for x in value.asTuple())
+    except AttributeError:
+        try:
+            return tuple(float(x) for x in value)
+        except TypeError:
+            return value
+
+
+def _mean(value) -> float:  # noqa: ANN001
+    return float(np.mean(np.asarray(value, dtype=np.float64)))
+
+
+def _to_surface(category: str, values: dict[str, object], maps: dict[str, dict], notes: list[str]) -> Surface:
+    """Map a MaterialX surface's inputs (values and texture maps by input name) onto the capture's model."""
+    d = {**_defaults(category), **values}
+    surface = Surface(notes=list(notes))
+    for name, neutral in _UNMODELLED.get(category, ()):
+        if name in maps or (name in d and abs(_mean(d[name]) - neutral) > 1e-6):
+            surface.notes.append(f"{category} {name} is not modelled by the capture")
+    if "normal" in maps:
+        surface.notes.append("normal maps are not modelled by the capture (geometric normals are used)")
+
+    def put(target: str, colour_input: str | None, weight_input: str | None, scalar: bool = False) -> None:
+        weight = _mean(d.get(weight_input, 1.0)) if weight_input else 1.0
+        if weight_input and weight_input in maps:
+            surface.notes.append(f"{category} {weight_input} is textured; its mean {weight:g} is used")
+        if colour_input is None:
+            return
+        value = d.get(colour_input)
+        if colour_input in maps:
+            entry = dict(maps[colour_input])
+            scale = np.asarray(entry.get("scale", (1.0, 1.0, 1.0, 1.0)), dtype=np.float64)
+            entry["scale"] = tuple(float(x) for x in scale * np.array([weight, weight, weight, 1.0]))
+            if scalar:
+                entry["channels"] = entry.get("channels", "r") if entry.get("channels") != "rgb" else "r"
+            surface.maps[target] = entry
+            value = entry.pop("_mean", value)
+        if value is None:
+            return
+        array = np.asarray(value, dtype=np.float64) * weight
+        surface.values[target] = float(array.mean()) if scalar else tuple(np.broadcast_to(array, 3).tolist())
+
+    if category == "standard_surface":
+        put("diffuseColor", "base_color", "base")
+        put("metallic", "metalness", None, scalar=True)
+        put("roughness", "specular_roughness", None, scalar=True)
+        put("ior", "specular_IOR", None, scalar=True)
+        put("emissiveColor", "emission_color", "emission")
+        put("opacity", "opacity", None, scalar=True)
+    elif category == "open_pbr_surface":
+        put("diffuseColor", "base_color", "base_weight")
+        put("metallic", "base_metalness", None, scalar=True)
+        put("roughness", "specular_roughness", None, scalar=True)
+        put("ior", "specular_ior", None, scalar=True)
+        put("emissiveColor", "emission_color", "emission_luminance")
+        put("opacity", "geometry_opacity", None, scalar=True)
+    elif category == "gltf_pbr":
+        put("diffuseColor", "base_color", None)
+        put("metallic", "metallic", None, scalar=True)
+        put("roughness", "roughness", None, scalar=True)
+        put("ior", "ior", None, scalar=True)
+        put("emissiveColor", "emissive", "emissive_strength")
+        put("opacity", "alpha", None, scalar=True)
+    else:  # UsdPreviewSurface
+        for name in ("diffuseColor", "emissiveColor", "specularColor"):
+            put(name, name, None)
+        for name in ("metallic", "roughness", "ior", "opacity", "opacityThreshold", "useSpecularWorkflow"):
+            put(name, name, None, scalar=True)
+    surface.primvar = "st" if surface.maps else None
+    return surface
+
+
+# ----------------------------------------------------------------------------------------------------------------
+def surface_from_document(reader, document: str, material_name: str, prim: str) -> Surface:  # noqa: ANN001
+    """The surface of ``material_name`` (a ``surfacematerial``) in the ``.mtlx`` file ``document``."""
+    import MaterialX as mx
+
+    doc = mx.createDocument()
+    try:
+        mx.readFromXmlFile(doc, document)
+    except Exception as error:  # MaterialX raises ExceptionParseError / ExceptionFileMissing
+        raise MaterialXError(f"cannot read the document ({error})") from None
+    doc.importLibrary(_library())
+    material = doc.getNode(material_name)
+    if material is None:
+        raise MaterialXError("no such material in the document")
+    shader_input = material.getInput("surfaceshader")
+    shader = shader_input.getConnectedNode() if shader_input is not None else None
+    if shader is None:
+        raise MaterialXError("the material has no surfaceshader")
+    category = shader.getCategory()
+    if category not in _SUPPORTED:
+        raise MaterialXError(f"surface {category!r} is not supported (supported: {', '.join(_SUPPORTED)})")
+    values: dict[str, object] = {}
+    maps: dict[str, dict] = {}
+    notes: list[str] = []
+    base_dir = Path(document).parent
+    for inp in shader.getActiveInputs():
+        name = inp.getName()
+        upstream = inp.getConnectedNode()
+        if upstream is None and inp.getNodeGraphString():
+            graph = doc.getNodeGraph(inp.getNodeGraphString())
+            output = graph.getOutput(inp.getOutputString() or "out") if graph is not None else None
+            upstream = output.getConnectedNode() if output is not None else None
+        if upstream is None:
+            if inp.getValue() is not None:
+                values[name] = _py(inp.getValue())
+            continue
+        if name == "normal":
+            notes.append("normal maps are not modelled by the capture (geometric normals are used)")
+            continue
+        if upstream.getCategory() not in ("image", "tiledimage"):
+            notes.append(f"input {name} is computed by a {upstream.getCategory()} node, which the capture does not "
+                         "evaluate; its default is used")
+            continue
+        entry = _image_map(reader, upstream, base_dir, name in ("base_color", "emission_color", "diffuseColor",
+                                                               "emissiveColor", "specularColor", "emissive"), prim)
+        if entry is not None:
+            maps[name] = entry
+    return _to_surface(category, values, maps, notes)
+
+
+def _image_map(reader, node, base_dir: Path, is_color: bool, prim: str) -> dict | None:  # noqa: ANN001
+    file_input = node.getInput("file")
+    if file_input is None:
+        return None
+    filename = file_input.getResolvedValueString()
+    path = Path(filename)
+    if not path.is_absolute():
+        path = (base_dir / path).resolve()
+    if not path.is_file():
+        reader._warn_once(prim, f"MaterialX image {filename!r} not found; the input's default is used")
+        return None
+    color_space = file_input.getActiveColorSpace() or ""
+    source = "raw" if not is_color else "auto"
+    index = reader.texture_index(str(path), source, prim, color_space, is_color)
+    if index is None:
+        return None
+    modes = {"periodic": "repeat", "clamp": "clamp", "mirror": "mirror", "constant": "black"}
+    wrap = tuple(modes.get((node.getInputValue(a) or "periodic"), "repeat") for a in ("uaddressmode", "vaddressmode"))
+    default = node.getInputValue("default")
+    mean = reader.texture_mean(index)
+    return {"texture": index, "channels": "rgb" if node.getType() in ("color3", "color4", "vector3") else "r",
+            "scale": (1.0, 1.0, 1.0, 1.0), "bias": (0.0, 0.0, 0.0, 0.0),
+            "fallback": tuple(np.broadcast_to(np.asarray(_py(default) if default is not None else 0.0, dtype=float),
+                                              4).tolist()) if default is not None and np.ndim(_py(default)) <= 1
+            and np.size(_py(default)) in (1, 4) else (0.0, 0.0, 0.0, 1.0),
+            "wrap": wrap, "_mean": tuple(mean[:3].tolist())}
+
+
+def surface_from_usd_shader(reader, shader, shader_id: str) -> Surface | None:  # noqa: ANN001
+    """The surface of a MaterialX shader authored as a USD prim (``ND_…_surfaceshader``), or None if its node is not
+    supported. Inputs connected to UsdUVTexture or ND_image nodes become maps."""
+    category = _category(shader_id)
+    if category not in _SUPPORTED:
+        return None
+    values: dict[str, object] = {}
+    maps: dict[str, dict] = {}
+    notes: list[str] = []
+    for shader_input in shader.GetInputs():
+        name = shader_input.GetBaseName()
+        value, upstream, output = reader._producer(shader_input)
+        if upstream is None:
+            if value is not None:
+                values[name] = _py(value)
+            continue
+        upstream_id = upstream.GetShaderId() or ""
+        if upstream_id == "UsdUVTexture":
+            entry, mean, _primvar = reader._uv_texture(upstream, output, name in COLOR_INPUTS or "color" in name)
+            if entry is not None:
+                maps[name] = dict(entry, _mean=mean)
+            continue
+        if upstream_id.startswith("ND_image_") or upstream_id.startswith("ND_tiledimage_"):
+            entry = _usd_image_map(reader, upstream, "color" in name or name == "emissive")
+            if entry is not None:
+                maps[name] = entry
+            continue
+        notes.append(f"input {name} is computed by {upstream_id or 'an untyped shader'}, which the capture does not "
+                     "evaluate; its default is used")
+    return _to_surface(category, values, maps, notes)
+
+
+def _usd_image_map(reader, node, is_color: bool) -> dict | None:  # noqa: ANN001
+    from pxr import Sdf
+
+    from bakery.usd.assets import local_asset_path
+
+    file_input = node.GetInput("file")
+    asset = file_input.Get(reader.time) if file_input else None
+    if not isinstance(asset, Sdf.AssetPath) or not asset.path:
+        return None
+    resolved = local_asset_path(asset)
+    if resolved is None:
+        reader._warn_once(str(node.GetPath()), f"image {asset.path!r} not found; the input's default is used")
+        return None
+    color_space = file_input.GetAttr().GetColorSpace() or ""
+    source = "raw" if not is_color else "auto"
+    index = reader.texture_index(resolved, source, str(node.GetPath()), color_space, is_color)
+    if index is None:
+        return None
+    modes = {"periodic": "repeat", "clamp": "clamp", "mirror": "mirror", "constant": "black"}
+    wrap = []
+    for a in ("uaddressmode", "vaddressmode"):
+        inp = node.GetInput(a)
+        wrap.append(modes.get(str(inp.Get(reader.time)) if inp and inp.Get(reader.time) else "periodic", "repeat"))
+    return {"texture": index, "channels": "rgb" if is_color else "r", "scale": (1.0, 1.0, 1.0, 1.0),
+            "bias": (0.0, 0.0, 0.0, 0.0), "fallback": (0.0, 0.0, 0.0, 1.0), "wrap": tuple(wrap),
+            "_mean": tuple(reader.texture_mean(index)[:3].tolist())}

@@ -1,0 +1,271 @@
+"""The hybrid reflection encoding (``shexp_hybrid``) and its bandwidth chain: levels from the kernel's bandwidth, the
+sharp prefilter against exact quadrature, the constant-environment identity against brute force, convergence to the
+exact prefiltered environment below the crossover, no seam at the crossover (stated bound), first_level and the
+clamp rules, memory accounting, and the α / n·v input rules of every reflection encoding."""
+
+import numpy as np
+import pytest
+
+from bakery.encodings.hybrid import SHExpHybrid
+from bakery.encodings.registry import ENCODINGS
+from bakery.encodings.shexp import SHExp, SHExpLights
+from bakery.encodings.splitsum import SplitSum
+from bakery.probe import ProbeBatch
+from bakery.reflection import hybrid as hy
+from bakery.reflection import splitsum as ss
+from bakery.reflection.reference import integrate_reflection, reflected_radiance
+from bakery.reflection.validation import clamp_view_to_horizon
+from bakery.sh.convolution import cosine_lobe_band_factors
+from bakery.sphere.cubemap import (
+    cube_texel_directions,
+    cube_texel_solid_angles,
+    sample_cube_bilinear,
+)
+from bakery.sphere.fibonacci import fibonacci_directions
+from bakery.sphere.grid import SphericalSamples
+
+FACE = 16
+FAST = {"n_normals": 16, "n_views": 16, "fit_face_size": 8}
+
+
+def _cubes():
+    d = cube_texel_directions(FACE)
+    sun = np.array([0.3, 0.8, 0.52]) / np.linalg.norm([0.3, 0.8, 0.52])
+    lobe = np.exp(40.0 * (d @ sun - 1.0))[..., None] * np.array([50.0, 40.0, 30.0])
+    sky = (0.5 + 0.5 * d[..., 1:2]) * np.array([0.2, 0.3, 0.6])
+    return np.stack([lobe + sky, np.full_like(lobe, 0.7)]).astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def hybrid():
+    enc = SHExpHybrid(face_size=FACE, **FAST)
+    return enc, enc.encode(ProbeBatch(_cubes()))
+
+
+def _rows(count=48, seed=0):
+    n = fibonacci_directions(count)
+    rng = np.random.default_rng(seed)
+    v = n + 0.6 * rng.normal(size=n.shape)
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    flip = np.sum(v * n, axis=1) < 0.05
+    v[flip] = n[flip]
+    return v, n
+
+
+# ------------------------------------------------------------------------------------------------ the chain
+def test_high_band_factors_match_the_split_sum_quadrature_and_the_cosine_closed_form():
+    for alpha in (0.16, 0.36):
+        np.testing.assert_allclose(ss._band_factors_high(alpha)[:33], ss.kernel_band_factors(alpha, 32), atol=2e-4)
+    # α = 1: K ∝ ⟨n, l⟩₊ exactly, λ_l = A_l / π (closed form, an independent reference)
+    np.testing.assert_allclose(ss._band_factors_high(1.0)[:9], cosine_lobe_band_factors(8) / np.pi, atol=1e-5)
+
+
+def test_chain_levels_come_from_the_kernel_bandwidth():
+    chain = ss.BandwidthChainSettings(face_size=128, alpha_top=0.84)
+    alphas, sizes = chain.level_alphas(), chain.level_sizes()
+    assert alphas[0] == 0 and sizes[:3] == (128, 128, 64) and np.all(np.diff(alphas) > 0) and alphas[-1] >= 0.84
+    for a, size in zip(alphas[1:], sizes[1:], strict=True):
+        if size > 4:  # the face follows the order: oversampling · F_ε(α_k) = N_k
+            assert chain.oversampling * ss.kernel_order(a) == pytest.approx(size, rel=2e-3)
+    # scale invariance for sharp α: one level per halving of the face doubles α
+    assert alphas[2] / alphas[1] == pytest.approx(2.0, rel=0.03)
+    # the runtime coordinate hits every level and is monotone and continuous in α
+    np.testing.assert_allclose(chain.level_coordinate(alphas[1:]), np.arange(1, len(alphas)), atol=1e-9)
+    sweep = np.linspace(0.0, 1.0, 4001)
+    x = chain.level_coordinate(sweep)
+    assert x[0] == 0 and np.all(np.diff(x) >= -1e-12) and np.max(np.abs(np.diff(x))) < 0.1
+
+
+def test_sharp_level_prefilter_matches_exact_quadrature():
+    cube = _cubes()[0]
+    # force the angular path (FIS on the remainder + exact bright texels) at α = 0.144 on a 16² capture
+    settings = ss.BandwidthChainSettings(face_size=FACE, max_sh_band=4)
+    exact = ss._exact_prefilter_level(cube, 0.144, FACE)
+    for s in (settings, ss.BandwidthChainSettings(face_size=FACE)):  # angular and SH-domain formulations
+        level = ss.prefilter_level(cube, 0.144, FACE, s)
+        assert np.sqrt(np.mean((level - exact) ** 2)) / exact.mean() < 0.02
+
+
+# ------------------------------------------------------------------------------------------------ the encoding
+def test_layout_memory_and_first_level(hybrid):
+    enc, fields = hybrid
+    assert set(fields) == {s.name for s in enc.field_specs()}
+    for spec in enc.field_specs():
+        assert fields[spec.name].shape == (2, *spec.shape) and fields[spec.name].dtype == np.dtype(spec.dtype)
+    assert enc.bytes_per_probe() == sum(fields[s.name][0].nbytes for s in enc.field_specs())
+    assert np.all(fields["first_level"] == 0) and np.all(enc.upload_bytes(fields) == enc.bytes_per_probe())
+    # a probe that sees only α ≥ 0.2 keeps the levels from the one at or below 0.2; only rough materials: none
+    glossy = SHExpHybrid(face_size=FACE, alpha_min=0.2, **FAST)
+    k0 = glossy.first_level
+    assert glossy.chain.level_alphas()[k0] <= 0.2 < glossy.chain.level_alphas()[k0 + 1]
+    rough = SHExpHybrid(face_size=FACE, alpha_min=0.9, **FAST)
+    assert rough.first_level == rough.chain.n_levels and rough.model.alpha_min == 0.9
+    encoded = rough.encode(ProbeBatch(_cubes()))
+    assert all(not np.any(encoded[f"level{k}"]) for k in range(rough.chain.n_levels))
+    assert rough.upload_bytes(encoded)[0] == SHExpLights().bytes_per_probe() + 4
+
+
+def test_rough_only_probe_is_the_sh_exponential_with_lights():
+    rough = SHExpHybrid(face_size=FACE, alpha_min=0.9, **FAST)
+    fields = rough.encode(ProbeBatch(_cubes()))
+    lights = SHExpLights(alpha_min=0.9, **FAST)
+    v, n = _rows()
+    a, f0 = np.full(len(v), 0.95), np.full(len(v), 0.04)
+    np.testing.assert_allclose(rough.evaluate_reflection(fields, {}, v, n, a, f0),
+                               lights.evaluate_reflection(lights.encode(ProbeBatch(_cubes())), {}, v, n, a, f0),
+                               rtol=1e-6)
+
+
+def test_constant_environment_identity_against_brute_force(hybrid):
+    enc, fields = hybrid
+    v, n = _rows()
+    d = cube_texel_directions(48).reshape(-1, 3)
+    samples = SphericalSamples(d, cube_texel_solid_angles(48).reshape(-1), np.full((len(d), 3), 0.7))
+    for alpha in (0.0, 0.05, 0.144, 0.3, 0.6, 1.0):
+        a = np.full(len(v), alpha)
+        for f0 in (1.0, 0.04):
+            out = enc.evaluate_reflection({k: x[1:2] for k, x in fields.items()}, {}, v, n, a, np.full(len(v), f0))[0]
+            if alpha == 0.0:  # mirror: E = F(n·v) · c
+                nv = np.sum(v * n, axis=1)[:, None]
+                expected = 0.7 * (f0 + (1 - f0) * (1 - nv) ** 5)
+                np.testing.assert_allclose(out, np.broadcast_to(expected, out.shape), rtol=0.03, atol=2e-3)
+                continue
+            e0, e1 = integrate_reflection(samples, v, n, a)
+            np.testing.assert_allclose(out, reflected_radiance(e0, e1, np.full(len(v), f0)), rtol=3e-2)
+
+
+def test_below_the_crossover_the_hybrid_is_the_exact_prefiltered_environment(hybrid):
+    """α below both blends: E = c·(F0 A + B) with c the exactly prefiltered environment (v = n, any F0); α → 0:
+    the capture itself."""
+    enc, fields = hybrid
+    cube = _cubes()[0]
+    d = fibonacci_directions(200)
+    level_alpha = float(enc.chain.level_alphas()[1])
+    assert level_alpha < enc.blends[0][0] and level_alpha < enc.blends[1][0]
+    parts = enc.evaluate_parts({k: x[:1] for k, x in fields.items()}, {}, d, d, np.full(len(d), level_alpha),
+                               np.ones(len(d)))
+    assert np.all(parts["w0"] == 1) and np.all(parts["w1"] == 1)
+    exact = sample_cube_bilinear(ss._exact_prefilter_level(cube, level_alpha, FACE).astype(np.float32), d)
+    from bakery.reflection.tables import lookup_table
+
+    albedo = lookup_table(enc.shared_tables()["dfg"], np.ones(len(d)), np.full(len(d), level_alpha)).sum(axis=1)
+    np.testing.assert_allclose(parts["E"][0], exact * albedo[:, None], rtol=0.02, atol=2e-3 * exact.mean())
+    mirror = enc.evaluate_reflection({k: x[:1] for k, x in fields.items()}, {}, d, d, np.zeros(len(d)),
+                                     np.ones(len(d)))[0]
+    np.testing.assert_allclose(mirror, sample_cube_bilinear(cube.astype(np.float16).astype(np.float32), d),
+                               rtol=2e-3)
+
+
+def test_no_seam_at_the_crossover(hybrid):
+    """E is continuous in α across both blends, within the stated bound
+    |ΔE| ≤ |Δ chain| + |Δ sh| + 1.5 |Δ log2 α| / width · |chain − sh|."""
+    enc, fields = hybrid
+    v, n = _rows(24)
+    alphas = np.geomspace(0.1, 1.0, 161)
+    rows_v, rows_n = np.repeat(v, len(alphas), 0), np.repeat(n, len(alphas), 0)
+    a = np.tile(alphas, len(v))
+    for f0 in (1.0, 0.04):
+        p = enc.evaluate_parts(fields, {}, rows_v, rows_n, a, np.full(len(a), f0))
+        e, chain, sh = (p[k].reshape(2, len(v), len(alphas), 3) for k in ("E", "chain", "sh"))
+        step = np.abs(np.diff(e, axis=2))
+        dlog = np.diff(np.log2(alphas))[None, None, :, None]
+        gap = np.maximum(np.abs(chain - sh)[:, :, 1:], np.abs(chain - sh)[:, :, :-1])
+        bound = (np.abs(np.diff(chain, axis=2)) + np.abs(np.diff(sh, axis=2))
+                 + 1.5 * dlog / enc.params.blend_octaves * gap)
+        assert np.all(step <= bound + 1e-9)
+        assert step.max() < 0.05 * np.abs(e).max()  # no visible jump at this step (Δ log2 α = 0.02)
+
+
+def test_evaluation_below_the_stored_range_clamps():
+    cubes = _cubes()
+    glossy = SHExpHybrid(face_size=FACE, alpha_min=0.2, **FAST)
+    fields = glossy.encode(ProbeBatch(cubes))
+    k0 = glossy.first_level
+    assert np.all(fields["first_level"] == k0) and not np.any(fields["level0"])
+    d = fibonacci_directions(64)
+    sharp = glossy.evaluate_parts(fields, {}, d, d, np.zeros(len(d)), np.ones(len(d)))["chain"]
+    at_level = glossy.evaluate_parts(fields, {}, d, d, np.full(len(d), glossy.chain.level_alphas()[k0]),
+                                     np.ones(len(d)))["chain"]
+    from bakery.reflection.tables import lookup_table
+
+    dfg = glossy.shared_tables()["dfg"]
+    ratio = (lookup_table(dfg, np.ones(1), np.zeros(1)).sum() /
+             lookup_table(dfg, np.ones(1), np.full(1, glossy.chain.level_alphas()[k0])).sum())
+    np.testing.assert_allclose(sharp, at_level * ratio, rtol=1e-6)  # the sharpest stored level, not level 0's zeros
+
+
+def test_shexp_is_never_evaluated_outside_its_fitted_range():
+    from bakery.reflection.shexp import clamped_pq, evaluate_pq
+
+    enc = SHExp(alpha_min=0.3, **FAST)
+    fields = enc.encode(ProbeBatch(_cubes()))
+    np.testing.assert_allclose(fields["alpha_range"], [[0.3, 1.0]] * 2)
+    v, n = _rows(16)
+    coeffs = np.concatenate([fields["p"], fields["q"]], axis=1)
+    np.testing.assert_allclose(clamped_pq(coeffs, v, n, np.zeros(16), enc.model, fields["alpha_range"]),
+                               evaluate_pq(coeffs, v, n, np.full(16, 0.3), enc.model))
+    assert np.all(np.isfinite(enc.evaluate_reflection(fields, {}, v, n, np.zeros(16), np.ones(16))))
+
+
+def test_shexp_fit_floor_moved_from_the_pipeline_into_the_encoding():
+    params = SHExp.Params(alpha_min=0.0, alpha_max=0.01)  # what pipeline/roughness.py passes for a mirror
+    assert (params.alpha_min, params.alpha_max) == (0.05, 0.06)
+    assert SHExp.Params(alpha_min=0.3).alpha_min == 0.3
+    with pytest.raises(ValueError, match="alpha_min"):
+        SHExp.Params(alpha_min=-0.1)
+    assert SHExpHybrid.Params(alpha_min=0.0).alpha_min == 0.0  # the hybrid keeps the true minimum
+    with pytest.raises(ValueError, match="tail_crossover"):
+        SHExpHybrid.Params(crossover=0.5, tail_crossover=0.3)
+
+
+# ------------------------------------------------------------------------------------------------ input rules
+REFLECTION = [n for n, cls in ENCODINGS.items() if cls.kind == "reflection"]
+
+
+def _small(name):
+    cls = ENCODINGS[name]
+    extra = {"face_size": FACE} if "face_size" in cls.Params.__dataclass_fields__ else {}
+    extra.update({k: v for k, v in FAST.items() if k in cls.Params.__dataclass_fields__})
+    if name == "splitsum":
+        extra.update(n_levels=4, min_face_size=4)
+    return cls(**extra)
+
+
+@pytest.fixture(scope="module")
+def every_reflection_encoding():
+    return {name: (enc, enc.encode(ProbeBatch(_cubes()))) for name in REFLECTION for enc in [_small(name)]}
+
+
+@pytest.mark.parametrize("name", REFLECTION)
+@pytest.mark.parametrize("bad", [-0.1, 1.5, np.nan, np.inf])
+def test_alpha_outside_zero_one_raises_naming_alpha(name, bad, every_reflection_encoding):
+    enc, fields = every_reflection_encoding[name]
+    v, n = _rows(4)
+    with pytest.raises(ValueError, match="alpha"):
+        enc.evaluate_reflection(fields, {}, v, n, np.array([0.5, bad, 0.5, 0.5]), np.ones(4))
+
+
+@pytest.mark.parametrize("name", REFLECTION)
+def test_views_below_the_horizon_are_clamped_to_it(name, every_reflection_encoding):
+    enc, fields = every_reflection_encoding[name]
+    n = fibonacci_directions(16)
+    rng = np.random.default_rng(2)
+    v = rng.normal(size=n.shape)
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    v = np.where(np.sum(v * n, axis=1, keepdims=True) > 0, -v, v)  # all below the horizon
+    v[0] = -n[0]  # n·v = −1: h_r was undefined before
+    a, f0 = np.full(16, 0.4), np.full(16, 0.04)
+    below = enc.evaluate_reflection(fields, {}, v, n, a, f0)
+    assert np.all(np.isfinite(below)) and np.all(below >= 0)
+    horizon = clamp_view_to_horizon(v, n)
+    np.testing.assert_allclose(np.sum(horizon * n, axis=1), 1e-6, atol=1e-9)
+    np.testing.assert_allclose(below, enc.evaluate_reflection(fields, {}, horizon, n, a, f0), rtol=1e-12)
+
+
+def test_splitsum_accepts_the_whole_range_and_keeps_its_layout():
+    enc = SplitSum(face_size=FACE, n_levels=4, min_face_size=4)
+    fields = enc.encode(ProbeBatch(_cubes()))
+    v, n = _rows(8)
+    out = enc.evaluate_reflection(fields, {}, v, n, np.linspace(0, 1, 8), np.ones(8))
+    assert np.all(np.isfinite(out))
+    assert hy.chain_weight(np.array([0.0]), 0.3, 1.5)[0] == 1.0

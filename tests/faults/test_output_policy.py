@@ -1,0 +1,132 @@
+"""Issue 15 case 1 — outputs never replace what they should not: a bake writes its store only to a new path or over a
+bakery store of a format this bakery writes, its layer only to a new path or over a bakery layer; ``migrate -o``
+and ``report -o`` follow the same policy. Everything else is refused before any work (exit 2, the file and the
+reason named, every file byte-identical) unless ``--force``, which still never overwrites an input."""
+
+from __future__ import annotations
+
+import shutil
+
+import h5py
+import numpy as np
+import pytest
+from faultkit import (
+    SCENE_FLAGS,
+    assert_fails_cleanly,
+    incli,
+    scene_text,
+    snapshot,
+    temporaries,
+    write_env,
+)
+
+pytestmark = pytest.mark.faults
+
+
+@pytest.fixture(scope="module")
+def ws(tmp_path_factory):
+    """A workspace: an image, a scene with a sublayer, a previous store and every kind of file in the way."""
+    d = tmp_path_factory.mktemp("policy")
+    write_env(d / "city.hdr".replace(".hdr", ".exr"), 1)
+    (d / "sub.usda").write_text("#usda 1.0\n")
+    (d / "scene.usda").write_text(scene_text(2, extra='    subLayers = [@./sub.usda@]\n'))
+    assert incli("bake", d / "city.exr", "-o", d / "prev.h5", "-e", "sh2", "--face-size", "4").returncode == 0
+    (d / "notes.h5").write_text("my notes, not a store\n")
+    with h5py.File(d / "foreign.h5", "w") as f:
+        f["data"] = np.arange(10)
+    with h5py.File(d / "city.h5", "w") as f:  # an unrelated HDF5 file beside the image (the default -o)
+        f["measurements"] = np.ones(4)
+    for name, version in (("newer.h5", "9.0.0"), ("newer_minor.h5", "1.9.0")):
+        shutil.copy(d / "prev.h5", d / name)
+        with h5py.File(d / name, "a") as f:
+            f.attrs["format_version"] = version
+    data = (d / "prev.h5").read_bytes()
+    (d / "truncated.h5").write_bytes(data[: len(data) // 2])
+    (d / "layer.usda").write_text("#usda 1.0\n(\n    doc = \"my hand-written layer\"\n)\n")
+    (d / "out.bake.usda").write_text("#usda 1.0\n(\n    doc = \"not a bakery layer\"\n)\n")
+    (d / "rdir").mkdir()
+    shutil.copy(d / "prev.h5", d / "rdir" / "report.json")  # a store that happens to be called report.json
+    (d / "rep").mkdir()
+    (d / "rep" / "report.html").write_text("<html>my page</html>")
+    return d
+
+
+def _refused(ws, args, *needles):
+    before = snapshot(ws)
+    result = incli(*args)
+    assert_fails_cleanly(result, 2, *needles)
+    assert snapshot(ws) == before  # nothing touched, nothing added
+    assert not temporaries(ws)
+
+
+CASES = {
+    # the scene replaced by the store / the image replaced by the store
+    "store onto the scene": (["bake", "{d}/scene.usda", "-o", "{d}/scene.usda"], ["scene.usda", "HDF5"]),
+    "store onto the image": (["bake", "{d}/city.exr", "-o", "{d}/city.exr"], ["city.exr", "HDF5"]),
+    "store onto a text file": (["bake", "{d}/city.exr", "-o", "{d}/notes.h5"], ["notes.h5", "not an HDF5 file"]),
+    "store onto a foreign HDF5 file": (["bake", "{d}/city.exr", "-o", "{d}/foreign.h5"],
+                                       ["foreign.h5", "not a bakery probe store"]),
+    "store onto a newer-format store": (["bake", "{d}/city.exr", "-o", "{d}/newer.h5"], ["newer.h5", "9.0.0", "newer"]),
+    "store onto a newer-minor store": (["bake", "{d}/city.exr", "-o", "{d}/newer_minor.h5"],
+                                       ["newer_minor.h5", "1.9.0", "newer"]),
+    "store onto a truncated store": (["bake", "{d}/city.exr", "-o", "{d}/truncated.h5"],
+                                     ["truncated.h5", "truncated or corrupt"]),
+    "default -o onto an unrelated HDF5 file": (["bake", "{d}/city.exr"], ["city.h5", "not a bakery probe store"]),
+    "layer onto a hand-written layer": (["bake", "{d}/scene.usda", "-o", "{d}/new.h5", "--layer", "{d}/layer.usda"],
+                                        ["layer.usda", "not a bakery baked-results layer"]),
+    "default layer onto a foreign file": (["bake", "{d}/scene.usda", "-o", "{d}/out.h5"],
+                                          ["out.bake.usda", "not a bakery baked-results layer"]),
+    "layer onto the scene": (["bake", "{d}/scene.usda", "-o", "{d}/new.h5", "--layer", "{d}/scene.usda"],
+                             ["scene.usda", "input"]),
+    "layer onto a sublayer": (["bake", "{d}/scene.usda", "-o", "{d}/new.h5", "--layer", "{d}/sub.usda"],
+                              ["sub.usda"]),
+    "layer onto the store": (["bake", "{d}/scene.usda", "-o", "{d}/new.h5", "--layer", "{d}/prev.h5"], ["prev.h5"]),
+    "migrate -o onto the scene": (["migrate", "{d}/prev.h5", "-o", "{d}/scene.usda"], ["scene.usda", "HDF5"]),
+    "migrate -o onto a foreign HDF5 file": (["migrate", "{d}/prev.h5", "-o", "{d}/foreign.h5"],
+                                            ["foreign.h5", "not a bakery probe store"]),
+    "migrate -o onto a newer store": (["migrate", "{d}/prev.h5", "-o", "{d}/newer.h5"], ["newer.h5", "newer"]),
+    "report -o over a foreign page": (["report", "{d}/prev.h5", "-o", "{d}/rep", "--no-previews"],
+                                      ["report.html", "not a bakery report"]),
+    "report -o onto a file": (["report", "{d}/prev.h5", "-o", "{d}/notes.h5", "--no-previews"],
+                              ["notes.h5", "not a directory"]),
+    # --force never overwrites an input of the bake
+    "--force: store onto the image": (["bake", "{d}/city.exr", "-o", "{d}/city.exr", "--force"], ["city.exr"]),
+    "--force: layer onto the scene": (["bake", "{d}/scene.usda", "-o", "{d}/new.h5", "--layer", "{d}/scene.usda",
+                                       "--force"], ["scene.usda", "input"]),
+    "--force: layer onto a sublayer": (["bake", "{d}/scene.usda", "-o", "{d}/new.h5", "--layer", "{d}/sub.usda",
+                                        "--force"], ["sub.usda"]),
+    "--force: report over its own store": (["report", "{d}/rdir/report.json", "-o", "{d}/rdir", "--no-previews",
+                                            "--force"], ["report.json", "input"]),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_refused_before_any_work(ws, case):
+    args, needles = CASES[case]
+    _refused(ws, [a.format(d=ws) for a in args], *needles)
+
+
+def test_force_replaces_a_foreign_file_but_nothing_else(ws, tmp_path):
+    target = tmp_path / "foreign.h5"
+    shutil.copy(ws / "foreign.h5", target)
+    result = incli("bake", ws / "city.exr", "-o", target, "-e", "sh2", "--face-size", "4", "--force")
+    assert result.returncode == 0, result.output
+    import bakery
+
+    assert bakery.open_store(target).probe_names == ["/environment"]
+
+
+def test_a_previous_store_and_layer_are_replaced(ws, tmp_path):
+    scene = tmp_path / "scene.usda"
+    scene.write_text(scene_text(2))
+    store = tmp_path / "s.h5"
+    for _ in range(2):  # the second bake replaces its own store and layer: allowed
+        result = incli("bake", scene, "-o", store, *SCENE_FLAGS, "-j", "1")
+        assert result.returncode == 0, result.output
+    assert (tmp_path / "s.bake.usda").is_file() and not temporaries(tmp_path)
+    migrated = tmp_path / "copy.h5"
+    assert incli("migrate", store, "-o", migrated).returncode == 0  # a new path
+    assert incli("migrate", store, "-o", migrated).returncode == 0  # over a store: allowed
+    rep = tmp_path / "rep"
+    for _ in range(2):
+        assert incli("report", store, "-o", rep, "--no-previews").returncode == 0

@@ -1,0 +1,387 @@
+"""Runs bakery's shader library on a real GPU pipeline: WebGL2 in headless Chromium (SwiftShader where there is no GPU).
+
+For every (store, encoding) a job is built from ``bakery/shaders/manifest.json``: the encoding's stored fields are
+uploaded as an engine would (float fields as RGBA32F texels, uint8 layouts as R32UI little-endian words, shared tables
+as RG32F/R32F textures, split-sum levels as RGBA16F face arrays), a generated fragment shader loads them and calls the
+manifest's entry point at per-pixel inputs (normal, view, α, F0), and ``readPixels`` reads the RGBA32F target back.
+All jobs run in one page, in one Chromium launch (:func:`run_jobs`).
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import html
+import json
+import re
+import shutil
+import subprocess
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from bakery.shaders import SHADER_DIR, entry_for, glsl_library, manifest
+
+HERE = Path(__file__).resolve().parent
+#: The report test's flags (tests/report/test_report.py) without --disable-gpu: a GPU is used where there is one,
+#: SwiftShader (WebGL2 on the CPU) otherwise.
+CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-quic", "--no-first-run", "--disable-background-networking",
+                  "--disable-component-update", "--disable-sync", "--enable-unsafe-swiftshader",
+                  "--ignore-gpu-blocklist"]
+#: Hardware-filtering counterparts of the exact (texelFetch) lookups.
+SAMPLED_LOOKUP = {"bakery_dfg_fetch": "bakery_dfg_sample", "bakery_cube_fetch_bilinear": "bakery_cube_sample_bilinear"}
+
+
+def chromium_binary() -> str | None:
+    for name in ("chromium", "chromium-browser", "google-chrome", "chrome"):
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+# ------------------------------------------------------------------------------------------------------ inputs
+def fibonacci(count: int) -> np.ndarray:
+    i = np.arange(count) + 0.5
+    z = 1.0 - 2.0 * i / count
+    phi = i * np.pi * (3.0 - np.sqrt(5.0))
+    rho = np.sqrt(1.0 - z * z)
+    return np.stack([rho * np.cos(phi), rho * np.sin(phi), z], axis=-1)
+
+
+def _f32(a: np.ndarray) -> np.ndarray:
+    """Inputs rounded to float32 (what the GPU receives), as float64 for the Python reference."""
+    return np.asarray(a, dtype=np.float32).astype(np.float64)
+
+
+def irradiance_inputs() -> dict[str, np.ndarray]:
+    normals = np.concatenate([np.eye(3), -np.eye(3), fibonacci(58)])
+    return {"normal": _f32(normals)}
+
+
+def reflection_inputs(count: int = 96, seed: int = 18) -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    normals = fibonacci(count)[rng.permutation(count)]
+    tangent = np.cross(normals, rng.normal(size=(count, 3)))
+    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+    cos_v = np.concatenate([[1.0, 0.03, 0.5], rng.uniform(0.02, 1.0, count - 3)])
+    views = cos_v[:, None] * normals + np.sqrt(1.0 - cos_v**2)[:, None] * tangent
+    views /= np.linalg.norm(views, axis=1, keepdims=True)
+    alpha = np.concatenate([[0.01, 0.05, 0.1, 0.2, 0.3, 0.5, 0.7, 1.0], rng.uniform(0.02, 1.0, count - 8)])
+    f0 = rng.uniform(0.02, 1.0, size=(count, 3))
+    f0[:8] = 0.04
+    return {"normal": _f32(normals), "view": _f32(views), "alpha": _f32(alpha), "f0": _f32(f0)}
+
+
+# ------------------------------------------------------------------------------------------------------ jobs
+@dataclass
+class Job:
+    id: str
+    encoding: str
+    store: str
+    variant: str  # "fetch": exact bilinear weights (texelFetch); "sample": the GPU's filtering units
+    fragment: str
+    width: int
+    height: int
+    reference: np.ndarray  # (P, N, 3)
+    mask: np.ndarray | None = None  # (P, N) samples compared (None: all)
+    textures: list[dict] = field(default_factory=list)
+    uniforms: list[dict] = field(default_factory=list)
+
+    def page_entry(self) -> dict:
+        return {"id": self.id, "fragment": self.fragment, "width": self.width, "height": self.height,
+                "textures": self.textures, "uniforms": self.uniforms}
+
+
+def _b64(array: np.ndarray) -> str:
+    return base64.b64encode(np.ascontiguousarray(array).tobytes()).decode()
+
+
+def _rgba(array: np.ndarray, fill: float = 0.0) -> np.ndarray:
+    """(..., 3) → (..., 4) with a constant fourth channel."""
+    pad = np.full(array.shape[:-1] + (1,), fill, dtype=array.dtype)
+    return np.concatenate([array, pad], axis=-1)
+
+
+def _array_type(glsl_type: str) -> tuple[str, int | None]:
+    match = re.fullmatch(r"(\w+)\[(\d+)\]", glsl_type)
+    return (match.group(1), int(match.group(2))) if match else (glsl_type, None)
+
+
+def build_jobs(store, label: str, variants: tuple[str, ...] = ("fetch", "sample", "cube")) -> tuple[list[Job], list[str]]:
+    """Jobs for every encoding of ``store`` (a :class:`bakery.api.ProbeStore`), and the names of encodings the
+    manifest has no entry for."""
+    jobs, missing = [], []
+    for name, info in store.encodings.items():
+        spec = entry_for(name, info.settings)
+        if spec is None:
+            missing.append(name)
+            continue
+        has_lookup = any("lookup" in a for a in spec["arguments"])
+        has_chain = any("chain" in a for a in spec["arguments"])
+        for variant in variants:
+            if variant == "sample" and not has_lookup or variant == "cube" and not has_chain:
+                continue
+            if variant == "cube":  # one job per probe: each level of the probe is a cube texture
+                jobs += [_job(store, label, name, info, spec, variant, probe=p)
+                         for p in range(len(store.fields(name)["probe_index"]))]
+            else:
+                jobs.append(_job(store, label, name, info, spec, variant))
+    return jobs, missing
+
+
+def _job(store, label: str, name: str, info, spec: dict, variant: str, probe: int | None = None) -> Job:
+    """``variant``: "fetch" (exact lookups), "sample" (hardware bilinear on face arrays / tables) or "cube" (the
+    split-sum levels of probe ``probe`` as cube textures, compared where no bilinear tap crosses a face edge)."""
+    fields = store.fields(name)
+    count = int(len(fields["probe_index"]))
+    mask = None
+    inputs = irradiance_inputs() if info.kind == "irradiance" else reflection_inputs()
+    samples = len(inputs["normal"])
+    if info.kind == "irradiance":
+        reference = store.evaluate_irradiance(name, inputs["normal"])
+    else:
+        reference = store.evaluate_reflection(name, inputs["view"], inputs["normal"], inputs["alpha"], inputs["f0"])
+    if probe is not None:
+        fields = {k: np.asarray(v)[probe:probe + 1] for k, v in fields.items()}
+        count, reference = 1, reference[probe:probe + 1]
+
+    decls: list[str] = []
+    body: list[str] = []
+    call: list[str] = []
+    textures: list[dict] = []
+    uniforms: list[dict] = []
+    float_texels: list[np.ndarray] = []  # per field (P, K, 4)
+    word_texels: list[np.ndarray] = []  # per field (P, W)
+
+    rows = np.zeros((3, samples, 4), np.float32)
+    rows[0, :, :3] = inputs["normal"]
+    if info.kind == "reflection":
+        rows[1, :, :3] = inputs["view"]
+        rows[2, :, 0] = inputs["alpha"]
+        rows[2, :, 1:] = inputs["f0"]
+    textures.append({"uniform": "u_inputs", "target": "2D", "internal": "RGBA32F", "width": samples, "height": 3,
+                     "filter": "NEAREST", "data": _b64(rows)})
+    decls.append("uniform highp sampler2D u_inputs;")
+    body += ["vec3 normal = texelFetch(u_inputs, ivec2(s, 0), 0).xyz;",
+             "vec3 view = texelFetch(u_inputs, ivec2(s, 1), 0).xyz;",
+             "vec4 alpha_f0 = texelFetch(u_inputs, ivec2(s, 2), 0);",
+             "float alpha = alpha_f0.x;", "vec3 f0 = alpha_f0.yzw;"]
+    float_offset = word_offset = 0
+    for k, argument in enumerate(spec["arguments"]):
+        var = f"a{k}"
+        if "field" in argument:
+            data = np.asarray(fields[argument["field"]])
+            base, size = _array_type(argument["type"])
+            if base == "vec3":
+                expected = (size, 3) if size is not None else (3,)
+                assert data.shape[1:] == expected, f"{name}.{argument['field']}: stored {data.shape[1:]}, shader {expected}"
+                texels = _rgba(data.reshape(count, -1, 3).astype(np.float32))
+                float_texels.append(texels)
+                if size is None:
+                    body.append(f"vec3 {var} = texelFetch(u_fields, ivec2({float_offset}, probe), 0).xyz;")
+                else:
+                    body.append(f"vec3 {var}[{size}]; for (int i = 0; i < {size}; ++i) "
+                                f"{var}[i] = texelFetch(u_fields, ivec2({float_offset} + i, probe), 0).xyz;")
+                float_offset += texels.shape[1]
+            else:  # uint words of the uint8 layout, little-endian
+                assert data.dtype == np.uint8, f"{name}.{argument['field']}: {data.dtype}"
+                words = np.ascontiguousarray(data).view("<u4").reshape(count, -1)
+                n_words = 4 if base == "uvec4" else size
+                assert words.shape[1] == n_words, f"{name}.{argument['field']}: {words.shape[1]} words, shader {n_words}"
+                word_texels.append(words)
+                fetch = [f"texelFetch(u_words, ivec2({word_offset + i}, probe), 0).x" for i in range(n_words)]
+                if base == "uvec4":
+                    body.append(f"uvec4 {var} = uvec4({', '.join(fetch)});")
+                else:
+                    body.append(f"uint {var}[{n_words}]; for (int i = 0; i < {n_words}; ++i) "
+                                f"{var}[i] = texelFetch(u_words, ivec2({word_offset} + i, probe), 0).x;")
+                word_offset += n_words
+            call.append(var)
+        elif "setting" in argument:
+            value = info.settings[argument["setting"]]
+            value = argument.get("values", {}).get(value, value) if isinstance(value, str) else value
+            uniform = f"u_setting_{argument['setting']}"
+            decls.append(f"uniform {argument['type']} {uniform};")
+            uniforms.append({"name": uniform, "type": argument["type"],
+                             "value": [float(v) for v in value] if argument["type"] == "vec2" else int(bool(value))})
+            call.append(uniform)
+        elif "input" in argument:
+            call.append(argument["input"])
+        elif "table" in argument:
+            table = np.asarray(store.shared(name)[argument["table"]], dtype=np.float32)
+            uniform = f"u_table_{argument['table']}"
+            internal = {2: "RG32F", 1: "R32F"}[table.shape[2] if table.ndim == 3 else 1]
+            textures.append({"uniform": uniform, "target": "2D", "internal": internal, "width": table.shape[1],
+                             "height": table.shape[0], "filter": "LINEAR", "data": _b64(table)})
+            decls.append(f"uniform highp sampler2D {uniform};")
+            lookup = argument["lookup"]
+            if variant == "sample":
+                lookup = SAMPLED_LOOKUP.get(lookup, lookup)
+            body.append(f"{argument['type']} {var} = {lookup}({uniform}, dot(normal, view), alpha);")
+            call.append(var)
+        elif "chain" in argument:
+            levels = int(info.settings[argument["levels"]])
+            lookup = argument["lookup"]
+            if variant == "sample":
+                lookup = SAMPLED_LOOKUP.get(lookup, lookup)
+            branches = []
+            sizes = []
+            for i in range(levels):
+                level = np.asarray(fields[f"{argument['chain']}{i}"])  # (P, 6, N, N, 3) float16
+                size = level.shape[2]
+                sizes.append(size)
+                faces = _rgba(level.astype(np.float16).reshape(count * 6, size, size, 3), fill=1.0)
+                target = "CUBE" if variant == "cube" else "2D_ARRAY"
+                textures.append({"uniform": f"u_level{i}", "target": target, "internal": "RGBA16F", "width": size,
+                                 "height": size, "depth": count * 6, "filter": "LINEAR", "data": _b64(faces.view(np.uint16))})
+                if variant == "cube":
+                    decls.append(f"uniform highp samplerCube u_level{i};")
+                    branches.append(f"    if (level == {i}) return bakery_cube_sample_seamless(u_level{i}, d);")
+                else:
+                    decls.append(f"uniform highp sampler2DArray u_level{i};")
+                    branches.append(f"    if (level == {i}) return {lookup}(u_level{i}, first_layer, d);")
+            if variant == "cube":  # seamless filtering differs within half a texel of a face edge
+                from bakery.brdf.ggx import reflect
+                from bakery.sphere.cubemap import direction_to_cube_face_uv
+
+                _, u, v = direction_to_cube_face_uv(reflect(inputs["view"], inputs["normal"]))
+                inner = 1.0 - 1.5 / min(sizes)
+                mask = ((np.abs(u) <= inner) & (np.abs(v) <= inner))[None, :]
+            decls.append("vec3 bk_chain(int level, int first_layer, vec3 d)\n{\n" + "\n".join(branches)
+                         + "\n    return vec3(0.0, 0.0, 0.0);\n}")
+            body += [f"int {var}_i0, {var}_i1; float {var}_f;",
+                     f"bakery_splitsum_levels(alpha, {levels}, {var}_i0, {var}_i1, {var}_f);",
+                     f"vec3 {var}_r = bakery_reflect(view, normal);",
+                     f"vec3 {var}_c0 = bk_chain({var}_i0, 6 * probe, {var}_r);",
+                     f"vec3 {var}_c1 = bk_chain({var}_i1, 6 * probe, {var}_r);"]
+            call += [f"{var}_c0", f"{var}_c1", f"{var}_f"]
+        else:
+            raise ValueError(f"{name}: unknown manifest argument {argument}")
+    if float_texels:
+        packed = np.concatenate(float_texels, axis=1)
+        textures.append({"uniform": "u_fields", "target": "2D", "internal": "RGBA32F", "width": packed.shape[1],
+                         "height": count, "filter": "NEAREST", "data": _b64(packed)})
+        decls.append("uniform highp sampler2D u_fields;")
+    if word_texels:
+        packed = np.concatenate(word_texels, axis=1).astype("<u4")
+        textures.append({"uniform": "u_words", "target": "2D", "internal": "R32UI", "width": packed.shape[1],
+                         "height": count, "filter": "NEAREST", "data": _b64(packed)})
+        decls.append("uniform highp usampler2D u_words;")
+    fragment = "\n".join([
+        "#version 300 es", glsl_library(), "// ---- test harness (tests/shaders/shader_pipeline.py)", *decls,
+        "out vec4 o_value;", "void main()", "{", "    int s = int(gl_FragCoord.x);",
+        "    int probe = int(gl_FragCoord.y);" if probe is None else "    int probe = 0;",
+        *("    " + line for line in body), f"    o_value = vec4({spec['entry']}({', '.join(call)}), 1.0);", "}", ""])
+    suffix = "" if probe is None else f"/probe{probe}"
+    return Job(id=f"{label}/{name}/{variant}{suffix}", encoding=name, store=label, variant=variant, fragment=fragment,
+               width=samples, height=count, reference=reference, mask=mask, textures=textures, uniforms=uniforms)
+
+
+# ------------------------------------------------------------------------------------------------------ running
+@dataclass
+class PipelineRun:
+    renderer: str
+    version: str
+    extensions: list[str]
+    results: dict[str, np.ndarray]  # job id → (P, N, 3)
+    errors: dict[str, str]
+    seconds: float
+
+
+def run_jobs(jobs: list[Job], workdir: Path, timeout: float = 120.0) -> PipelineRun:
+    """Render every job in one page, in one headless Chromium launch."""
+    import time
+
+    binary = chromium_binary()
+    if binary is None:
+        raise FileNotFoundError("headless Chromium is not installed (apt-get install -y chromium)")
+    workdir.mkdir(parents=True, exist_ok=True)
+    shutil.copy(HERE / "webgl_runner.html", workdir / "index.html")
+    (workdir / "jobs.js").write_text("window.BAKERY_JOBS = " + json.dumps([j.page_entry() for j in jobs]) + ";\n")
+    start = time.perf_counter()
+    with tempfile.TemporaryDirectory() as profile:
+        result = subprocess.run([binary, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", "--dump-dom",
+                                 (workdir / "index.html").as_uri()], capture_output=True, text=True, timeout=timeout)
+    seconds = time.perf_counter() - start
+    match = re.search(r'<pre id="results">(.*?)</pre>', result.stdout, re.S)
+    if not match or not match.group(1).strip():
+        raise RuntimeError(f"the WebGL2 page produced no results (exit {result.returncode}):\n{result.stderr[-3000:]}")
+    page = json.loads(html.unescape(match.group(1)))
+    if page.get("error"):
+        raise RuntimeError(f"WebGL2 unavailable: {page['error']} (renderer {page.get('renderer')})")
+    results, errors = {}, {}
+    for job in jobs:
+        entry = page["jobs"].get(job.id, {"error": "not run"})
+        if "error" in entry:
+            errors[job.id] = entry["error"]
+            continue
+        pixels = np.frombuffer(base64.b64decode(entry["data"]), dtype=np.float32).reshape(job.height, job.width, 4)
+        results[job.id] = pixels[..., :3].astype(np.float64)
+    return PipelineRun(page["renderer"], page["version"], page["extensions"], results, errors, seconds)
+
+
+# ------------------------------------------------------------------------------------------------------ glslang
+def glslang_binary() -> str | None:
+    return shutil.which("glslangValidator")
+
+
+def validate(source: str, suffix: str, extra: tuple[str, ...] = ()) -> subprocess.CompletedProcess:
+    """Run glslangValidator on ``source`` (``suffix`` ".frag" for GLSL ES, ".hlsl" with ``extra`` HLSL options)."""
+    digest = hashlib.sha256(source.encode()).hexdigest()[:16]
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / f"shader_{digest}{suffix}"
+        path.write_text(source)
+        return subprocess.run([glslang_binary(), *extra, str(path)], capture_output=True, text=True, timeout=60,
+                              cwd=tmp)
+
+
+def hlsl_test_entry() -> str:
+    """An HLSL pixel shader that calls every manifest entry point (and every texture lookup), for compiling."""
+    types = {"vec2": "float2", "vec3": "float3", "uvec4": "uint4", "uint": "uint", "bool": "bool", "float": "float"}
+    lines = ['#include "bakery.hlsl"', "Texture2D<float4> u_table; Texture2DArray<float4> u_faces;",
+             "TextureCube<float4> u_cube; SamplerState u_linear_clamp;", "cbuffer Inputs { float4 u_values[64]; uint4 u_words[8]; };",
+             "float4 main(float4 position : SV_Position) : SV_Target", "{",
+             "    float3 normal = normalize(u_values[0].xyz); float3 view = normalize(u_values[1].xyz);",
+             "    float alpha = u_values[2].x; float3 f0 = u_values[2].yzw; float3 e = float3(0.0, 0.0, 0.0);"]
+    calls = []
+    for index, (name, spec) in enumerate(sorted(manifest()["encodings"].items())):
+        for variant_index, entry in enumerate([spec, *spec.get("variants", ())]):
+            args = []
+            for k, argument in enumerate(entry["arguments"]):
+                var = f"v{index}_{variant_index}_{k}"
+                if "field" in argument or "setting" in argument:
+                    base, size = _array_type(argument.get("type", "float"))
+                    hlsl = types[base]
+                    init = {"vec3": "u_values[4 + i].xyz", "uint": "u_words[3 + i / 4][i % 4]", "vec2": "u_values[3].xy",
+                            "uvec4": "u_words[1]", "bool": "u_words[2].x != 0u", "float": "u_values[3].x"}[base]
+                    if size is None:
+                        lines.append(f"    {hlsl} {var} = {init.replace('4 + i', '4')};")
+                    else:
+                        lines.append(f"    {hlsl} {var}[{size}]; for (int i = 0; i < {size}; ++i) {var}[i] = {init};")
+                    args.append(var)
+                elif "input" in argument:
+                    args.append(argument["input"])
+                elif "table" in argument:
+                    lookup = argument["lookup"]
+                    lines.append(f"    {types[argument['type']]} {var} = {lookup}(u_table, dot(normal, view), alpha);")
+                    args.append(var)
+                elif "chain" in argument:
+                    lines += [f"    int {var}_i0, {var}_i1; float {var}_f;",
+                              f"    bakery_splitsum_levels(alpha, 6, {var}_i0, {var}_i1, {var}_f);",
+                              f"    float3 {var}_r = bakery_reflect(view, normal);",
+                              f"    float3 {var}_c0 = {argument['lookup']}(u_faces, 6 * {var}_i0, {var}_r);",
+                              f"    float3 {var}_c1 = bakery_cube_sample_bilinear(u_faces, u_linear_clamp, 6 * {var}_i1, {var}_r)"
+                              f" + bakery_cube_sample_seamless(u_cube, u_linear_clamp, {var}_r);"]
+                    args += [f"{var}_c0", f"{var}_c1", f"{var}_f"]
+            calls.append(f"    e += {entry['entry']}({', '.join(args)});")
+    lines += calls
+    lines += ["    e.xy += bakery_dfg_sample(u_table, u_linear_clamp, dot(normal, view), alpha);",
+              "    return float4(e, 1.0);", "}", ""]
+    return "\n".join(lines)
+
+
+def hlsl_include_dir() -> Path:
+    return SHADER_DIR
