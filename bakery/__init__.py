@@ -19,7 +19,8 @@ def open_store(path):  # noqa: ANN001, ANN201, D103 - documented in bakery.api
 def bake(  # noqa: PLR0913 - a façade over BakeRequest
     sources, output, *, recipe=None, encodings=(), face_size=None, encoding_settings=None, layer=None, layout=None,
     jobs=1, executor=None, samples=None, bounces=None, seed=None, resume=True, reference_errors=None,
-    quality_directions=None, band_energy_tolerance=None, batch_size=None, progress=None,
+    quality_directions=None, band_energy_tolerance=None, batch_size=None, target_noise=None, time=None,
+    subdivision=None, force=False, progress=None,
 ):  # noqa: ANN001, ANN201
     """Bake ``sources`` into the store ``output`` through the one bake path and return its ``BakeSummary``.
 
@@ -35,9 +36,11 @@ def bake(  # noqa: PLR0913 - a façade over BakeRequest
             encoding's typed ``Params``).
         layer: the baked-results USD layer of a scene bake (default ``<store stem>.bake.usda``).
         jobs: worker processes (1 = in-process); ``executor``: an explicit executor instead.
-        samples, bounces, seed: rendered-capture settings (scenes).
+        samples, bounces, seed, target_noise, time, subdivision: rendered-capture settings (scenes; see
+            :class:`bakery.pipeline.settings.CaptureSettings`).
         resume: reuse checkpoints and unchanged probes of an existing store.
         band_energy_tolerance: band skipping ε (None: the recipe's when baking its targets, else no skipping).
+        force: let the outputs replace files the output policy refuses (never an input of the bake).
 
     Raises:
         bakery.errors.BakeryError: bad input (nothing written), bad settings, or no probe could be baked.
@@ -50,8 +53,13 @@ def bake(  # noqa: PLR0913 - a façade over BakeRequest
         sources, output, recipe=recipe, encodings=tuple(encodings or ()), face_size=face_size,
         encoding_settings=encoding_settings, layer=layer, layout=layout, samples=samples, bounces=bounces, seed=seed,
         resume=resume, reference_errors=reference_errors, quality_directions=quality_directions,
-        band_energy_tolerance=band_energy_tolerance, batch_size=batch_size,
+        band_energy_tolerance=band_energy_tolerance, batch_size=batch_size, target_noise=target_noise, time=time,
+        subdivision=subdivision,
     )
+    if force:
+        from dataclasses import replace
+
+        request = replace(request, force=True)
     own = executor is None
     executor = executor or make_executor(jobs)
     try:
