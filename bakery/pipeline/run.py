@@ -311,11 +311,12 @@ def finalize_and_write(request: BakeRequest, source: Source, plan: Plan, batches
     contents = store_contents(merged, settings, encodings, attributes,
                               probe_hashes=[hash_of[p.name] for p in merged.probes], history=history,
                               bake_ids=bake_ids, layers=plan.layers)
-    this_bake = dict(contents.history[-1])
-    for key in PER_BAKE_ATTRIBUTES:
-        if key in plan.attributes:
-            this_bake[key] = str(plan.attributes[key])
-    contents.history[-1] = this_bake
+    if len(contents.history) > len(history):  # this bake produced probes and was appended (write.store_contents)
+        this_bake = dict(contents.history[-1])
+        for key in PER_BAKE_ATTRIBUTES:
+            if key in plan.attributes:
+                this_bake[key] = str(plan.attributes[key])
+        contents.history[-1] = this_bake
     extra = commit_outputs(request, source, merged, contents)
     return merged, contents, encodings, skipped, extra
 # --- end of the shared parent-side tail ------------------------------------------------------------------------

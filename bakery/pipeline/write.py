@@ -35,13 +35,17 @@ def store_contents(
 ) -> StoreContents:
     """The store for merged results (probes in ``merged.probes`` order).
 
-    ``history`` lists earlier bakes still referenced by ``bake_ids``; this bake is appended as the last entry and
-    probes without a bake id (default: all) are attributed to it.
+    ``history`` lists earlier bakes still referenced by ``bake_ids``; this bake is appended as the last entry when
+    some probe is attributed to it (bake id ``len(history)``; default: all probes).
     """
     when = bake_time()
     this_bake = {"time_utc": when, "bakery_version": bakery.__version__, "settings_hash": settings.hash(),
                  "layers": layers}
-    history = list(history or []) + [this_bake]
+    history = list(history or [])
+    # This bake enters the history only if it produced a probe: a re-bake that reuses every probe leaves the store's
+    # bytes unchanged (with SOURCE_DATE_EPOCH), instead of growing the history by an entry nothing refers to.
+    if bake_ids is None or np.any(np.asarray(bake_ids) == len(history)) or not history:
+        history.append(this_bake)
     if bake_ids is None:
         bake_ids = np.full(len(merged.probes), len(history) - 1, dtype=np.int32)
     return StoreContents(
