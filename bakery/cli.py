@@ -385,12 +385,23 @@ def bench_pareto(folder: Path, output: Path, quick: bool) -> None:
 @click.option("--reflection", type=int, default=1000, show_default=True, help="Number of reflection probes.")
 @click.option("--recipe", default="console", show_default=True)
 @click.option("--face-size", type=int, default=16, show_default=True)
-def bench_scale(output: Path, volume: str, reflection: int, recipe: str, face_size: int) -> None:
-    """Wall time, peak memory and store size of a generated large scene with 1 and 2 workers."""
-    from bakery.bench.scale import run_scale_bench
+@click.option("--jobs", "jobs", default="1,2", show_default=True, help="Worker counts to run, comma-separated.")
+@click.option("--production", is_flag=True,
+              help="Issue 14's production scene: 10,000 irradiance probes at 32², 1,000 reflection probes at 128² "
+                   "(console recipe), 2 workers, KTX2 export; overrides the other options.")
+def bench_scale(output: Path, volume: str, reflection: int, recipe: str, face_size: int, jobs: str,
+                production: bool) -> None:
+    """Wall time, per-stage timings, peak memory and store size of a generated large scene."""
+    from bakery.bench.scale import PRODUCTION, run_scale_bench
 
-    counts = tuple(int(v) for v in volume.split(","))
-    result = run_scale_bench(output, counts, reflection, recipe, face_size)
+    def progress_bar() -> _Progress:
+        return _Progress(console.is_terminal)
+
+    if production:
+        result = run_scale_bench(output, **PRODUCTION, progress_bar=progress_bar)
+    else:
+        result = run_scale_bench(output, tuple(int(v) for v in volume.split(",")), reflection, recipe, face_size,
+                                 jobs=tuple(int(j) for j in jobs.split(",")), progress_bar=progress_bar)
     out.print_json(json.dumps(result))
 
 

@@ -142,14 +142,8 @@ def remove_stale_temporaries(path: str | os.PathLike[str], *, keep_live: bool = 
             pid = int(match.group(1)) if match else -1
             if pid == os.getpid() or (keep_live and pid_alive(pid)):
                 continue
-            try:
-                if candidate.is_dir() and not candidate.is_symlink():
-                    shutil.rmtree(candidate)
-                else:
-                    candidate.unlink()
+            if _remove_path(candidate):
                 removed.append(candidate)
-            except FileNotFoundError:
-                continue
     return removed
 
 
@@ -165,15 +159,21 @@ def remove_temporaries_under(folder: str | os.PathLike[str]) -> list[Path]:
         match = _TMP_PID.search(candidate.name)
         if match and int(match.group(1)) == os.getpid():
             continue
-        try:
-            if candidate.is_dir() and not candidate.is_symlink():
-                shutil.rmtree(candidate)
-            else:
-                candidate.unlink()
+        if _remove_path(candidate):
             removed.append(candidate)
-        except FileNotFoundError:
-            continue
     return removed
+
+
+def _remove_path(path: Path) -> bool:
+    """Remove a file, symlink or folder tree; False if it was already gone (another cleaner won the race)."""
+    try:
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path)
+        else:
+            path.unlink()
+    except FileNotFoundError:
+        return False
+    return True
 
 
 #: Test hook of the fault-injection suite (``tests/faults``): ``BAKERY_FAULT=commit:N`` kills the process with

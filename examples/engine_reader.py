@@ -7,9 +7,9 @@ read each ``bakery:irradiance:<encoding>:<field>`` array with its customData ``s
 evaluate the irradiance exactly as bakery's shaders (bakery/shaders/bakery_core.glsl) and Python API do — here in
 numpy, one function per stored layout. Prints a summary; with ``-o`` writes ``{"<prim>|<encoding>": (probeCount, N, 3)}``.
 
-The layer carries the arrays, not the encodings' settings: the hallucination curve and the quantized layouts'
-companding are the defaults here (``curve = "paper"``, ``sqrt_companding = true``); a store baked with other
-settings records them in its ``/encodings/<name>`` group (attribute ``settings``).
+The settings evaluation depends on are read from the layer too (``uniform bakery:settings:<encoding>:<key>``): the
+hallucination ``curve`` (c2, c1) and the quantized layouts' ``sqrt_companding``; a layer without them (older bakes)
+means the defaults, ``curve = (0.6, 0.08)`` and ``sqrt_companding = true``.
 """
 
 from __future__ import annotations
@@ -30,7 +30,8 @@ BOUND_ZONAL = (-sqrt(5.0) / 2.0, sqrt(5.0))
 
 # ------------------------------------------------------------------------------------------------ reading
 def read_layer(path: str) -> dict[str, dict[str, np.ndarray]]:
-    """{prim path: {attribute name: (probeCount, *shape)}} for every prim carrying BakeryBakedProbeAPI."""
+    """{prim path: {attribute name: (probeCount, *shape)}} for every prim carrying BakeryBakedProbeAPI (and the
+    encodings' ``bakery:settings:…`` values)."""
     stage = Usd.Stage.Open(path)
     prims = {}
     for prim in stage.TraverseAll():
@@ -42,7 +43,13 @@ def read_layer(path: str) -> dict[str, dict[str, np.ndarray]]:
         values = {}
         for attr in prim.GetAttributes():
             parts = attr.GetName().split(":")
-            if len(parts) != 4 or parts[1] not in ("irradiance", "reflection") or not attr.HasAuthoredValue():
+            if len(parts) != 4 or not attr.HasAuthoredValue():
+                continue
+            if parts[1] == "settings":  # uniform runtime settings of an encoding: plain values
+                value = attr.Get()
+                values[attr.GetName()] = tuple(value) if hasattr(value, "__len__") else value
+                continue
+            if parts[1] not in ("irradiance", "reflection"):
                 continue
             shape = [int(d) for d in attr.GetCustomDataByKey("shape")]
             count = int(attr.GetCustomDataByKey("probeCount"))
@@ -112,28 +119,31 @@ def _radiance(fields: dict[str, np.ndarray], name: str) -> np.ndarray:
     return fields[name].astype(np.float64)
 
 
-#: Encoding name → irradiance (P, N, 3) from its fields {field: (P, *shape)} at normals (N, 3): the same table as
-#: bakery/shaders/manifest.json, in numpy.
+#: Encoding name → irradiance (P, N, 3) from its fields {field: (P, *shape)} at normals (N, 3) and its settings
+#: {key: value} (absent: the defaults): the same table as bakery/shaders/manifest.json, in numpy.
 EVALUATORS = {
-    "sh2": lambda f, n: sh_irradiance(_radiance(f, "radiance_sh"), n),
-    "sh3": lambda f, n: sh_irradiance(_radiance(f, "radiance_sh"), n),
-    "zh3": lambda f, n: zh3_irradiance(_radiance(f, "radiance_sh"), _radiance(f, "zonal_l2"), n),
-    "zh3_solved": lambda f, n: zh3_irradiance(_radiance(f, "radiance_sh"), _radiance(f, "zonal_l2"), n),
-    "zh3_deringed": lambda f, n: zh3_irradiance(_radiance(f, "radiance_sh"), _radiance(f, "zonal_l2"), n),
-    "zh3_hallucinated": lambda f, n: zh3_irradiance(_radiance(f, "radiance_sh"),
-                                                    hallucinated_zonal(_radiance(f, "radiance_sh")), n),
-    "zh3_hallucinated_solved": lambda f, n: zh3_irradiance(_radiance(f, "radiance_sh"),
-                                                           hallucinated_zonal(_radiance(f, "radiance_sh")), n),
-    "zh3_quantized": lambda f, n: (lambda c: zh3_irradiance(c[:, :4], c[:, 4], n))(unpack(f["packed"], ZH3_BOUNDS)),
-    "sh3_quantized": lambda f, n: sh_irradiance(unpack(f["packed"], SH3_BOUNDS), n),
+    "sh2": lambda f, n, s: sh_irradiance(_radiance(f, "radiance_sh"), n),
+    "sh3": lambda f, n, s: sh_irradiance(_radiance(f, "radiance_sh"), n),
+    "zh3": lambda f, n, s: zh3_irradiance(_radiance(f, "radiance_sh"), _radiance(f, "zonal_l2"), n),
+    "zh3_solved": lambda f, n, s: zh3_irradiance(_radiance(f, "radiance_sh"), _radiance(f, "zonal_l2"), n),
+    "zh3_deringed": lambda f, n, s: zh3_irradiance(_radiance(f, "radiance_sh"), _radiance(f, "zonal_l2"), n),
+    "zh3_hallucinated": lambda f, n, s: zh3_irradiance(
+        _radiance(f, "radiance_sh"), hallucinated_zonal(_radiance(f, "radiance_sh"), s.get("curve", PAPER_CURVE)), n),
+    "zh3_hallucinated_solved": lambda f, n, s: zh3_irradiance(
+        _radiance(f, "radiance_sh"), hallucinated_zonal(_radiance(f, "radiance_sh"), s.get("curve", PAPER_CURVE)), n),
+    "zh3_quantized": lambda f, n, s: (lambda c: zh3_irradiance(c[:, :4], c[:, 4], n))(
+        unpack(f["packed"], ZH3_BOUNDS, bool(s.get("sqrt_companding", True)))),
+    "sh3_quantized": lambda f, n, s: sh_irradiance(
+        unpack(f["packed"], SH3_BOUNDS, bool(s.get("sqrt_companding", True))), n),
 }
 
 
-def evaluate(encoding: str, fields: dict[str, np.ndarray], n: np.ndarray) -> np.ndarray | None:
+def evaluate(encoding: str, fields: dict[str, np.ndarray], n: np.ndarray,
+             settings: dict[str, object] | None = None) -> np.ndarray | None:
     """Irradiance (P, N, 3) of one encoding, or None for one this reader does not know (reflection encodings are
     evaluated by the shaders: bakery/shaders/)."""
     evaluator = EVALUATORS.get(encoding)
-    return None if evaluator is None else evaluator(fields, n)
+    return None if evaluator is None else evaluator(fields, n, settings or {})
 
 
 def irradiance_of_layer(path: str, normals: np.ndarray) -> dict[str, np.ndarray]:
@@ -141,12 +151,15 @@ def irradiance_of_layer(path: str, normals: np.ndarray) -> dict[str, np.ndarray]
     out = {}
     for prim, values in read_layer(path).items():
         by_encoding: dict[str, dict[str, np.ndarray]] = {}
+        settings: dict[str, dict[str, object]] = {}
         for name, array in values.items():
             _, kind, encoding, field = name.split(":")
             if kind == "irradiance":
                 by_encoding.setdefault(encoding, {})[field] = array
+            elif kind == "settings":
+                settings.setdefault(encoding, {})[field] = array
         for encoding, fields in sorted(by_encoding.items()):
-            value = evaluate(encoding, fields, normals)
+            value = evaluate(encoding, fields, normals, settings.get(encoding))
             if value is not None:
                 out[f"{prim}|{encoding}"] = value
     return out

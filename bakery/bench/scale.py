@@ -2,18 +2,23 @@
 
 The scene is a 40 m × 12 m × 40 m hall (floor, walls, pillars) under a constant dome with three sphere lights; an
 irradiance volume of ``volume_counts`` probes fills it and ``reflection`` reflection probes stand on a grid. Each
-run is a real ``bakery bake`` subprocess; the benchmark records wall time, peak resident memory of the parent and
-of all workers together (sampled with psutil at 20 Hz), the store size and the speed-up from 1 to 2 workers.
+run is a bake through the one bake path (:func:`bakery.bake` with worker processes); the benchmark records wall
+time, per-stage timings, peak resident memory of the parent, of the largest worker and of all workers together
+(sampled with psutil at 20 Hz), the store size and the speed-up from 1 to 2 workers. ``--production``
+(:data:`PRODUCTION`) is issue 14's production-size scene, exports included.
 """
 
 from __future__ import annotations
 
 import json
 import os
-import subprocess
-import sys
+import platform
+import threading
 import time
+from collections.abc import Callable
+from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
+from typing import Any
 
 import psutil
 
@@ -32,8 +37,10 @@ def _box(name: str, lo, hi, material: str) -> str:  # noqa: ANN001
     }}"""
 
 
-def generate_scene(folder: Path, volume_counts=(25, 16, 25), reflection: int = 1000) -> Path:
-    """Write the benchmark scene (Y-up, metres) and return its path."""
+def generate_scene(folder: Path, volume_counts=(25, 16, 25), reflection: int = 1000,
+                   reflection_resolution: int = 0) -> Path:
+    """Write the benchmark scene (Y-up, metres) and return its path. ``reflection_resolution``: the reflection
+    probes' ``bakery:capture:resolution`` (0: the bake's face size)."""
     folder.mkdir(parents=True, exist_ok=True)
     meshes = [_box("Floor", (-20, -0.5, -20), (20, 0, 20), "/Hall/Grey")]
     for i, x in enumerate((-10, 0, 10)):
@@ -48,6 +55,8 @@ def generate_scene(folder: Path, volume_counts=(25, 16, 25), reflection: int = 1
         uniform token[] xformOpOrder = ["xformOp:translate"]
     }}""" for i, (x, z) in enumerate([(-15, -15), (5, 12), (15, -5)]))
     side = max(1, round(reflection ** (1 / 3)))
+    resolution = (f"\n            int bakery:capture:resolution = {int(reflection_resolution)}"
+                  if reflection_resolution else "")
     reflection_probes = []
     for k in range(reflection):
         i, j, l = k % side, (k // side) % side, k // (side * side)
@@ -55,7 +64,7 @@ def generate_scene(folder: Path, volume_counts=(25, 16, 25), reflection: int = 1
         reflection_probes.append(f"""
         def BakeryReflectionProbe "R{k}"
         {{
-            float bakery:influence:radius = 3
+            float bakery:influence:radius = 3{resolution}
             double3 xformOp:translate = ({x:.3f}, {y:.3f}, {z:.3f})
             uniform token[] xformOpOrder = ["xformOp:translate"]
         }}""")
@@ -103,49 +112,128 @@ def Xform "Hall"
     return path
 
 
-def _run(command: list[str]) -> dict:
-    start = time.perf_counter()
-    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                               env={**os.environ, "SOURCE_DATE_EPOCH": "1700000000"})
-    parent = psutil.Process(process.pid)
-    peak_parent = peak_workers = 0
-    while process.poll() is None:
-        try:
-            peak_parent = max(peak_parent, parent.memory_info().rss)
-            workers = sum(c.memory_info().rss for c in parent.children(recursive=True))
-            peak_workers = max(peak_workers, workers)
-        except psutil.Error:
-            pass
-        time.sleep(0.05)
-    stdout, stderr = process.communicate()
-    if process.returncode not in (0, 6):
-        raise RuntimeError(f"bake failed ({process.returncode}): {stderr[-2000:]}")
-    return {"wall_seconds": time.perf_counter() - start, "peak_parent_mb": peak_parent / 2**20,
-            "peak_workers_mb": peak_workers / 2**20, "summary": json.loads(stdout)}
+class _MemorySampler:
+    """Peak resident memory of this process and of each of its child processes (the bake's workers), sampled with
+    psutil at 20 Hz on a background thread."""
+
+    def __init__(self) -> None:
+        self.parent = psutil.Process()
+        self.peak_parent = self.peak_worker = self.peak_workers_total = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+
+    def _sample(self) -> None:
+        while not self._stop.is_set():
+            try:
+                self.peak_parent = max(self.peak_parent, self.parent.memory_info().rss)
+                sizes = [c.memory_info().rss for c in self.parent.children(recursive=True)]
+                if sizes:
+                    self.peak_worker = max(self.peak_worker, max(sizes))
+                    self.peak_workers_total = max(self.peak_workers_total, sum(sizes))
+            except psutil.Error:
+                pass
+            self._stop.wait(0.05)
+
+    def __enter__(self) -> _MemorySampler:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join()
+
+    def as_dict(self) -> dict[str, float]:
+        return {"peak_parent_mb": self.peak_parent / 2**20, "peak_worker_mb": self.peak_worker / 2**20,
+                "peak_workers_total_mb": self.peak_workers_total / 2**20}
+
+
+#: A progress display: a context manager yielding the bake's ``progress(done, total)`` callback (the CLI's bar).
+ProgressBar = Callable[[], AbstractContextManager[Callable[[int, int], None] | None]]
+
+
+def _measured_bake(scene: Path, store: Path, recipe: str, face_size: int, jobs: int,
+                   encoding_settings: dict[str, dict] | None, progress_bar: ProgressBar | None) -> dict[str, Any]:
+    """One bake through the one bake path (:func:`bakery.bake`, ``jobs`` worker processes) with wall time, per-stage
+    timings and peak memory."""
+    import bakery
+
+    for stale in (store, store.with_name(store.stem + ".bake.usda")):
+        stale.unlink(missing_ok=True)
+    with _MemorySampler() as memory, (progress_bar or nullcontext)() as progress:
+        start = time.perf_counter()
+        summary = bakery.bake(scene, store, recipe=recipe, face_size=face_size, jobs=jobs, resume=False,
+                              encoding_settings=encoding_settings, progress=progress)
+        wall = time.perf_counter() - start
+    timings = summary.timings
+    return {"wall_seconds": wall, **memory.as_dict(), "store_mb": store.stat().st_size / 2**20,
+            "probes_per_second": summary.probes_per_second, "rays_per_second": timings.get("rays_per_second", 0.0),
+            "stages": _stages(timings), "worker_seconds": {k: v for k, v in sorted(timings.items())
+                                                           if k.endswith("_seconds") or k.startswith(("encode/", "diagnostics/"))}}
+
+
+def _stages(timings: dict[str, float]) -> dict[str, float]:
+    """Wall seconds of the parent's stages: read + plan, the workers (capture, encode, diagnostics of every batch),
+    merge + finalize + write of store and layer."""
+    return {"read_plan": timings.get("parent/read_plan", 0.0), "workers": timings.get("parent/workers", 0.0),
+            "merge_finalize_write": timings.get("parent/merge_finalize_write", 0.0)}
 
 
 def run_scale_bench(out_dir: Path, volume_counts=(25, 16, 25), reflection: int = 1000, recipe: str = "console",
-                    face_size: int = 16, jobs: tuple[int, ...] = (1, 2)) -> dict:
-    """Bake the generated scene with each worker count; returns and writes ``scale.json``."""
+                    face_size: int = 16, jobs: tuple[int, ...] = (1, 2), reflection_resolution: int = 0,
+                    encoding_settings: dict[str, dict] | None = None, exports: tuple[str, ...] = (),
+                    progress_bar: ProgressBar | None = None) -> dict:
+    """Bake the generated scene with each worker count (then export the last store in each of ``exports``);
+    returns and writes ``scale.json``.
+
+    Per run: wall seconds, peak memory of the parent, of the largest worker and of all workers together, store size,
+    probes/s, capture rays/s, the parent's stages and the summed worker seconds per step (``capture_seconds``,
+    ``encode/<encoding>``, ``diagnostics/…``; summed over workers, so they exceed the wall time with 2 workers)."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    scene = generate_scene(out_dir / "scene", volume_counts, reflection)
+    scene = generate_scene(out_dir / "scene", volume_counts, reflection, reflection_resolution)
+    if encoding_settings is None and reflection_resolution:
+        encoding_settings = reflection_at_capture_size(recipe, reflection_resolution)
     runs = {}
+    store = out_dir / "hall.h5"
     for n in jobs:
         store = out_dir / f"hall-j{n}.h5"
-        for stale in (store, store.with_name(store.stem + ".bake.usda")):
-            stale.unlink(missing_ok=True)
-        command = [sys.executable, "-m", "bakery.cli", "bake", str(scene), "-o", str(store), "--recipe", recipe,
-                   "--face-size", str(face_size), "--jobs", str(n), "--json", "--no-resume"]
-        run = _run(command)
-        run["store_mb"] = store.stat().st_size / 2**20
-        runs[n] = run
+        runs[n] = _measured_bake(scene, store, recipe, face_size, n, encoding_settings, progress_bar)
+    exported = {}
+    if exports:
+        from bakery.export import export_store
+
+        for fmt in exports:
+            with _MemorySampler() as memory:
+                start = time.perf_counter()
+                result = export_store(store, out_dir / "exports" / fmt, fmt)
+                exported[fmt] = {"seconds": time.perf_counter() - start, "files": len(result.files),
+                                 "peak_mb": memory.peak_parent / 2**20}
     probes = volume_counts[0] * volume_counts[1] * volume_counts[2] + reflection
     result = {"probes": probes, "irradiance_probes": probes - reflection, "reflection_probes": reflection,
-              "recipe": recipe, "face_size": face_size, "cpus": os.cpu_count(),
-              "runs": {str(n): {k: v for k, v in r.items() if k != "summary"} | {
-                  "probes_per_second": r["summary"]["probes_per_second"],
-                  "rays_per_second": r["summary"]["timings"].get("rays_per_second", 0.0)} for n, r in runs.items()}}
+              "recipe": recipe, "face_size": face_size, "reflection_resolution": reflection_resolution or face_size,
+              "encoding_settings": encoding_settings or {}, "cpus": os.cpu_count(), "machine": platform.platform(),
+              "date": time.strftime("%Y-%m-%d"), "runs": {str(n): r for n, r in runs.items()}}
+    if exported:
+        result["exports"] = exported
+        result["total_seconds"] = runs[jobs[-1]]["wall_seconds"] + sum(e["seconds"] for e in exported.values())
     if 1 in runs and 2 in runs:
         result["speedup_1_to_2"] = runs[1]["wall_seconds"] / runs[2]["wall_seconds"]
     (out_dir / "scale.json").write_text(json.dumps(result, indent=2))
     return result
+
+
+def reflection_at_capture_size(recipe: str, face_size: int) -> dict[str, dict[str, int]]:
+    """Encoding settings that put ``recipe``'s reflection encodings which follow the bake's face size (their chains)
+    at the reflection probes' capture size ``face_size`` instead."""
+    from bakery.encodings import ENCODINGS
+    from bakery.pipeline.recipe import load_recipe
+
+    return {name: {"face_size": face_size} for name in load_recipe(recipe).targets.get("reflection", ())
+            if ENCODINGS[name].follows_bake_face_size}
+
+
+#: ``bakery bench scale --production``: the production-size scene of issue 14 — 10,000 irradiance probes at face 32
+#: and 1,000 reflection probes captured at 128² with the ``console`` recipe's reflection encoding (its chain at the
+#: capture's 128², :func:`reflection_at_capture_size`), 2 workers, then exported as KTX2 (the engine-neutral
+#: container).
+PRODUCTION = {"volume_counts": (25, 16, 25), "reflection": 1000, "recipe": "console", "face_size": 32,
+              "reflection_resolution": 128, "jobs": (2,), "exports": ("ktx2",)}

@@ -31,34 +31,24 @@ above clamp); relative quantisation ≈ 2.2 · ½ / 255 / (c·D)^(1/2.2) per cha
 from __future__ import annotations
 
 import json
-import struct
-import zlib
 from dataclasses import dataclass
 
 import numpy as np
 
 from bakery.encodings.base import EncodingParams
-from bakery.export.base import ExportContext, ExportedFile, ExportFormat, register_format, slug
+from bakery.export.base import (
+    ExportContext,
+    ExportedFile,
+    ExportFormat,
+    register_format,
+    slug,
+)
 from bakery.export.source import COSINE_BANDS, profile_chains, radiance_sh
+from bakery.png import encode_png
 from bakery.sh.basis import sh_bands
 
 RGBD_MAX_RANGE = 255.0
 GAMMA = 2.2
-
-
-def encode_png_rgba(rgba: np.ndarray) -> bytes:
-    """PNG bytes of an (H, W, 4) uint8 image (colour type 6, 8 bits, filter 0; no gAMA/sRGB chunk)."""
-    rgba = np.ascontiguousarray(rgba, dtype=np.uint8)
-    h, w, c = rgba.shape
-    if c != 4:
-        raise ValueError(f"encode_png_rgba needs (H, W, 4), got {rgba.shape}")
-    raw = b"".join(b"\x00" + rgba[i].tobytes() for i in range(h))
-
-    def chunk(kind: bytes, data: bytes) -> bytes:
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
-
-    header = struct.pack(">IIBBBBB", w, h, 8, 6, 0, 0, 0)
-    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(raw, 9)) + chunk(b"IEND", b"")
 
 
 def encode_rgbd(rgb: np.ndarray) -> np.ndarray:
@@ -119,7 +109,7 @@ class GltfExport(ExportFormat):
                 row = []
                 for f, face in enumerate(FACE_TRANSFORM(level)):
                     path = f"{base}/specular_{i}_{f}.png"
-                    files.append(ExportedFile(path, encode_png_rgba(encode_rgbd(face)), (), "image"))
+                    files.append(ExportedFile(path, encode_png(encode_rgbd(face)), (), "image"))
                     row.append(len(images))
                     images.append({"uri": path, "mimeType": "image/png"})
                 grid.append(row)

@@ -22,6 +22,7 @@ import multiprocessing
 import os
 import socket
 from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Protocol
@@ -54,10 +55,30 @@ class Executor(Protocol):
     def close(self) -> None: ...
 
 
+#: One BLAS/OpenMP thread per worker process: the pool provides the parallelism (N workers × N BLAS threads on N
+#: cores oversubscribe them). BLAS reads these when numpy is imported, so they must be in a worker's environment when
+#: it starts (:func:`_single_threaded_children`): setting them in the worker's initializer is too late.
+WORKER_THREAD_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
+@contextmanager
+def _single_threaded_children() -> Iterator[None]:
+    """:data:`WORKER_THREAD_ENVIRONMENT` in this process's environment while worker processes are started (values the
+    user set are kept), restored afterwards; this process's own BLAS is already initialised and unaffected."""
+    saved = {k: os.environ.get(k) for k in WORKER_THREAD_ENVIRONMENT}
+    for key, value in WORKER_THREAD_ENVIRONMENT.items():
+        os.environ.setdefault(key, value)
+    try:
+        yield
+    finally:
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+
+
 def _worker_init(parent: int | None = None) -> None:
-    # One BLAS thread per worker process: the pool provides the parallelism.
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
     watch_parent(parent, death_signal=True)
 
 
@@ -99,7 +120,8 @@ class ProcessExecutor:
         attempts = {t.key: 0 for t in pending}
         while pending:
             self._pool = self._new_pool()
-            futures: dict[Future, BatchTask] = {self._pool.submit(run_batch, t): t for t in pending}
+            with _single_threaded_children():  # a spawn pool starts all its workers at the first submit
+                futures: dict[Future, BatchTask] = {self._pool.submit(run_batch, t): t for t in pending}
             pending = []
             broken = False
             while futures:

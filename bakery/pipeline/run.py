@@ -69,8 +69,9 @@ from bakery.pipeline.merge import (
     merge_batches,
     remap_history,
 )
-from bakery.pipeline.plan import Plan, make_batches, plan_tasks
+from bakery.pipeline.plan import BatchTask, Plan, make_batches, plan_tasks
 from bakery.pipeline.settings import BakeRequest
+from bakery.pipeline.worker import BatchOutcome
 from bakery.pipeline.write import store_contents
 from bakery.sources import Source, source_for
 from bakery.store.format import (
@@ -476,33 +477,68 @@ def locked_outputs(request: BakeRequest, source: Source) -> Iterator[FileLock]:
                           f"{os_error_message(error)}") from None
 
 
-def _bake_locked(request: BakeRequest, executor: Executor, progress: Callable[[int, int], None] | None,
-                 source: Source, start: float) -> BakeSummary:
-    previous = load_previous(request.output) if request.resume else None
-    source, plan = plan_bake(request, source, previous)
-    settings = request.settings
+def _longest_first(batches: list[BatchTask], request: BakeRequest, source: Source, plan: Plan) -> list[BatchTask]:
+    """``batches`` in decreasing estimated cost (:mod:`bakery.farm.cost`, the shipped calibration): the classic
+    longest-processing-time order, so that no expensive batch starts last and leaves the other workers idle. The
+    store does not depend on it (outcomes are merged in batch-key order)."""
+    if len(batches) < 2:
+        return batches
+    from bakery.farm.cost import DEFAULT_CALIBRATION, CostModel, load_calibration
 
-    journal = Journal(request.output)
-    done = journal.load({b.key for b in plan.batches}) if request.resume else {}
+    model = CostModel(request, source, plan, load_calibration(DEFAULT_CALIBRATION))
+    cost = {b.key: model.batch(b) for b in batches}
+    return sorted(batches, key=lambda b: (-cost[b.key], b.key))
+
+
+def execute_batches(batches: list[BatchTask], request: BakeRequest, source: Source, plan: Plan, executor: Executor,
+                    journal: Journal, progress: Callable[[int, int], None] | None,
+                    ) -> tuple[list[BatchOutcome], int]:
+    """Run ``batches`` on ``executor`` (longest first), checkpointing every outcome in ``journal``; with
+    ``request.resume``, batches the journal already holds are not run again. Returns (every outcome, the number of
+    resumed batches). Progress is reported in probes of ``batches``."""
+    done = journal.load({b.key for b in batches}) if request.resume else {}
     outcomes = list(done.values())
-    total = plan.to_bake
-    finished = sum(len(b.probes) for b in plan.batches if b.key in done)
+    total = sum(len(b.probes) for b in batches)
+    finished = sum(len(b.probes) for b in batches if b.key in done)
     if progress:
         progress(finished, total)
-    todo = [b for b in plan.batches if b.key not in done]
+    todo = _longest_first([b for b in batches if b.key not in done], request, source, plan)
     if todo:
         try:
             handle = source.prepare(journal.directory)  # the workers' snapshot (e.g. the scene), in the journal
         except OSError as error:
             raise with_filename(error, journal.directory) from None
-        size_of = {b.key: len(b.probes) for b in plan.batches}
+        size_of = {b.key: len(b.probes) for b in todo}
         for outcome in executor.run([replace(b, source=handle) for b in todo]):
             journal.save(outcome)
             outcomes.append(outcome)
             finished += size_of[outcome.key]
             if progress:
                 progress(finished, total)
+    return outcomes, len(done)
 
+
+def with_rates(timings: dict[str, float]) -> dict[str, float]:
+    """``timings`` (summed over batches) with ``rays_per_second`` = capture rays / capture seconds (per worker)."""
+    timings = dict(timings)
+    rays, capture_seconds = timings.get("capture_rays", 0.0), timings.get("capture_seconds", 0.0)
+    if rays:
+        timings["rays_per_second"] = rays / capture_seconds if capture_seconds > 0 else 0.0
+    return timings
+
+
+def _bake_locked(request: BakeRequest, executor: Executor, progress: Callable[[int, int], None] | None,
+                 source: Source, start: float) -> BakeSummary:
+    previous = load_previous(request.output) if request.resume else None
+    source, plan = plan_bake(request, source, previous)
+    settings = request.settings
+    stage = {"parent/read_plan": time.perf_counter() - start}  # per-stage wall times of the parent (summary only)
+    stage_start = time.perf_counter()
+
+    journal = Journal(request.output)
+    outcomes, resumed = execute_batches(plan.batches, request, source, plan, executor, journal, progress)
+    stage["parent/workers"] = time.perf_counter() - stage_start
+    stage_start = time.perf_counter()
     failures: dict[str, str] = {}
     batches = []
     for outcome in sorted(outcomes, key=lambda o: o.key):
@@ -520,16 +556,14 @@ def _bake_locked(request: BakeRequest, executor: Executor, progress: Callable[[i
     merged, _contents, encodings, skipped, extra = finalize_and_write(request, source, plan, batches, failures,
                                                                       previous)
     journal.remove()
+    stage["parent/merge_finalize_write"] = time.perf_counter() - stage_start
 
     seconds = time.perf_counter() - start
-    baked = total - len(failures)
-    timings = dict(merged.timings)
-    rays, capture_seconds = timings.get("capture_rays", 0.0), timings.get("capture_seconds", 0.0)
-    if rays:
-        timings["rays_per_second"] = rays / capture_seconds if capture_seconds > 0 else 0.0
+    baked = plan.to_bake - len(failures)
+    timings = with_rates(merged.timings) | stage
     return BakeSummary(
         store=str(request.output), planned=len(plan.tasks), baked=baked, reused=len(plan.reused),
-        resumed_batches=len(done), failed=failures, skipped=skipped, batches=len(plan.batches),
+        resumed_batches=resumed, failed=failures, skipped=skipped, batches=len(plan.batches),
         workers=getattr(executor, "workers", 1), executor=getattr(executor, "name", "?"), seconds=seconds,
         probes_per_second=baked / seconds if seconds > 0 else 0.0, store_bytes=request.output.stat().st_size,
         bytes_per_probe={n: e.bytes_per_probe() for n, e in encodings.items()}, source_kind=source.kind,

@@ -327,7 +327,7 @@ def bake_shard(request: BakeRequest, spec: ShardSpec, executor: Any = None,
     """Bake the probes of ``spec`` and write them, before finalizing, to the shard store ``request.output``."""
     from bakery.pipeline.executors import SerialExecutor
     from bakery.pipeline.merge import merge_batches
-    from bakery.pipeline.run import locked_outputs
+    from bakery.pipeline.run import execute_batches, locked_outputs, with_rates
 
     start = time.perf_counter()
     executor = executor or SerialExecutor()
@@ -360,22 +360,7 @@ def bake_shard(request: BakeRequest, spec: ShardSpec, executor: Any = None,
                            timings=json.loads(existing.get("shard_timings", "{}")))
 
         journal = Journal(request.output)
-        done = journal.load({b.key for b in batches}) if request.resume else {}
-        outcomes = list(done.values())
-        finished = sum(len(b.probes) for b in batches if b.key in done)
-        total = sum(len(b.probes) for b in batches)
-        if progress:
-            progress(finished, total)
-        todo = [b for b in batches if b.key not in done]
-        if todo:
-            handle = source.prepare(journal.directory)
-            size_of = {b.key: len(b.probes) for b in todo}
-            for outcome in executor.run([replace(b, source=handle) for b in todo]):
-                journal.save(outcome)
-                outcomes.append(outcome)
-                finished += size_of[outcome.key]
-                if progress:
-                    progress(finished, total)
+        outcomes, resumed = execute_batches(batches, request, source, plan, executor, journal, progress)
 
         failures: dict[str, str] = {}
         parts: list[EncodedBatch] = []
@@ -389,11 +374,8 @@ def bake_shard(request: BakeRequest, spec: ShardSpec, executor: Any = None,
         merged = merge_batches(parts, order) if parts else EncodedBatch([], {}, {}, {})
         write_shard(request, source.kind, plan, identity, probe_range, len(work), merged, failures, spec)
         journal.remove()
-        timings = dict(merged.timings)
-        rays, capture_seconds = timings.get("capture_rays", 0.0), timings.get("capture_seconds", 0.0)
-        if rays:
-            timings["rays_per_second"] = rays / capture_seconds if capture_seconds > 0 else 0.0
-        return summary(baked=len(order), failed=failures, resumed_batches=len(done), already_complete=False,
+        timings = with_rates(merged.timings)
+        return summary(baked=len(order), failed=failures, resumed_batches=resumed, already_complete=False,
                        timings=timings, warnings=[w.message for w in merged.warnings])
 
 
@@ -581,7 +563,7 @@ def merge_shards(items: list[str | Path], output: str | Path, layer: str | Path 
 def _merge_locked(request: BakeRequest, source: Any, shards: list[Shard], first: Shard, start: float,
                   ) -> MergeSummary:
     from bakery.pipeline.merge import extract_probes
-    from bakery.pipeline.run import finalize_and_write, load_previous, plan_bake
+    from bakery.pipeline.run import finalize_and_write, load_previous, plan_bake, with_rates
 
     output = request.output
     previous = load_previous(first.base) if first.base else None
@@ -609,8 +591,7 @@ def _merge_locked(request: BakeRequest, source: Any, shards: list[Shard], first:
     for shard in shards:
         for key, value in shard.batch.timings.items():
             timings[key] = timings.get(key, 0.0) + value
-    if timings.get("capture_rays"):
-        timings["rays_per_second"] = timings["capture_rays"] / max(timings.get("capture_seconds", 0.0), 1e-12)
+    timings = with_rates(timings)
     return MergeSummary(
         store=str(output), plan_id=identity, shards=len(shards), planned=len(plan.tasks),
         baked=plan.to_bake - len(failures), reused=len(plan.reused), failed=failures, skipped=skipped,

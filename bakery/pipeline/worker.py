@@ -25,6 +25,7 @@ import numpy as np
 
 from bakery.allocator import tune_allocator
 from bakery.errors import BakeryError, BakeryWarning
+from bakery.files import pid_alive
 from bakery.pipeline.encode import (
     BakeWarning,
     EncodedBatch,
@@ -75,20 +76,10 @@ def watch_parent(pid: int | None = None, *, death_signal: bool = False, interval
     def watch() -> None:
         while True:
             time.sleep(interval)
-            if (direct and os.getppid() != pid) or not _alive(pid):
+            if (direct and os.getppid() != pid) or not pid_alive(pid):
                 os._exit(70)
 
     threading.Thread(target=watch, name="bakery-parent-watch", daemon=True).start()
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 @dataclass

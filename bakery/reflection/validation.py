@@ -7,7 +7,9 @@
 
 View below the horizon (n·v < 0)
     Engines clamp n·v to 0 rather than shade a back-facing view; we do the same, explicitly and without NaN:
-        t  = v − (n·v)·n, or t(n) if that vanishes (v = −n; a fixed tangent, :func:`fixed_tangent`)
+        t  = v − (n·v)·n, projected twice (in floating point the first pass leaves a component along n comparable
+             to t near v = −n), or t(n) if |t| < 1e-9 |v| (v = −n; a fixed tangent, :func:`fixed_tangent`);
+             n is normalised first (float32-unit normals have |n|² ≠ 1)
         v' = normalize(normalize(t) + ε·n),  ε = HORIZON_EPSILON = 1e-6            if n·v < 0
     i.e. v turned onto the tangent plane, a hair above it so that every BRDF term takes its n·v → 0⁺ limit (the same
     value for a view that is already clamped). r = 2(n·v')n − v' lies on the horizon, n·r ≥ 0 and h_r =
@@ -64,14 +66,17 @@ def clamp_view_to_horizon(view: np.ndarray, normal: np.ndarray) -> np.ndarray:
     """Views (M, 3) with n·v < 0 turned onto the horizon (module doc); others unchanged."""
     v = np.asarray(view, dtype=np.float64)
     n = np.asarray(normal, dtype=np.float64)
+    n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-300)  # float32-unit normals: |n|² ≠ 1
     nv = np.sum(v * n, axis=1, keepdims=True)
     below = nv[:, 0] < 0.0
     if not np.any(below):
         return v
     out = v.copy()
     tangent = v[below] - nv[below] * n[below]
+    # Project twice: near v = −n the first pass leaves a component along n comparable to the (tiny) tangent.
+    tangent -= np.sum(tangent * n[below], axis=1, keepdims=True) * n[below]
     length = np.linalg.norm(tangent, axis=1, keepdims=True)
-    degenerate = length[:, 0] < 1e-9
+    degenerate = length[:, 0] < 1e-9 * np.linalg.norm(v[below], axis=1)  # v = −n up to rounding: no tangent
     safe = np.where(degenerate[:, None], fixed_tangent(n[below]), tangent / np.maximum(length, 1e-300))
     safe = safe + HORIZON_EPSILON * n[below]
     out[below] = safe / np.linalg.norm(safe, axis=1, keepdims=True)

@@ -88,10 +88,7 @@ def build_report(store_path: str | os.PathLike[str], environment: str | os.PathL
         "sanitized_texels": (np.asarray(store.diagnostics["input/sanitized_texels"]).sum(axis=0).tolist()
                              if "input/sanitized_texels" in store.diagnostics else None),
         # issue 11: the relative SH noise each rendered probe's capture achieved (NaN: loaded from an image)
-        "capture_sh_noise": ({"summary": quality.summarise(np.asarray(store.diagnostics["capture/sh_noise"],
-                                                                      dtype=np.float64)),
-                              "target": store.attributes.get("capture_target_noise")}
-                             if "capture/sh_noise" in store.diagnostics else None),
+        "capture_sh_noise": _capture_noise(store),
         "warnings": json.loads(store.attributes.get("warnings", "[]") or "[]"),
     }
     plots: dict[str, str] = {}
@@ -237,3 +234,16 @@ def write_report(store: str | os.PathLike[str], out_dir: str | os.PathLike[str],
     except OSError as error:
         raise OutputError(f"{out}: cannot write the report: {os_error_message(error)}") from None
     return {"html": html_path, "json": json_path, "data": data}
+
+
+def _capture_noise(store: Any) -> dict[str, Any] | None:
+    """Summary, target and the noisiest probes of the relative SH noise each rendered probe's capture achieved
+    (``capture/sh_noise``; NaN: loaded from an image), or None when the store has none (issue 11)."""
+    if "capture/sh_noise" not in store.diagnostics:
+        return None
+    noise = np.asarray(store.diagnostics["capture/sh_noise"], dtype=np.float64)
+    order = [int(i) for i in np.argsort(-np.where(np.isfinite(noise), noise, -np.inf), kind="stable")
+             if np.isfinite(noise[i])][:5]
+    target = store.attributes.get("capture_target_noise")
+    return {"summary": quality.summarise(noise), "target": float(target) if target is not None else None,
+            "noisiest": [{"probe": store.probe_names[i], "noise": float(noise[i])} for i in order]}

@@ -138,6 +138,18 @@ def render_page(data: dict[str, Any], plots: dict[str, str], previews: dict[str,
             parts.append(_table(["before", "after deringing", "mean share before", "mean share after",
                                  "max before", "max after"], rows, left=2))
         parts.append('<div class="plots">' + plots.get("negative-share", "") + "</div>")
+    if data.get("capture_sh_noise") and data["capture_sh_noise"]["summary"].get("count"):
+        noise = data["capture_sh_noise"]
+        parts.append("<h3>Capture noise</h3>")
+        summary = noise["summary"]
+        parts.append(_table(["rendered probes", "mean", "median", "p90", "max", "target"],
+                            [[summary["count"], summary["mean"], summary["median"], summary["p90"], summary["max"],
+                              noise["target"] if noise["target"] else "none (fixed samples)"]], left=0))
+        parts.append(_table(["noisiest probe (prim path)", "relative SH noise"],
+                            [[w["probe"], w["noise"]] for w in noise["noisiest"]]))
+        parts.append('<p class="note">Relative Monte Carlo standard error of each rendered capture\'s radiance SH '
+                     "(bands 0–2, luminance), estimated from independent sample passes; with a target the capture "
+                     "adds passes until it is reached or <code>max_samples</code> is spent.</p>")
     if data["quantization"]:
         parts.append("<h3>Quantization error</h3>")
         rows = [[n, q["source"], q["summary"].get("mean"), q["summary"].get("max")]

@@ -1,4 +1,4 @@
-"""Minimal PNG encoding (RGB8, zlib) and tone mapping for the report's preview images. Pure numpy + zlib.
+"""PNG data URIs (:func:`bakery.png.encode_png`) and tone mapping for the report's preview images. Pure numpy + zlib.
 
 Tone map (display-referred preview, not a measurement): x' = 1 − exp(−k·x) per channel with one exposure k per row
 of images (so that images in a row are comparable), then the sRGB OETF. Negative radiance (SH ringing) cannot be
@@ -8,28 +8,13 @@ displayed; such pixels are painted magenta so that ringing stays visible.
 from __future__ import annotations
 
 import base64
-import struct
-import zlib
 
 import numpy as np
 
+from bakery.png import encode_png
+
 #: Colour used for pixels whose value is negative in any channel.
 NEGATIVE_COLOUR = np.array([255, 0, 255], dtype=np.uint8)
-
-
-def encode_png(rgb: np.ndarray) -> bytes:
-    """PNG bytes of an (H, W, 3) uint8 image (colour type 2, filter 0 on every row)."""
-    rgb = np.ascontiguousarray(rgb, dtype=np.uint8)
-    h, w, c = rgb.shape
-    if c != 3:
-        raise ValueError(f"encode_png needs (H, W, 3), got {rgb.shape}")
-    raw = b"".join(b"\x00" + rgb[i].tobytes() for i in range(h))
-
-    def chunk(kind: bytes, data: bytes) -> bytes:
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
-
-    header = struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)
-    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(raw, 9)) + chunk(b"IEND", b"")
 
 
 def png_data_uri(rgb: np.ndarray) -> str:

@@ -270,6 +270,48 @@ BK_FLOAT3 bakery_sh3_quantized_irradiance(uint words[7], bool sqrt_companding, B
     return bakery_sh3_irradiance(sh, n);
 }
 
+// ============================================================================================ reflection: inputs
+// store-reflection.md "Evaluation inputs" (bakery.reflection.validation). α MUST be GGX α in [0, 1]: bakery's API
+// rejects anything else; a shader cannot raise, so callers pass saturate(α) (every function below assumes it).
+
+// Height above the horizon of a clamped view (HORIZON_EPSILON).
+#define BAKERY_HORIZON_EPSILON 1e-6
+
+// Views below the horizon (n·v < 0) are clamped to it, as engines clamp n·v to 0: v turned onto the tangent plane,
+// a hair (10⁻⁶) above it, t = v − (n·v)n or normalize(e × n) (e = +X, or +Z where |n_x| > 0.9) when |t| < 10⁻⁹.
+// Then r = 2(n·v)n − v lies on the horizon and h_r = normalize(n + r) is defined for every input. Views with
+// n·v ≥ 0 are returned unchanged (so the clamp is idempotent). Every reflection entry point applies it.
+// float32: t is orthogonalised twice (the same t in exact arithmetic). For v near −n one pass leaves a component
+// along n of ~10⁻⁷/|t| from cancellation, which swamps the 10⁻⁶ lift (|t| = 0.045 at n·v = −0.999) and can put the
+// clamped view below the horizon, where the lights' visibility is 0.
+BK_FLOAT3 bakery_clamp_view_to_horizon(BK_FLOAT3 v, BK_FLOAT3 n)
+{
+    float nv = dot(n, v);
+    if (!(nv < 0.0))
+        return v;
+    BK_FLOAT3 t = v - nv * n;
+    t -= dot(t, n) * n;
+    float len = length(t);
+    if (len < 1e-9)
+        t = normalize(cross(abs(n.x) > 0.9 ? BK_FLOAT3(0.0, 0.0, 1.0) : BK_FLOAT3(1.0, 0.0, 0.0), n));
+    else
+        t = t / len;
+    BK_FLOAT3 s = t + BAKERY_HORIZON_EPSILON * n;
+    return s / length(s);
+}
+
+// Mirror direction r = 2(n·v)n − v ([SHExp] Eq. 10) of a view (not clamped here).
+BK_FLOAT3 bakery_reflect(BK_FLOAT3 v, BK_FLOAT3 n)
+{
+    return 2.0 * dot(n, v) * n - v;
+}
+
+// The direction a cube chain (`splitsum`, the `shexp_hybrid` levels) is looked up at: r of the clamped view.
+BK_FLOAT3 bakery_chain_direction(BK_FLOAT3 v, BK_FLOAT3 n)
+{
+    return bakery_reflect(bakery_clamp_view_to_horizon(v, n), n);
+}
+
 // ============================================================================================ reflection: BRDF
 // Cook–Torrance with GGX D, height-correlated Smith V = G2 / (4 (n·v)(n·l)) and Schlick F ([SHExp] Eq. 2–4),
 // roughness GGX α (schemas/store-reflection.md "BRDF").
@@ -328,11 +370,12 @@ void bakery_table_bilinear(float n_dot_v, float alpha, int size, out BK_INT2 t0,
 #endif
 
 // P·Q = exp(⟨vMF(1/α) ⊙ Y(r), p⟩ + ⟨vMF(1/α) ⊙ Y(h_r), q⟩) ([SHExp] Eq. 9–11), r = 2(n·v)n − v and
-// h_r = normalize(n + r) (Eq. 10), vMF band factor g_l(α) = exp(−l(l+1)α/2) (Eq. 12). Any continuous α.
+// h_r = normalize(n + r) (Eq. 10), vMF band factor g_l(α) = exp(−l(l+1)α/2) (Eq. 12), at the α given (no clamp:
+// bakery_shexp_pq_clamped is what the encodings evaluate). v must already be clamped to the horizon.
 BK_FLOAT3 bakery_shexp_pq(BK_FLOAT3 p[BAKERY_SHEXP_P_COUNT], BK_FLOAT3 q[BAKERY_SHEXP_Q_COUNT], BK_FLOAT3 v,
                           BK_FLOAT3 n, float alpha)
 {
-    BK_FLOAT3 r = 2.0 * dot(n, v) * n - v;                     // Eq. 10
+    BK_FLOAT3 r = bakery_reflect(v, n);                        // Eq. 10
     BK_FLOAT3 hr = n + r;
     hr = hr / max(length(hr), 1e-12);
     float Yr[25];
@@ -356,31 +399,51 @@ BK_FLOAT3 bakery_shexp_pq(BK_FLOAT3 p[BAKERY_SHEXP_P_COUNT], BK_FLOAT3 q[BAKERY_
     return exp(s);
 }
 
-// `shexp` with settings albedo_normalized = true (default): E = PQ · (F0·A + B)(n·v, α), AB from the `dfg` table.
-BK_FLOAT3 bakery_shexp_reflection(BK_FLOAT3 p[BAKERY_SHEXP_P_COUNT], BK_FLOAT3 q[BAKERY_SHEXP_Q_COUNT], BK_FLOAT3 v,
-                                  BK_FLOAT3 n, float alpha, BK_FLOAT3 F0, BK_FLOAT2 AB)
+// P·Q at α clamped into the probe's stored `alpha_range` = (α_lo, α_hi), the range its coefficients were fitted over
+// (store-reflection.md `shexp` "clamp rule"; bakery.reflection.shexp.clamped_pq): the model is never evaluated
+// outside it (below α_lo the vMF factors let the log-space peak grow without bound, issue 12). Stores before
+// shexp 1.2.0 have no `alpha_range`: pass the settings' (alpha_min, alpha_max).
+BK_FLOAT3 bakery_shexp_pq_clamped(BK_FLOAT3 p[BAKERY_SHEXP_P_COUNT], BK_FLOAT3 q[BAKERY_SHEXP_Q_COUNT],
+                                  BK_FLOAT2 alpha_range, BK_FLOAT3 v, BK_FLOAT3 n, float alpha)
 {
-    return bakery_shexp_pq(p, q, v, n, alpha) * bakery_dfg_albedo(F0, AB);
+    return bakery_shexp_pq(p, q, v, n, clamp(alpha, alpha_range.x, alpha_range.y));
+}
+
+// `shexp` with settings albedo_normalized = true (default): v clamped to the horizon, E = PQ(α clamped into
+// alpha_range) · (F0·A + B)(n·v, α), AB from the `dfg` table at the material's α (and saturate(n·v): the same texels
+// for the raw and the clamped view).
+BK_FLOAT3 bakery_shexp_reflection(BK_FLOAT3 p[BAKERY_SHEXP_P_COUNT], BK_FLOAT3 q[BAKERY_SHEXP_Q_COUNT],
+                                  BK_FLOAT2 alpha_range, BK_FLOAT3 v, BK_FLOAT3 n, float alpha, BK_FLOAT3 F0,
+                                  BK_FLOAT2 AB)
+{
+    v = bakery_clamp_view_to_horizon(v, n);
+    return bakery_shexp_pq_clamped(p, q, alpha_range, v, n, alpha) * bakery_dfg_albedo(F0, AB);
 }
 
 // `shexp` with albedo_normalized = false (the paper's form): E = PQ · (F0 + (1 − F0) τ(n·v, α)), τ from the
-// `fresnel_tail` table ([SHExp] Eq. 5, 15; τ = B/(A+B), store-reflection.md "fresnel_tail").
+// `fresnel_tail` table ([SHExp] Eq. 5, 15; τ = B/(A+B), store-reflection.md "fresnel_tail"); clamps as above.
 BK_FLOAT3 bakery_shexp_reflection_paper(BK_FLOAT3 p[BAKERY_SHEXP_P_COUNT], BK_FLOAT3 q[BAKERY_SHEXP_Q_COUNT],
-                                        BK_FLOAT3 v, BK_FLOAT3 n, float alpha, BK_FLOAT3 F0, float tau)
+                                        BK_FLOAT2 alpha_range, BK_FLOAT3 v, BK_FLOAT3 n, float alpha, BK_FLOAT3 F0,
+                                        float tau)
 {
-    return bakery_shexp_pq(p, q, v, n, alpha) * (F0 + (BK_FLOAT3(1.0, 1.0, 1.0) - F0) * tau);
+    v = bakery_clamp_view_to_horizon(v, n);
+    return bakery_shexp_pq_clamped(p, q, alpha_range, v, n, alpha) * (F0 + (BK_FLOAT3(1.0, 1.0, 1.0) - F0) * tau);
 }
 
-// One analytic directional light of `shexp_lights`: Φ · D(h) · V(n·v, n·l) · ⟨n, l⟩₊ · (F0 + (1 − F0)(1 − v·h)⁵),
-// h = normalize(v + l) ([SHExp] Eq. 1–8 for a delta light; store-reflection.md "shexp_lights"), with α clamped at
-// 0.002 (bakery.reflection.lights.MIN_ALPHA). An unused slot (Φ = 0) adds 0.
-BK_FLOAT3 bakery_ggx_directional_light(BK_FLOAT3 direction, BK_FLOAT3 flux, BK_FLOAT3 v, BK_FLOAT3 n, float alpha,
-                                       BK_FLOAT3 F0)
+// One analytic directional light of `shexp_lights` / `shexp_hybrid`, split into its base and Fresnel-tail terms
+// ([SHExp] Eq. 6–7 for a delta light; bakery.reflection.lights.evaluate_light_parts):
+//     base = Φ · D(h) · V(n·v, n·l) · ⟨n, l⟩₊,   tail = base · (1 − v·h)⁵,   h = normalize(v + l),
+// so that its E = F0·base + (1 − F0)·tail (Schlick, [SHExp] Eq. 4). α is clamped at 0.002
+// (bakery.reflection.lights.MIN_ALPHA); v must already be clamped to the horizon. An unused slot (Φ = 0) adds 0.
+void bakery_ggx_directional_light_parts(BK_FLOAT3 direction, BK_FLOAT3 flux, BK_FLOAT3 v, BK_FLOAT3 n, float alpha,
+                                        out BK_FLOAT3 base, out BK_FLOAT3 tail)
 {
+    base = BK_FLOAT3(0.0, 0.0, 0.0);
+    tail = BK_FLOAT3(0.0, 0.0, 0.0);
     float n_dot_l = dot(n, direction);
     float n_dot_v = dot(n, v);
     if (!(n_dot_l > 0.0) || !(n_dot_v > 0.0))
-        return BK_FLOAT3(0.0, 0.0, 0.0);
+        return;
     float a = max(alpha, 0.002);
     float a2 = a * a;
     BK_FLOAT3 h = v + direction;
@@ -389,21 +452,48 @@ BK_FLOAT3 bakery_ggx_directional_light(BK_FLOAT3 direction, BK_FLOAT3 flux, BK_F
     float d = bakery_ggx_d(dot(n, h), dot(nxh, nxh), a2);
     float vis = bakery_smith_visibility(n_dot_v, n_dot_l, a2);
     float fc = 1.0 - BK_SATURATE(dot(v, h));
-    float fc5 = fc * fc * fc * fc * fc;                       // Schlick ([SHExp] Eq. 4)
-    return flux * ((d * vis * n_dot_l) * (F0 + (BK_FLOAT3(1.0, 1.0, 1.0) - F0) * fc5));
+    base = flux * (d * vis * n_dot_l);
+    tail = base * (fc * fc * fc * fc * fc);                   // Schlick's (1 − v·h)⁵ ([SHExp] Eq. 4)
 }
 
-// `shexp_lights`: `shexp` (albedo-normalised) of the capture without its brightest texel clusters + those clusters
-// as analytic GGX directional lights (light_direction, light_flux: max_lights RGB each, default 8).
+// Σ_k of the lights' base and tail terms (light_direction, light_flux: BAKERY_SHEXP_MAX_LIGHTS RGB each, default 8).
+void bakery_lights_parts(BK_FLOAT3 light_direction[BAKERY_SHEXP_MAX_LIGHTS],
+                         BK_FLOAT3 light_flux[BAKERY_SHEXP_MAX_LIGHTS], BK_FLOAT3 v, BK_FLOAT3 n, float alpha,
+                         out BK_FLOAT3 base, out BK_FLOAT3 tail)
+{
+    base = BK_FLOAT3(0.0, 0.0, 0.0);
+    tail = BK_FLOAT3(0.0, 0.0, 0.0);
+    for (int k = 0; k < BAKERY_SHEXP_MAX_LIGHTS; ++k)
+    {
+        BK_FLOAT3 b, t;
+        bakery_ggx_directional_light_parts(light_direction[k], light_flux[k], v, n, alpha, b, t);
+        base += b;
+        tail += t;
+    }
+}
+
+// One light's E = Φ · D(h) · V · ⟨n, l⟩₊ · (F0 + (1 − F0)(1 − v·h)⁵) ([SHExp] Eq. 1–8 for a delta light).
+BK_FLOAT3 bakery_ggx_directional_light(BK_FLOAT3 direction, BK_FLOAT3 flux, BK_FLOAT3 v, BK_FLOAT3 n, float alpha,
+                                       BK_FLOAT3 F0)
+{
+    BK_FLOAT3 base, tail;
+    bakery_ggx_directional_light_parts(direction, flux, v, n, alpha, base, tail);
+    return F0 * base + (BK_FLOAT3(1.0, 1.0, 1.0) - F0) * tail;
+}
+
+// `shexp_lights`: `shexp` (albedo-normalised; P·Q at α clamped into alpha_range) of the capture without its
+// brightest texel clusters + those clusters as analytic GGX directional lights at the material's α (exact at any
+// α); v clamped to the horizon for both.
 BK_FLOAT3 bakery_shexp_lights_reflection(BK_FLOAT3 p[BAKERY_SHEXP_P_COUNT], BK_FLOAT3 q[BAKERY_SHEXP_Q_COUNT],
-                                         BK_FLOAT3 light_direction[BAKERY_SHEXP_MAX_LIGHTS],
+                                         BK_FLOAT2 alpha_range, BK_FLOAT3 light_direction[BAKERY_SHEXP_MAX_LIGHTS],
                                          BK_FLOAT3 light_flux[BAKERY_SHEXP_MAX_LIGHTS], BK_FLOAT3 v, BK_FLOAT3 n,
                                          float alpha, BK_FLOAT3 F0, BK_FLOAT2 AB)
 {
-    BK_FLOAT3 e = bakery_shexp_reflection(p, q, v, n, alpha, F0, AB);
-    for (int k = 0; k < BAKERY_SHEXP_MAX_LIGHTS; ++k)
-        e += bakery_ggx_directional_light(light_direction[k], light_flux[k], v, n, alpha, F0);
-    return e;
+    v = bakery_clamp_view_to_horizon(v, n);
+    BK_FLOAT3 e = bakery_shexp_pq_clamped(p, q, alpha_range, v, n, alpha) * bakery_dfg_albedo(F0, AB);
+    BK_FLOAT3 base, tail;
+    bakery_lights_parts(light_direction, light_flux, v, n, alpha, base, tail);
+    return e + F0 * base + (BK_FLOAT3(1.0, 1.0, 1.0) - F0) * tail;
 }
 
 // ============================================================================================ split sum
@@ -416,12 +506,6 @@ void bakery_splitsum_levels(float alpha, int n_levels, out int i0, out int i1, o
     i0 = min(int(floor(x)), n_levels - 1);
     i1 = min(i0 + 1, n_levels - 1);
     f = x - float(i0);
-}
-
-// Mirror direction r = 2(n·v)n − v at which the chain is looked up.
-BK_FLOAT3 bakery_reflect(BK_FLOAT3 v, BK_FLOAT3 n)
-{
-    return 2.0 * dot(n, v) * n - v;
 }
 
 // Cube face (+X, −X, +Y, −Y, +Z, −Z = 0..5) and face coordinates (u, v) ∈ [−1, 1]² of a direction (need not be
@@ -471,6 +555,86 @@ void bakery_cube_face_bilinear(BK_FLOAT2 uv, int size, out BK_INT2 t0, out BK_IN
 BK_FLOAT3 bakery_splitsum_reflection(BK_FLOAT3 c0, BK_FLOAT3 c1, float f, BK_FLOAT3 F0, BK_FLOAT2 AB)
 {
     return ((1.0 - f) * c0 + f * c1) * bakery_dfg_albedo(F0, AB);
+}
+
+// ============================================================================================ hybrid
+// `shexp_hybrid` (store-reflection.md; bakery.encodings.hybrid, bakery.reflection.hybrid): `shexp_lights` for rough
+// α + a bandwidth split-sum chain of L ≤ 16 levels (level k at GGX α_k = settings `level_alphas`[k], α_0 = 0 the
+// capture; face sizes from the dataset shapes) holding only the levels ≥ the probe's `first_level` k0, blended in
+// log α (E0 and the Fresnel tail E1 cross over separately, [SHExp] Eq. 5).
+#ifndef BAKERY_HYBRID_MAX_LEVELS
+#define BAKERY_HYBRID_MAX_LEVELS 16
+#endif
+
+// Level coordinate x(α) (bakery.reflection.splitsum.level_coordinate): x = α/α_1 below α_1 (linear between the
+// capture and level 1); x = k + log(α/α_k) / log(α_{k+1}/α_k) for α_k ≤ α < α_{k+1}, k ≥ 1 (linear in log α:
+// the kernel is scale-invariant for small α, seed 003 §5.1); x = L − 1 above α_{L−1}; then clamped to
+// [k0, L − 1] (never sharper than the sharpest stored level, never extrapolated). Returns the two levels read,
+// i0 = ⌊x⌋, i1 = min(i0 + 1, L − 1), and the weight f = x − i0 of i1 (as bakery_splitsum_levels).
+void bakery_hybrid_levels(float alpha, float level_alphas[BAKERY_HYBRID_MAX_LEVELS], int n_levels, int first_level,
+                          out int i0, out int i1, out float f)
+{
+    float x = 0.0;
+    if (n_levels > 1)
+    {
+        if (alpha < level_alphas[1])
+            x = BK_SATURATE(alpha / level_alphas[1]);
+        else
+        {
+            x = float(n_levels - 1);
+            for (int k = 1; k < BAKERY_HYBRID_MAX_LEVELS - 1; ++k)
+            {
+                if (k >= n_levels - 1)
+                    break;
+                if (alpha < level_alphas[k + 1])
+                {
+                    x = float(k) + log(alpha / level_alphas[k]) / log(level_alphas[k + 1] / level_alphas[k]);
+                    break;
+                }
+            }
+        }
+    }
+    x = clamp(x, float(min(first_level, n_levels - 1)), float(n_levels - 1));
+    i0 = min(int(floor(x)), n_levels - 1);
+    i1 = min(i0 + 1, n_levels - 1);
+    f = x - float(i0);
+}
+
+// Chain weight w(α; α_c) = 1 − smoothstep(0, 1, ½ + log2(α/α_c)/octaves) (bakery.reflection.hybrid.chain_weight):
+// 1 below α_c·2^(−octaves/2), 0 above α_c·2^(+octaves/2), C¹ in α; α = 0 gives 1.
+float bakery_chain_weight(float alpha, float crossover, float octaves)
+{
+    return 1.0 - smoothstep(0.0, 1.0, 0.5 + log2(max(alpha, 1e-30) / crossover) / octaves);
+}
+
+// `shexp_hybrid`: E = F0·E0 + (1 − F0)·E1 with ([SHExp] Eq. 5 with two partitions of unity,
+// bakery.reflection.hybrid.combine)
+//     E0 = w0·c·(A + B) + (1 − w0)·(PQ·(A + B) + L0),   w0 = w(α; crossover)
+//     E1 = w1·c·B       + (1 − w1)·(PQ·B + L1),         w1 = w(α; tail_crossover)
+// v clamped to the horizon; PQ at α clamped into alpha_range; (A, B) = AB, the `dfg` table at (n·v, α); L0/L1 the
+// lights' base/tail terms at the material's α; c = (1 − f)·c0 + f·c1 the chain read at levels i0, i1 of
+// bakery_hybrid_levels and direction bakery_chain_direction(v, n). A probe with first_level ≥ n_levels has no
+// chain: w0 = w1 = 0 and c0, c1 are not read (pass 0; w1 ≥ w0 since tail_crossover ≥ crossover, so no level needs
+// to be read where w1 = 0 either).
+BK_FLOAT3 bakery_shexp_hybrid_reflection(BK_FLOAT3 p[BAKERY_SHEXP_P_COUNT], BK_FLOAT3 q[BAKERY_SHEXP_Q_COUNT],
+                                         BK_FLOAT2 alpha_range, BK_FLOAT3 light_direction[BAKERY_SHEXP_MAX_LIGHTS],
+                                         BK_FLOAT3 light_flux[BAKERY_SHEXP_MAX_LIGHTS], int first_level,
+                                         int n_levels, float crossover, float tail_crossover, float blend_octaves,
+                                         BK_FLOAT3 v, BK_FLOAT3 n, float alpha, BK_FLOAT3 F0, BK_FLOAT2 AB,
+                                         BK_FLOAT3 c0, BK_FLOAT3 c1, float f)
+{
+    v = bakery_clamp_view_to_horizon(v, n);
+    BK_FLOAT3 pq = bakery_shexp_pq_clamped(p, q, alpha_range, v, n, alpha);
+    BK_FLOAT3 l0, l1;
+    bakery_lights_parts(light_direction, light_flux, v, n, alpha, l0, l1);
+    bool has_chain = first_level < n_levels;
+    float w0 = has_chain ? bakery_chain_weight(alpha, crossover, blend_octaves) : 0.0;
+    float w1 = has_chain ? bakery_chain_weight(alpha, tail_crossover, blend_octaves) : 0.0;
+    BK_FLOAT3 c = w1 > 0.0 ? (1.0 - f) * c0 + f * c1 : BK_FLOAT3(0.0, 0.0, 0.0);
+    float a_plus_b = AB.x + AB.y;
+    BK_FLOAT3 e0 = w0 * c * a_plus_b + (1.0 - w0) * (pq * a_plus_b + l0);
+    BK_FLOAT3 e1 = w1 * c * AB.y + (1.0 - w1) * (pq * AB.y + l1);
+    return F0 * e0 + (BK_FLOAT3(1.0, 1.0, 1.0) - F0) * e1;
 }
 
 #endif // BAKERY_CORE

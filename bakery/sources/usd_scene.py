@@ -208,6 +208,8 @@ class UsdSceneSource(Source):
         write_bake_layer(
             layer_path, baked, request.output, str(contents.attributes.get("settings_hash", "")), self.path,
             up_axis=self._reading.up_axis, meters_per_unit=self._reading.meters_per_unit, protected=self._protected,
+            encoding_settings={name: json.loads(group["attributes"]["settings"])
+                               for name, group in contents.encodings.items() if "settings" in group["attributes"]},
         )
         return {"layer": str(layer_path)}
 

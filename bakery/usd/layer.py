@@ -11,8 +11,13 @@ attribute                                   value
                                             :func:`usd_type_for`), declared with its type and documentation
                                             by ``BakeryBakedProbeAPI`` (generated from the registry); customData
                                             ``shape`` = per-probe shape, ``probeCount`` = probes in the array
+``bakery:settings:<encoding>:<key>``        uniform; the encoding settings the shaders take (:func:`runtime_settings`:
+                                            the ``setting`` arguments, variant conditions and chain settings of
+                                            ``bakery/shaders/manifest.json``, e.g. the hallucination ``curve``
+                                            as double2, ``sqrt_companding`` bool, ``level_alphas`` double[]), as
+                                            stored in the store's ``/encodings/<encoding>`` ``settings``
 ``bakery:baked:store``                      asset path of the HDF5 store (relative to the layer)
-``bakery:baked:contentHash``                SHA-256 of the prim's baked values (see :func:`content_hash`)
+``bakery:baked:contentHash``                SHA-256 of the prim's baked values and settings (:func:`content_hash`)
 ``bakery:baked:settingsHash``               the bake's settings hash
 ``bakery:baked:encodings``                  token[] of encodings written on this prim
 ``bakery:baked:probeCount``                 1, or the number of probes of a probe volume
@@ -32,17 +37,18 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
-from pxr import Sdf, Usd, UsdGeom, Vt
+from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
 from bakery.conventions import CONVENTIONS
 from bakery.errors import SceneError
 from bakery.files import atomic_replace, sha256_bytes
 from bakery.usd.plugin import BAKED_API
-
 
 #: Fields with more values per probe than this stay in the store only (e.g. prefiltered cube maps).
 MAX_VALUES_PER_PROBE = 16384
@@ -116,6 +122,85 @@ def _usd_value(array: np.ndarray) -> tuple[Sdf.ValueTypeName, object, np.ndarray
     return type_name, Vt.IntArray.FromNumpy(data.reshape(-1)), data
 
 
+#: USD types of the manifest's setting types (``bakery/shaders/manifest.json`` "argument_kinds"). Real-valued
+#: settings are written in double precision: the layer records the exact values the bake used (an engine rounds them
+#: to its uniforms' float), so a reader evaluating in float64 reproduces ``evaluate_irradiance`` exactly.
+_SETTING_TYPES = {"vec2": Sdf.ValueTypeNames.Double2, "bool": Sdf.ValueTypeNames.Bool,
+                  "float": Sdf.ValueTypeNames.Double, "int": Sdf.ValueTypeNames.Int}
+
+
+def settings_attribute_name(encoding: str, key: str) -> str:
+    """``bakery:settings:<encoding>:<key>``."""
+    return f"bakery:settings:{encoding}:{key}"
+
+
+def runtime_settings(encoding: str) -> dict[str, tuple[Sdf.ValueTypeName, dict[str, Any]]]:
+    """{setting key: (USD type, how the shaders use it)} of the settings an engine needs to evaluate ``encoding``'s
+    arrays: the ``setting`` arguments of its shader entry points, the keys that select a variant (``when``) and the
+    chain's settings (``levels``: int, ``level_alphas``: double[]), from ``bakery/shaders/manifest.json``. Empty for
+    an encoding without a shader entry. String settings are converted with the argument's ``values`` (e.g. curve
+    ``"paper"`` → (0.6, 0.08)); ``"value": "length"`` arguments take the whole list (double[])."""
+    from bakery.shaders import manifest
+
+    spec = manifest()["encodings"].get(encoding)
+    if spec is None:
+        return {}
+    found: dict[str, tuple[Sdf.ValueTypeName, dict[str, Any]]] = {}
+    for entry in [spec, *spec.get("variants", ())]:
+        for key, value in entry.get("when", {}).items():
+            kind = {bool: "bool", int: "int", float: "float"}[type(value)]
+            found.setdefault(key, (_SETTING_TYPES[kind], {"use": f"selects the entry point {entry['entry']} when "
+                                                                 f"{json.dumps(value)}"}))
+        for argument in entry["arguments"]:
+            if "setting" in argument:
+                key = argument["setting"]
+                if argument.get("value") == "length":
+                    found.setdefault(key, (Sdf.ValueTypeNames.DoubleArray, {"use": f"the list; its length is an "
+                                                                                  f"argument of {entry['entry']}"}))
+                else:
+                    found.setdefault(key, (_SETTING_TYPES[argument["type"]],
+                                           {"use": f"argument of {entry['entry']}", "values": argument.get("values", {})}))
+            if "chain" in argument:
+                if "levels" in argument:
+                    found.setdefault(argument["levels"], (Sdf.ValueTypeNames.Int, {"use": "L of the chain lookup"}))
+                if "level_alphas" in argument:
+                    found.setdefault(argument["level_alphas"], (Sdf.ValueTypeNames.DoubleArray,
+                                                                {"use": "GGX alpha of each chain level (the level "
+                                                                        "coordinate), L = its length"}))
+    return found
+
+
+def runtime_setting_values(encoding: str, settings: Mapping[str, Any]) -> dict[str, tuple[Sdf.ValueTypeName, object, np.ndarray]]:
+    """{attribute name: (USD type, Vt/Gf value, the value as a numpy array)} of :func:`runtime_settings` for an
+    encoding's stored ``settings`` (keys it does not hold are skipped)."""
+    out = {}
+    for key, (type_name, how) in runtime_settings(encoding).items():
+        if key not in settings:
+            continue
+        value = settings[key]
+        if isinstance(value, str):
+            if value not in how.get("values", {}):
+                raise SceneError(f"{encoding}: setting {key} = {value!r} has no numeric value for the layer")
+            value = how["values"][value]
+        if type_name == Sdf.ValueTypeNames.Double2:
+            data = np.asarray(value, dtype=np.float64).reshape(2)
+            usd = Gf.Vec2d(float(data[0]), float(data[1]))
+        elif type_name == Sdf.ValueTypeNames.DoubleArray:
+            data = np.asarray(value, dtype=np.float64).reshape(-1)
+            usd = Vt.DoubleArray.FromNumpy(data)
+        elif type_name == Sdf.ValueTypeNames.Bool:
+            data = np.asarray(bool(value))
+            usd = bool(value)
+        elif type_name == Sdf.ValueTypeNames.Int:
+            data = np.asarray(int(value), dtype=np.int32)
+            usd = int(value)
+        else:
+            data = np.asarray(float(value), dtype=np.float64)
+            usd = float(data)
+        out[settings_attribute_name(encoding, key)] = (type_name, usd, data)
+    return out
+
+
 def _default_prim(prims: list[BakedPrim], scene_path: str | os.PathLike[str]) -> str:
     """The layer's defaultPrim: the scene's own when it is among the layer's root prims, else the first root."""
     roots = sorted({Sdf.Path(baked.path).GetPrefixes()[0].name for baked in prims})
@@ -141,9 +226,12 @@ def write_bake_layer(
     up_axis: str = "Y",
     meters_per_unit: float = 1.0,
     protected: tuple[str, ...] = (),
+    encoding_settings: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> Path:
     """Write the baked-results layer atomically (temporary file + rename). Refuses to overwrite any path in
-    ``protected`` (the scene's own layers). Returns the layer path."""
+    ``protected`` (the scene's own layers). ``encoding_settings`` ({encoding: its stored settings}) adds the
+    ``bakery:settings:<encoding>:<key>`` attributes of :func:`runtime_settings` to every prim carrying the encoding.
+    Returns the layer path."""
     layer_path = Path(layer_path).resolve()
     if str(layer_path) in {str(Path(p).resolve()) for p in protected}:
         raise SceneError(f"{layer_path}: refusing to overwrite one of the scene's own layers; choose another --layer")
@@ -176,6 +264,13 @@ def write_bake_layer(
             attr.default = value
             attr.customData = {"shape": Vt.IntArray(list(data.shape[1:])), "probeCount": baked.probe_count}
             written[name] = data
+        for encoding in baked.encodings:
+            if encoding_settings is None or encoding not in encoding_settings:
+                continue
+            for name, (type_name, value, data) in runtime_setting_values(encoding, encoding_settings[encoding]).items():
+                attr = Sdf.AttributeSpec(spec, name, type_name, Sdf.VariabilityUniform)
+                attr.default = value
+                written[name] = data
         meta = {
             "bakery:baked:store": (Sdf.ValueTypeNames.Asset, Sdf.AssetPath(store_rel)),
             "bakery:baked:contentHash": (Sdf.ValueTypeNames.String, content_hash(written)),

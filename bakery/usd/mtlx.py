@@ -90,6 +90,27 @@ def _mean(value) -> float:  # noqa: ANN001
     return float(np.mean(np.asarray(value, dtype=np.float64)))
 
 
+#: (capture input, the surface's input, its weight input or None, scalar?) per MaterialX surface category; any other
+#: category is read as UsdPreviewSurface (same input names as the capture's model).
+_INPUT_MAP: dict[str, tuple[tuple[str, str, str | None, bool], ...]] = {
+    "standard_surface": (
+        ("diffuseColor", "base_color", "base", False), ("metallic", "metalness", None, True),
+        ("roughness", "specular_roughness", None, True), ("ior", "specular_IOR", None, True),
+        ("emissiveColor", "emission_color", "emission", False), ("opacity", "opacity", None, True)),
+    "open_pbr_surface": (
+        ("diffuseColor", "base_color", "base_weight", False), ("metallic", "base_metalness", None, True),
+        ("roughness", "specular_roughness", None, True), ("ior", "specular_ior", None, True),
+        ("emissiveColor", "emission_color", "emission_luminance", False), ("opacity", "geometry_opacity", None, True)),
+    "gltf_pbr": (
+        ("diffuseColor", "base_color", None, False), ("metallic", "metallic", None, True),
+        ("roughness", "roughness", None, True), ("ior", "ior", None, True),
+        ("emissiveColor", "emissive", "emissive_strength", False), ("opacity", "alpha", None, True)),
+}
+_PREVIEW_SURFACE_MAP = tuple((name, name, None, False) for name in ("diffuseColor", "emissiveColor", "specularColor")) \
+    + tuple((name, name, None, True) for name in ("metallic", "roughness", "ior", "opacity", "opacityThreshold",
+                                                  "useSpecularWorkflow"))
+
+
 def _to_surface(category: str, values: dict[str, object], maps: dict[str, dict], notes: list[str]) -> Surface:
     """Map a MaterialX surface's inputs (values and texture maps by input name) onto the capture's model."""
     d = {**_defaults(category), **values}
@@ -120,32 +141,8 @@ def _to_surface(category: str, values: dict[str, object], maps: dict[str, dict],
         array = np.asarray(value, dtype=np.float64) * weight
         surface.values[target] = float(array.mean()) if scalar else tuple(np.broadcast_to(array, 3).tolist())
 
-    if category == "standard_surface":
-        put("diffuseColor", "base_color", "base")
-        put("metallic", "metalness", None, scalar=True)
-        put("roughness", "specular_roughness", None, scalar=True)
-        put("ior", "specular_IOR", None, scalar=True)
-        put("emissiveColor", "emission_color", "emission")
-        put("opacity", "opacity", None, scalar=True)
-    elif category == "open_pbr_surface":
-        put("diffuseColor", "base_color", "base_weight")
-        put("metallic", "base_metalness", None, scalar=True)
-        put("roughness", "specular_roughness", None, scalar=True)
-        put("ior", "specular_ior", None, scalar=True)
-        put("emissiveColor", "emission_color", "emission_luminance")
-        put("opacity", "geometry_opacity", None, scalar=True)
-    elif category == "gltf_pbr":
-        put("diffuseColor", "base_color", None)
-        put("metallic", "metallic", None, scalar=True)
-        put("roughness", "roughness", None, scalar=True)
-        put("ior", "ior", None, scalar=True)
-        put("emissiveColor", "emissive", "emissive_strength")
-        put("opacity", "alpha", None, scalar=True)
-    else:  # UsdPreviewSurface
-        for name in ("diffuseColor", "emissiveColor", "specularColor"):
-            put(name, name, None)
-        for name in ("metallic", "roughness", "ior", "opacity", "opacityThreshold", "useSpecularWorkflow"):
-            put(name, name, None, scalar=True)
+    for target, colour_input, weight_input, scalar in _INPUT_MAP.get(category, _PREVIEW_SURFACE_MAP):
+        put(target, colour_input, weight_input, scalar)
     surface.primvar = "st" if surface.maps else None
     return surface
 

@@ -102,10 +102,34 @@ def baked_field_attributes() -> list[tuple[str, str, str]]:
     return attributes
 
 
+def runtime_setting_attributes() -> list[tuple[str, str, str]]:
+    """(attribute name, USD type name, documentation) of every ``bakery:settings:<encoding>:<key>`` attribute the
+    layer writer may write (:func:`bakery.usd.layer.runtime_settings`: the settings the shaders take), uniform."""
+    from bakery.encodings import ENCODINGS
+    from bakery.usd.layer import runtime_settings, settings_attribute_name
+
+    attributes = []
+    for cls in ENCODINGS.values():
+        defaults = cls().settings
+        for key, (type_name, how) in runtime_settings(cls.name).items():
+            default = defaults.get(key)
+            if isinstance(default, str) and default in how.get("values", {}):
+                default = f"{default!r} = {how['values'][default]}"
+            elif isinstance(default, list):
+                default = "[" + ", ".join(f"{v:.6g}" for v in default) + "]"
+            doc = (f"{cls.kind} encoding {cls.name} {cls.version}, runtime setting {key} ({how['use']}): the value "
+                   f"of the store's /encodings/{cls.name} settings {key}, written as uniform {type_name} "
+                   f"(at the default parameters {default}; schemas/store*.md, bakery/shaders/manifest.json)")
+            attributes.append((settings_attribute_name(cls.name, key), str(type_name), doc))
+    return attributes
+
+
 def baked_field_block() -> str:
-    """The generated block of ``schema.usda``: one attribute declaration per :func:`baked_field_attributes`."""
+    """The generated block of ``schema.usda``: one attribute declaration per :func:`baked_field_attributes` and
+    per :func:`runtime_setting_attributes` (uniform)."""
     lines = [BEGIN_GENERATED]
-    for name, type_name, doc in baked_field_attributes():
+    settings = [(f"uniform {t}", n, d) for n, t, d in runtime_setting_attributes()]
+    for name, type_name, doc in [*baked_field_attributes(), *((n, t, d) for t, n, d in settings)]:
         text = doc.replace("\\", "\\\\").replace('"', "'")
         lines += [f"    {type_name} {name} (",
                   f'        doc = """{text}"""',

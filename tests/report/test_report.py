@@ -278,3 +278,23 @@ def test_quick_pareto_bench_covers_the_registry_and_round_trips(tmp_path):
     assert "| variant |" in (tmp_path / "out" / "pareto.md").read_text()
     same = compare_pareto(saved, saved)
     assert len(same) == len(ok) and all(c["time_ratio"] == 1.0 for c in same)
+
+
+def test_report_page_shows_the_capture_noise_of_rendered_probes(tmp_path):
+    """Issue 11: the relative SH noise each rendered capture achieved is on the page (summary + noisiest probes),
+    equal to the store's ``capture/sh_noise`` and ordered noisiest first."""
+    from usd_scenes import header, material, plane_mesh, probe, write
+
+    text = (header() + material("Grey", diffuse=(0.5, 0.5, 0.5))
+            + plane_mesh("Floor", 5.0, "/Grey")
+            + '\ndef DomeLight "Sky"\n{\n    float inputs:intensity = 1\n}\n'
+            + probe("Open", (0.0, 1.0, 0.0)) + probe("Low", (0.0, 0.05, 0.0)))
+    scene = write(tmp_path / "noise.usda", text)
+    bakery.bake(scene, tmp_path / "noise.h5", encodings=("sh3",), face_size=4, samples=2, bounces=1,
+                resume=False)
+    data, html = build_report(tmp_path / "noise.h5", previews=False)
+    stored = np.asarray(bakery.api.open_store(tmp_path / "noise.h5").diagnostics["capture/sh_noise"])
+    noise = data["capture_sh_noise"]
+    assert noise["summary"]["count"] == 2 and np.isclose(noise["summary"]["max"], stored.max())
+    assert [w["noise"] for w in noise["noisiest"]] == sorted(stored.tolist(), reverse=True)
+    assert "Capture noise" in html and noise["noisiest"][0]["probe"] in html

@@ -32,6 +32,8 @@ CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-quic", "--no-first-ru
                   "--ignore-gpu-blocklist"]
 #: Hardware-filtering counterparts of the exact (texelFetch) lookups.
 SAMPLED_LOOKUP = {"bakery_dfg_fetch": "bakery_dfg_sample", "bakery_cube_fetch_bilinear": "bakery_cube_sample_bilinear"}
+#: BAKERY_HYBRID_MAX_LEVELS of bakery_core.glsl (the size of the level-α array).
+MAX_HYBRID_LEVELS = 16
 
 
 def chromium_binary() -> str | None:
@@ -66,10 +68,14 @@ def reflection_inputs(count: int = 96, seed: int = 18) -> dict[str, np.ndarray]:
     normals = fibonacci(count)[rng.permutation(count)]
     tangent = np.cross(normals, rng.normal(size=(count, 3)))
     tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
-    cos_v = np.concatenate([[1.0, 0.03, 0.5], rng.uniform(0.02, 1.0, count - 3)])
+    # views below the horizon (n·v < 0: the reflection functions clamp them to it) in rows 3..8 and 9 more
+    cos_v = np.concatenate([[1.0, 0.03, 0.5, -0.02, -0.3, -0.9, -0.999, -0.5, -0.1],
+                            rng.uniform(0.02, 1.0, count - 18), rng.uniform(-1.0, 0.0, 9)])
     views = cos_v[:, None] * normals + np.sqrt(1.0 - cos_v**2)[:, None] * tangent
     views /= np.linalg.norm(views, axis=1, keepdims=True)
-    alpha = np.concatenate([[0.01, 0.05, 0.1, 0.2, 0.3, 0.5, 0.7, 1.0], rng.uniform(0.02, 1.0, count - 8)])
+    # α = 0 and α below the SH exponentials' fitted α_lo (clamped into alpha_range), the hybrid's level α's
+    alpha = np.concatenate([[0.01, 0.05, 0.1, 0.2, 0.3, 0.5, 0.7, 1.0, 0.0, 0.0, 0.003, 0.02, 0.144325, 0.27346],
+                            rng.uniform(0.02, 1.0, count - 14)])
     f0 = rng.uniform(0.02, 1.0, size=(count, 3))
     f0[:8] = 0.04
     return {"normal": _f32(normals), "view": _f32(views), "alpha": _f32(alpha), "f0": _f32(f0)}
@@ -170,22 +176,33 @@ def _job(store, label: str, name: str, info, spec: dict, variant: str, probe: in
              "vec4 alpha_f0 = texelFetch(u_inputs, ivec2(s, 2), 0);",
              "float alpha = alpha_f0.x;", "vec3 f0 = alpha_f0.yzw;"]
     float_offset = word_offset = 0
+    field_vars: dict[str, str] = {}  # stored field → its GLSL variable
     for k, argument in enumerate(spec["arguments"]):
         var = f"a{k}"
         if "field" in argument:
             data = np.asarray(fields[argument["field"]])
             base, size = _array_type(argument["type"])
-            if base == "vec3":
-                expected = (size, 3) if size is not None else (3,)
+            field_vars[argument["field"]] = var
+            if base in ("vec3", "vec2"):
+                width = int(base[-1])
+                expected = (size, width) if size is not None else (width,)
                 assert data.shape[1:] == expected, f"{name}.{argument['field']}: stored {data.shape[1:]}, shader {expected}"
-                texels = _rgba(data.reshape(count, -1, 3).astype(np.float32))
+                assert data.dtype.kind == "f", f"{name}.{argument['field']}: {data.dtype}"
+                texels = data.reshape(count, -1, width).astype(np.float32)
+                texels = np.concatenate([texels, np.zeros((count, texels.shape[1], 4 - width), np.float32)], axis=-1)
                 float_texels.append(texels)
+                swizzle = "xyz" if width == 3 else "xy"
                 if size is None:
-                    body.append(f"vec3 {var} = texelFetch(u_fields, ivec2({float_offset}, probe), 0).xyz;")
+                    body.append(f"{base} {var} = texelFetch(u_fields, ivec2({float_offset}, probe), 0).{swizzle};")
                 else:
-                    body.append(f"vec3 {var}[{size}]; for (int i = 0; i < {size}; ++i) "
-                                f"{var}[i] = texelFetch(u_fields, ivec2({float_offset} + i, probe), 0).xyz;")
+                    body.append(f"{base} {var}[{size}]; for (int i = 0; i < {size}; ++i) "
+                                f"{var}[i] = texelFetch(u_fields, ivec2({float_offset} + i, probe), 0).{swizzle};")
                 float_offset += texels.shape[1]
+            elif base == "int":  # a (1,) integer field, uploaded as one R32UI word (two's complement)
+                assert data.shape[1:] == (1,) and data.dtype.kind in "iu", f"{name}.{argument['field']}: {data.dtype}"
+                word_texels.append(data.astype("<i4").view("<u4").reshape(count, 1))
+                body.append(f"int {var} = int(texelFetch(u_words, ivec2({word_offset}, probe), 0).x);")
+                word_offset += 1
             else:  # uint words of the uint8 layout, little-endian
                 assert data.dtype == np.uint8, f"{name}.{argument['field']}: {data.dtype}"
                 words = np.ascontiguousarray(data).view("<u4").reshape(count, -1)
@@ -203,10 +220,14 @@ def _job(store, label: str, name: str, info, spec: dict, variant: str, probe: in
         elif "setting" in argument:
             value = info.settings[argument["setting"]]
             value = argument.get("values", {}).get(value, value) if isinstance(value, str) else value
+            if argument.get("value") == "length":
+                value = len(value)
             uniform = f"u_setting_{argument['setting']}"
             decls.append(f"uniform {argument['type']} {uniform};")
-            uniforms.append({"name": uniform, "type": argument["type"],
-                             "value": [float(v) for v in value] if argument["type"] == "vec2" else int(bool(value))})
+            kind = argument["type"]
+            uniforms.append({"name": uniform, "type": kind,
+                             "value": [float(v) for v in value] if kind == "vec2" else float(value) if kind == "float"
+                             else int(value) if kind == "int" else int(bool(value))})
             call.append(uniform)
         elif "input" in argument:
             call.append(argument["input"])
@@ -223,7 +244,17 @@ def _job(store, label: str, name: str, info, spec: dict, variant: str, probe: in
             body.append(f"{argument['type']} {var} = {lookup}({uniform}, dot(normal, view), alpha);")
             call.append(var)
         elif "chain" in argument:
-            levels = int(info.settings[argument["levels"]])
+            hybrid = "level_alphas" in argument
+            if hybrid:  # shexp_hybrid: levels at the stored α's, the probe's first_level k0 and up
+                level_alphas = [float(a) for a in info.settings[argument["level_alphas"]]]
+                levels = len(level_alphas)
+                first = np.asarray(fields[argument["first_level"]]).reshape(-1)
+                decls.append(f"uniform float u_level_alphas[{MAX_HYBRID_LEVELS}];")
+                uniforms.append({"name": "u_level_alphas", "type": "float[]",
+                                 "value": level_alphas + [1.0] * (MAX_HYBRID_LEVELS - levels)})
+            else:
+                levels = int(info.settings[argument["levels"]])
+                first = np.zeros(count, np.int64)
             lookup = argument["lookup"]
             if variant == "sample":
                 lookup = SAMPLED_LOOKUP.get(lookup, lookup)
@@ -233,6 +264,8 @@ def _job(store, label: str, name: str, info, spec: dict, variant: str, probe: in
                 level = np.asarray(fields[f"{argument['chain']}{i}"])  # (P, 6, N, N, 3) float16
                 size = level.shape[2]
                 sizes.append(size)
+                if variant == "cube" and i < int(first.min()):
+                    continue  # below the probe's first_level: not uploaded (store-reflection.md), never read
                 faces = _rgba(level.astype(np.float16).reshape(count * 6, size, size, 3), fill=1.0)
                 target = "CUBE" if variant == "cube" else "2D_ARRAY"
                 textures.append({"uniform": f"u_level{i}", "target": target, "internal": "RGBA16F", "width": size,
@@ -244,17 +277,14 @@ def _job(store, label: str, name: str, info, spec: dict, variant: str, probe: in
                     decls.append(f"uniform highp sampler2DArray u_level{i};")
                     branches.append(f"    if (level == {i}) return {lookup}(u_level{i}, first_layer, d);")
             if variant == "cube":  # seamless filtering differs within half a texel of a face edge
-                from bakery.brdf.ggx import reflect
-                from bakery.sphere.cubemap import direction_to_cube_face_uv
-
-                _, u, v = direction_to_cube_face_uv(reflect(inputs["view"], inputs["normal"]))
-                inner = 1.0 - 1.5 / min(sizes)
-                mask = ((np.abs(u) <= inner) & (np.abs(v) <= inner))[None, :]
+                mask = _inner_face_mask(inputs, sizes, levels, first, level_alphas if hybrid else None)
             decls.append("vec3 bk_chain(int level, int first_layer, vec3 d)\n{\n" + "\n".join(branches)
                          + "\n    return vec3(0.0, 0.0, 0.0);\n}")
+            coordinate = (f"bakery_hybrid_levels(alpha, u_level_alphas, {levels}, {field_vars[argument['first_level']]}, "
+                          if hybrid else f"bakery_splitsum_levels(alpha, {levels}, ")
             body += [f"int {var}_i0, {var}_i1; float {var}_f;",
-                     f"bakery_splitsum_levels(alpha, {levels}, {var}_i0, {var}_i1, {var}_f);",
-                     f"vec3 {var}_r = bakery_reflect(view, normal);",
+                     f"{coordinate}{var}_i0, {var}_i1, {var}_f);",
+                     f"vec3 {var}_r = bakery_chain_direction(view, normal);",
                      f"vec3 {var}_c0 = bk_chain({var}_i0, 6 * probe, {var}_r);",
                      f"vec3 {var}_c1 = bk_chain({var}_i1, 6 * probe, {var}_r);"]
             call += [f"{var}_c0", f"{var}_c1", f"{var}_f"]
@@ -278,6 +308,31 @@ def _job(store, label: str, name: str, info, spec: dict, variant: str, probe: in
     suffix = "" if probe is None else f"/probe{probe}"
     return Job(id=f"{label}/{name}/{variant}{suffix}", encoding=name, store=label, variant=variant, fragment=fragment,
                width=samples, height=count, reference=reference, mask=mask, textures=textures, uniforms=uniforms)
+
+
+def _inner_face_mask(inputs: dict, sizes: list[int], levels: int, first: np.ndarray,
+                     level_alphas: list[float] | None) -> np.ndarray:
+    """(P, N) rows whose chain lookups (at the levels each row reads) stay 1.5 texels inside a face: there a cube
+    texture's seamless filtering equals bakery's within-face bilinear lookup."""
+    from bakery.brdf.ggx import reflect
+    from bakery.reflection.splitsum import level_coordinate
+    from bakery.reflection.validation import clamp_view_to_horizon
+    from bakery.sphere.cubemap import direction_to_cube_face_uv
+
+    r = reflect(clamp_view_to_horizon(inputs["view"], inputs["normal"]), inputs["normal"])
+    _, u, v = direction_to_cube_face_uv(r)
+    edge = np.maximum(np.abs(u), np.abs(v))
+    if level_alphas is None:
+        x = np.clip(np.sqrt(inputs["alpha"]), 0.0, 1.0) * (levels - 1)
+        xs = x[None, :].repeat(len(first), axis=0)
+    else:
+        x = level_coordinate(np.asarray(level_alphas), inputs["alpha"])
+        xs = np.maximum(x[None, :], np.minimum(first, levels - 1)[:, None])
+    i0 = np.minimum(np.floor(xs).astype(int), levels - 1)
+    i1 = np.minimum(i0 + 1, levels - 1)
+    size = np.asarray(sizes)
+    smallest = np.where(xs > i0, np.minimum(size[i0], size[i1]), size[i0])
+    return edge[None, :] <= 1.0 - 1.5 / smallest
 
 
 # ------------------------------------------------------------------------------------------------------ running
@@ -340,7 +395,8 @@ def validate(source: str, suffix: str, extra: tuple[str, ...] = ()) -> subproces
 
 def hlsl_test_entry() -> str:
     """An HLSL pixel shader that calls every manifest entry point (and every texture lookup), for compiling."""
-    types = {"vec2": "float2", "vec3": "float3", "uvec4": "uint4", "uint": "uint", "bool": "bool", "float": "float"}
+    types = {"vec2": "float2", "vec3": "float3", "uvec4": "uint4", "uint": "uint", "bool": "bool", "float": "float",
+             "int": "int"}
     lines = ['#include "bakery.hlsl"', "Texture2D<float4> u_table; Texture2DArray<float4> u_faces;",
              "TextureCube<float4> u_cube; SamplerState u_linear_clamp;", "cbuffer Inputs { float4 u_values[64]; uint4 u_words[8]; };",
              "float4 main(float4 position : SV_Position) : SV_Target", "{",
@@ -356,7 +412,8 @@ def hlsl_test_entry() -> str:
                     base, size = _array_type(argument.get("type", "float"))
                     hlsl = types[base]
                     init = {"vec3": "u_values[4 + i].xyz", "uint": "u_words[3 + i / 4][i % 4]", "vec2": "u_values[3].xy",
-                            "uvec4": "u_words[1]", "bool": "u_words[2].x != 0u", "float": "u_values[3].x"}[base]
+                            "uvec4": "u_words[1]", "bool": "u_words[2].x != 0u", "float": "u_values[3].x",
+                            "int": "int(u_words[2].y)"}[base]
                     if size is None:
                         lines.append(f"    {hlsl} {var} = {init.replace('4 + i', '4')};")
                     else:
@@ -369,9 +426,15 @@ def hlsl_test_entry() -> str:
                     lines.append(f"    {types[argument['type']]} {var} = {lookup}(u_table, dot(normal, view), alpha);")
                     args.append(var)
                 elif "chain" in argument:
-                    lines += [f"    int {var}_i0, {var}_i1; float {var}_f;",
-                              f"    bakery_splitsum_levels(alpha, 6, {var}_i0, {var}_i1, {var}_f);",
-                              f"    float3 {var}_r = bakery_reflect(view, normal);",
+                    if "level_alphas" in argument:
+                        lines += [(f"    float {var}_la[{MAX_HYBRID_LEVELS}]; for (int i = 0; i < {MAX_HYBRID_LEVELS}; ++i) "
+                                   f"{var}_la[i] = u_values[8 + i].x;"),
+                                  f"    int {var}_i0, {var}_i1; float {var}_f;",
+                                  f"    bakery_hybrid_levels(alpha, {var}_la, 5, int(u_words[2].y), {var}_i0, {var}_i1, {var}_f);"]
+                    else:
+                        lines += [f"    int {var}_i0, {var}_i1; float {var}_f;",
+                                  f"    bakery_splitsum_levels(alpha, 6, {var}_i0, {var}_i1, {var}_f);"]
+                    lines += [f"    float3 {var}_r = bakery_chain_direction(view, normal);",
                               f"    float3 {var}_c0 = {argument['lookup']}(u_faces, 6 * {var}_i0, {var}_r);",
                               f"    float3 {var}_c1 = bakery_cube_sample_bilinear(u_faces, u_linear_clamp, 6 * {var}_i1, {var}_r)"
                               f" + bakery_cube_sample_seamless(u_cube, u_linear_clamp, {var}_r);"]

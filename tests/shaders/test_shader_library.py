@@ -2,9 +2,12 @@
 
 The shipped examples (examples/indoor, examples/outdoor, examples/environments/city_512.hdr) are baked with every
 registered encoding, plus a store of non-default settings (the paper's Fresnel-tail SH exponentials, a fitted
-hallucination curve, quantized layouts without companding). For every (store, encoding) headless Chromium renders,
-with WebGL2 (SwiftShader where there is no GPU), the manifest's GLSL entry point into an RGBA32F target at 64
-normals (irradiance) or 96 (v, n, α, F0) rows (reflection); ``readPixels`` must match ``evaluate_irradiance`` /
+hallucination curve, quantized layouts without companding) and two ``shexp_hybrid`` stores whose probes need only
+part of the chain (first_level 2 of 5; the levels below are not uploaded) or none of it (first_level = L). For
+every (store, encoding) headless Chromium renders, with WebGL2 (SwiftShader where there is no GPU), the manifest's
+GLSL entry point into an RGBA32F target at 64 normals (irradiance) or 96 (v, n, α, F0) rows (reflection; 18 of
+them with n·v < 0, down to −0.999, which the shaders clamp to the horizon, and α from 0, below the SH exponentials'
+fitted ``alpha_range``, through the hybrid's blends, to 1); ``readPixels`` must match ``evaluate_irradiance`` /
 ``evaluate_reflection`` of the same stored values at the same float32-rounded inputs:
 
     irradiance                |GPU − Python| ≤ 2⁻¹⁹ · peak                 (16 float32 ulps of the probe's peak)
@@ -32,8 +35,8 @@ import pytest
 import bakery
 from bakery.encodings import ENCODINGS
 from bakery.shaders import SHADER_DIR, manifest
-from shader_pipeline import (build_jobs, chromium_binary, glslang_binary, hlsl_include_dir, hlsl_test_entry, run_jobs,
-                             validate)
+from shader_pipeline import (build_jobs, chromium_binary, glslang_binary, hlsl_include_dir, hlsl_test_entry,
+                             reflection_inputs, run_jobs, validate)
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 SOURCES = {
@@ -47,6 +50,12 @@ VARIANT_SETTINGS = {
     "zh3_hallucinated": {"curve": "fit"},
     "zh3_quantized": {"sqrt_companding": False},
     "sh3_quantized": {"sqrt_companding": False},
+}
+#: shexp_hybrid stores whose probes need part of the chain (first_level 2 of 5: levels 0–1 are not uploaded) or none
+#: (first_level = L: SH exponential + lights only), from the settings' material range (city map, no per-probe range).
+HYBRID_VARIANTS = {
+    "hybrid_glossy": (16, {"alpha_min": 0.3}),
+    "hybrid_rough": (8, {"alpha_min": 0.9}),
 }
 ULP_PEAK = 2.0**-19
 ULP_VALUE = 2.0**-16
@@ -67,6 +76,10 @@ def stores(tmp_path_factory):
     bakery.bake(SOURCES["outdoor"], folder / "variants.h5", encodings=tuple(settings), face_size=8, samples=1,
                 encoding_settings=settings)
     result["variants"] = bakery.open_store(folder / "variants.h5")
+    for label, (face_size, hybrid) in HYBRID_VARIANTS.items():
+        bakery.bake(SOURCES["city"], folder / f"{label}.h5", encodings=("shexp_hybrid",), face_size=face_size,
+                    samples=1, encoding_settings={"shexp_hybrid": hybrid})
+        result[label] = bakery.open_store(folder / f"{label}.h5")
     return result
 
 
@@ -103,14 +116,8 @@ def _errors(job, gpu: np.ndarray) -> tuple[float, float, bool]:
 
 
 #: Known gaps of the shader library, each an open item of issue 18 (strict xfail: a test that starts passing fails,
-#: so the entry must then be removed). The reflection encodings changed in issue 12 after the library was written:
-#: P·Q is evaluated at α clamped into the stored per-probe ``alpha_range`` and views below the horizon are clamped
-#: (schemas/store-reflection.md "Evaluation inputs"); the GLSL does neither yet. ``shexp_hybrid`` has no shader yet.
-PENDING = {
-    "shexp": "GLSL lacks the issue-12 α clamp into alpha_range and the horizon clamp",
-    "shexp_lights": "GLSL lacks the issue-12 α clamp into alpha_range and the horizon clamp",
-    "shexp_hybrid": "no GLSL/HLSL implementation of the hybrid yet",
-}
+#: so the entry must then be removed). None left.
+PENDING: dict[str, str] = {}
 
 
 def _pending(name: str):
@@ -134,6 +141,33 @@ def test_every_registered_encoding_has_a_shader_entry_point():
 def test_every_registered_encoding_is_baked_into_the_example_stores(stores):
     baked = {name for store in stores.values() for name in store.encodings}
     assert baked == set(ENCODINGS)
+
+
+def test_the_inputs_exercise_the_reflection_validity_rules(stores):
+    """The rows reach every rule of store-reflection.md the shaders must reproduce: views below the horizon, α = 0
+    and α below the SH exponentials' fitted range (clamped into ``alpha_range``), the hybrid's blend, and hybrid
+    probes with the whole chain, part of it (levels below first_level not uploaded) and none."""
+    from bakery.reflection import hybrid as hy
+
+    rows = reflection_inputs()
+    n_dot_v = np.sum(rows["view"] * rows["normal"], axis=1)
+    assert np.count_nonzero(n_dot_v < 0.0) >= 10 and n_dot_v.min() < -0.99
+    assert np.count_nonzero(rows["alpha"] == 0.0) >= 1
+    lowest = min(float(np.min(np.asarray(store.fields(name)["alpha_range"])[:, 0]))
+                 for store in stores.values() for name in ("shexp", "shexp_lights") if name in store.encodings)
+    assert np.count_nonzero(rows["alpha"] < lowest) >= 4
+    first_levels = set()
+    for store in stores.values():
+        if "shexp_hybrid" in store.encodings:
+            settings = store.encodings["shexp_hybrid"].settings
+            levels = len(settings["level_alphas"])
+            first_levels |= {"all" if k == 0 else "none" if k == levels else "part"
+                             for k in np.asarray(store.fields("shexp_hybrid")["first_level"]).reshape(-1)}
+            w0 = hy.chain_weight(rows["alpha"], settings["crossover"], settings["blend_octaves"])
+            w1 = hy.chain_weight(rows["alpha"], settings["tail_crossover"], settings["blend_octaves"])
+            assert np.count_nonzero((w0 > 0) & (w0 < 1)) >= 5 and np.count_nonzero((w1 > 0) & (w1 < 1)) >= 5
+            assert np.count_nonzero(w0 == 1.0) >= 5 and np.count_nonzero(w1 == 0.0) >= 5
+    assert first_levels == {"all", "part", "none"}
 
 
 # ------------------------------------------------------------------------------------------------------ WebGL2

@@ -18,8 +18,10 @@ from pxr import Sdf
 
 import bakery
 from bakery.encodings import ENCODINGS, Encoding, FieldSpec, NoParams, register
-from bakery.usd.layer import attribute_name, usd_type_for
-from bakery.usd.plugin import BAKED_API, PLUGIN_DIR, baked_field_attributes, update_schema_source
+from bakery.usd.layer import (BakedPrim, attribute_name, read_baked_values, runtime_settings, settings_attribute_name,
+                               usd_type_for, write_bake_layer)
+from bakery.usd.plugin import (BAKED_API, PLUGIN_DIR, baked_field_attributes, runtime_setting_attributes,
+                               update_schema_source)
 
 REPO = Path(__file__).resolve().parents[2]
 SCHEMA_SOURCE = REPO / "schemas" / "usd" / "schema.usda"
@@ -32,6 +34,31 @@ def baked(tmp_path_factory):
     folder = tmp_path_factory.mktemp("schema_bake")
     summary = bakery.bake(INDOOR, folder / "indoor.h5", encodings=tuple(ENCODINGS), face_size=8, samples=1)
     return Path(summary.layer), Path(summary.store)
+
+
+@pytest.fixture(scope="module")
+def settings_layer(baked, tmp_path_factory):
+    """The baked layer rewritten by :func:`write_bake_layer` with encoding settings: the same prims and arrays plus
+    every ``bakery:settings:<encoding>:<key>`` attribute, from the store's settings with a non-default curve and
+    companding (from a second bake) for ``zh3_hallucinated`` / ``zh3_quantized``."""
+    layer_path, store_path = baked
+    folder = tmp_path_factory.mktemp("settings_layer")
+    variant = folder / "variant.h5"
+    bakery.bake(INDOOR, variant, encodings=("zh3_hallucinated", "zh3_quantized"), face_size=8, samples=1,
+                encoding_settings={"zh3_hallucinated": {"curve": [0.5, 0.1]},
+                                   "zh3_quantized": {"sqrt_companding": False}})
+    settings = {name: info.settings for name, info in bakery.open_store(store_path).encodings.items()}
+    settings.update({name: info.settings for name, info in bakery.open_store(variant).encodings.items()})
+    layer = Sdf.Layer.OpenAsAnonymous(str(layer_path))
+    prims = []
+    for prim_path, values in read_baked_values(str(layer_path)).items():
+        spec = layer.GetPrimAtPath(prim_path)
+        prims.append(BakedPrim(prim_path, int(spec.attributes["bakery:baked:probeCount"].default),
+                               tuple(spec.attributes["bakery:baked:encodings"].default), values))
+    out = write_bake_layer(folder / "indoor.bake.usda", prims, store_path, "settings-test", INDOOR,
+                           up_axis=layer.pseudoRoot.GetInfo("upAxis"),
+                           meters_per_unit=layer.pseudoRoot.GetInfo("metersPerUnit"), encoding_settings=settings)
+    return out, settings
 
 
 def declared_attributes() -> dict[str, tuple[Sdf.ValueTypeName, str]]:
@@ -108,6 +135,56 @@ def test_baked_layer_attributes_agree_with_the_schema(baked):
     assert seen >= {n for n, c in ENCODINGS.items()}  # every encoding of the bake is in the layer
 
 
+def test_schema_declares_the_runtime_settings_the_shaders_take():
+    declared = declared_attributes()
+    from bakery.shaders import manifest
+
+    expected = {"zh3_hallucinated": {"curve"}, "zh3_hallucinated_solved": {"curve"},
+                "zh3_quantized": {"sqrt_companding"}, "sh3_quantized": {"sqrt_companding"},
+                "shexp": {"albedo_normalized"}, "splitsum": {"n_levels"},
+                "shexp_hybrid": {"level_alphas", "crossover", "tail_crossover", "blend_octaves"}}
+    assert {name: set(runtime_settings(name)) for name in ENCODINGS if runtime_settings(name)} == expected
+    for name, type_name, doc in runtime_setting_attributes():
+        assert name in declared and str(declared[name][0]) == type_name and name.split(":")[3] in doc, name
+    for encoding, spec in manifest()["encodings"].items():  # every setting a shader entry takes is declared
+        for entry in [spec, *spec.get("variants", ())]:
+            for argument in entry["arguments"]:
+                if "setting" in argument:
+                    assert settings_attribute_name(encoding, argument["setting"]) in declared, (encoding, argument)
+
+
+def test_layer_carries_the_runtime_settings(settings_layer):
+    path, settings = settings_layer
+    layer = Sdf.Layer.OpenAsAnonymous(str(path))
+    declared = declared_attributes()
+    found = {}
+
+    def visit(spec_path):
+        spec = layer.GetObjectAtPath(spec_path)
+        if isinstance(spec, Sdf.AttributeSpec) and spec.name.startswith("bakery:settings:"):
+            assert spec.name in declared and spec.typeName == declared[spec.name][0], spec.name
+            assert spec.variability == Sdf.VariabilityUniform, spec.name
+            found.setdefault(spec.name, []).append(spec.default)
+
+    layer.Traverse(Sdf.Path.absoluteRootPath, visit)
+    name = settings_attribute_name
+    assert {n for n, _, _ in runtime_setting_attributes()} == set(found)
+    for values in found.values():
+        assert all(v == values[0] for v in values)  # the same on every prim carrying the encoding
+    assert tuple(found[name("zh3_hallucinated", "curve")][0]) == pytest.approx((0.5, 0.1))
+    assert tuple(found[name("zh3_hallucinated_solved", "curve")][0]) == pytest.approx((0.6, 0.08))  # "paper"
+    assert found[name("zh3_quantized", "sqrt_companding")][0] is False
+    assert found[name("sh3_quantized", "sqrt_companding")][0] is True
+    assert found[name("shexp", "albedo_normalized")][0] is True
+    assert found[name("splitsum", "n_levels")][0] == settings["splitsum"]["n_levels"]
+    assert list(found[name("shexp_hybrid", "level_alphas")][0]) == pytest.approx(settings["shexp_hybrid"]["level_alphas"])
+    for key in ("crossover", "tail_crossover", "blend_octaves"):
+        assert found[name("shexp_hybrid", key)][0] == pytest.approx(settings["shexp_hybrid"][key])
+    # the arrays are untouched: read_baked_values (and the engine reader's 4-part filter) skip the settings
+    for prim, values in read_baked_values(str(path)).items():
+        assert not any(k.startswith("bakery:settings:") for k in values), prim
+
+
 # ------------------------------------------------------------------------------------------------ UsdValidation
 VALIDATE = r"""
 import json, sys
@@ -115,7 +192,7 @@ import bakery.usd  # registers bakery's schema plugin before OpenUSD builds its 
 from pxr import Sdf, Usd, UsdGeom, UsdValidation
 from bakery.usd.plugin import BAKED_API
 
-layer_path, scene_path, broken_path = sys.argv[1:4]
+layer_path, scene_path, broken_path, settings_path = sys.argv[1:5]
 definition = Usd.SchemaRegistry().FindAppliedAPIPrimDefinition(BAKED_API)
 validators = UsdValidation.ValidationRegistry().GetOrLoadAllValidators()
 
@@ -140,11 +217,13 @@ print(json.dumps({
     "layer": errors(Usd.Stage.Open(layer_path)),
     "composed": errors(shot(layer_path)),
     "broken": errors(shot(broken_path)),
+    "settings": errors(Usd.Stage.Open(settings_path)),
+    "settings composed": errors(shot(settings_path)),
 }))
 """
 
 
-def test_baked_layer_passes_usd_validation(baked, tmp_path):
+def test_baked_layer_passes_usd_validation(baked, settings_layer, tmp_path):
     layer_path, _ = baked
     # A negative control: the same layer with one baked attribute retyped must be reported (on the composed stage:
     # AttributeTypeMismatch checks defined prims, and the layer holds only overs).
@@ -159,13 +238,14 @@ def test_baked_layer_passes_usd_validation(baked, tmp_path):
     broken.Export(str(broken_path))
     # A fresh process: bakery's plugin is registered before the schema registry is first used.
     environment = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
-    result = subprocess.run([sys.executable, "-c", VALIDATE, str(layer_path), str(INDOOR), str(broken_path)],
+    result = subprocess.run([sys.executable, "-c", VALIDATE, str(layer_path), str(INDOOR), str(broken_path),
+                             str(settings_layer[0])],
                             capture_output=True, text=True, timeout=300, cwd=REPO, env=environment)
     assert result.returncode == 0, result.stderr
     report = json.loads(result.stdout.strip().splitlines()[-1])
     assert report["validators"] > 10
     assert {n for n, _, _ in baked_field_attributes()} <= set(report["declared"]), "the schema registry lacks them"
-    for stage in ("layer", "composed"):
+    for stage in ("layer", "composed", "settings", "settings composed"):
         errors = [e for e in report[stage] if e["type"] == "Error"]
         assert errors == [], f"{stage}: {json.dumps(errors, indent=1)}"
     mismatches = [e for e in report["broken"] if e["validator"] == "usdValidation:AttributeTypeMismatch"]
@@ -193,8 +273,9 @@ def _volume_order(names: list[str], prim: str) -> list[int]:
     return [index[key] for key in sorted(index)]
 
 
-def test_engine_reader_reproduces_evaluate_irradiance(baked, tmp_path):
-    layer_path, store_path = baked
+def _reader_irradiance_matches_the_store(layer_path: Path, store_path: Path, tmp_path: Path) -> set[str]:
+    """Run the engine reader (without bakery importable) on the layer; assert it reproduces
+    ``evaluate_irradiance`` of the store for every prim and encoding it reads; return those encodings."""
     normals = np.random.default_rng(4).normal(size=(40, 3))
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
     np.save(tmp_path / "normals.npy", normals)
@@ -214,5 +295,24 @@ def test_engine_reader_reproduces_evaluate_irradiance(baked, tmp_path):
         assert all(p in rows_of for p in probes)
         np.testing.assert_allclose(value, expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max(), err_msg=key)
         compared.add(encoding)
+    return compared
+
+
+def test_engine_reader_reproduces_evaluate_irradiance(baked, tmp_path):
+    compared = _reader_irradiance_matches_the_store(*baked, tmp_path)
     irradiance = {n for n, c in ENCODINGS.items() if c.kind == "irradiance"}
     assert compared == irradiance, f"the reader does not evaluate {irradiance - compared}"
+
+
+def test_engine_reader_follows_the_settings_a_bake_writes_into_its_layer(tmp_path):
+    """A real bake with a non-default hallucination curve and linear (not square-root) companding: its layer carries
+    ``bakery:settings:…`` and the reader, which reads them, still reproduces the store (it would not with the
+    defaults)."""
+    summary = bakery.bake(INDOOR, tmp_path / "variant.h5", encodings=("zh3_hallucinated", "zh3_quantized"),
+                          face_size=8, samples=1, encoding_settings={"zh3_hallucinated": {"curve": [0.5, 0.1]},
+                                                                      "zh3_quantized": {"sqrt_companding": False}})
+    text = Path(summary.layer).read_text()
+    assert "bakery:settings:zh3_hallucinated:curve = (0.5, 0.1)" in text
+    assert "bakery:settings:zh3_quantized:sqrt_companding = 0" in text
+    compared = _reader_irradiance_matches_the_store(Path(summary.layer), Path(summary.store), tmp_path)
+    assert compared >= {"zh3_hallucinated", "zh3_quantized"}  # (and what they depend on)

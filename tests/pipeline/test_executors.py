@@ -1,0 +1,47 @@
+"""Executors: worker processes start with one BLAS thread each (N workers on N cores must not oversubscribe them),
+and the parent's environment is left as it was; batches run longest-first without changing the store."""
+
+import os
+
+from bakery.pipeline.executors import WORKER_THREAD_ENVIRONMENT, ProcessExecutor, _single_threaded_children
+
+
+def _environment_of_worker() -> dict[str, str | None]:
+    import numpy as np  # noqa: F401 - BLAS is initialised at import, from this environment
+
+    return {k: os.environ.get(k) for k in WORKER_THREAD_ENVIRONMENT}
+
+
+def test_workers_start_single_threaded_and_the_parent_environment_is_restored(monkeypatch):
+    for key in WORKER_THREAD_ENVIRONMENT:
+        monkeypatch.delenv(key, raising=False)
+    monkeypatch.setenv("MKL_NUM_THREADS", "3")  # a user's own choice is kept
+    executor = ProcessExecutor(1)
+    pool = executor._new_pool()
+    try:
+        with _single_threaded_children():
+            future = pool.submit(_environment_of_worker)
+        seen = future.result(timeout=120)
+    finally:
+        pool.shutdown()
+    assert seen == {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "3"}
+    assert os.environ.get("OPENBLAS_NUM_THREADS") is None and os.environ.get("OMP_NUM_THREADS") is None
+    assert os.environ["MKL_NUM_THREADS"] == "3"
+
+
+def test_longest_first_order_does_not_change_the_store(tmp_path, monkeypatch):
+    """A scene with cheap irradiance and expensive reflection probes: the reflection batches are submitted first,
+    and the store is byte-identical to the serial bake's."""
+    import bakery
+    from usd_scenes import header, material, plane_mesh, probe, write
+
+    text = (header() + material("Grey", diffuse=(0.5, 0.5, 0.5)) + plane_mesh("Floor", 5.0, "/Grey")
+            + '\ndef DomeLight "Sky"\n{\n    float inputs:intensity = 1\n}\n'
+            + "".join(probe(f"I{i}", (0.5 * i, 1.0, 0.0)) for i in range(3))
+            + "".join(probe(f"R{i}", (0.5 * i, 2.0, 0.0), "BakeryReflectionProbe") for i in range(2)))
+    scene = write(tmp_path / "mixed.usda", text)
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "1700000000")  # the stores' timestamps
+    kw = dict(encodings=("sh3", "shexp"), face_size=8, samples=1, bounces=0, resume=False, batch_size=1)
+    bakery.bake(scene, tmp_path / "serial.h5", jobs=1, layer=tmp_path / "serial.bake.usda", **kw)
+    bakery.bake(scene, tmp_path / "pool.h5", jobs=2, layer=tmp_path / "pool.bake.usda", **kw)
+    assert (tmp_path / "serial.h5").read_bytes() == (tmp_path / "pool.h5").read_bytes()
