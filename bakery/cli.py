@@ -379,6 +379,22 @@ def bench_pareto(folder: Path, output: Path, quick: bool) -> None:
     out.print(format_pareto_table(run_pareto_bench(folder, output, quick=quick)))
 
 
+@bench.command("shexp")
+@click.argument("folder", required=False, type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("-o", "--output", type=click.Path(path_type=Path), default=Path("bench-results/shexp"), show_default=True)
+@click.option("--batch-size", type=click.IntRange(min=1), default=64, show_default=True)
+@click.option("--face-size", type=click.IntRange(min=8), default=128, show_default=True)
+@click.option("--repeats", type=click.IntRange(min=5), default=7, show_default=True)
+def bench_shexp(folder: Path | None, output: Path, batch_size: int, face_size: int, repeats: int) -> None:
+    """SH-exponential fit speed per probe: the fused fit against the step-by-step one, side by side (FOLDER: HDR
+    environments; default synthetic sky-and-sun captures)."""
+    from bakery.bench.shexp_fit import run_shexp_fit_bench
+
+    result = run_shexp_fit_bench(folder, batch_size=batch_size, face_size=face_size, repeats=repeats, echo=click.echo)
+    output.mkdir(parents=True, exist_ok=True)
+    (output / "shexp.json").write_text(json.dumps(result, indent=2, default=str))
+
+
 @bench.command("scale")
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=Path("bench-results/scale"), show_default=True)
 @click.option("--volume", default="25,16,25", show_default=True, help="Irradiance volume counts nx,ny,nz.")
@@ -413,13 +429,15 @@ def bench_scale(output: Path, volume: str, reflection: int, recipe: str, face_si
 @click.option("--bounces", type=click.IntRange(min=0), default=None, help="Default: the capture's default (64).")
 @click.option("--target-noise", type=float, default=0.0, show_default=True)
 @click.option("--probes", type=int, default=None, help="Render only the first N probes of each scene.")
+@click.option("--processes", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Render in this many worker processes (aggregate rays/s).")
 def bench_capture(scenes: tuple[Path, ...], output: Path, face_size: int, samples: int, bounces: int | None,
-                  target_noise: float, probes: int | None) -> None:
-    """Capture speed (rays/s, probes/s) and achieved SH noise of the examples (or SCENES), one process."""
+                  target_noise: float, probes: int | None, processes: int) -> None:
+    """Capture speed (rays/s, probes/s) and achieved SH noise of the examples (or SCENES)."""
     from bakery.bench.capture import run_capture_bench
 
     result = run_capture_bench(scenes, output, face_size=face_size, samples=samples, bounces=bounces,
-                               target_noise=target_noise, probes=probes)
+                               target_noise=target_noise, probes=probes, processes=processes)
     out.print_json(json.dumps(result))
 
 

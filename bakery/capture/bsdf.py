@@ -16,96 +16,147 @@ normal faces the incoming ray).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from bakery.brdf.ggx import ggx_distribution, smith_visibility_correlated
-from bakery.brdf.sampling import sample_ggx_vndf, vndf_pdf
-from bakery.conventions import LUMINANCE_WEIGHTS
-from bakery.sphere.sampling import orthonormal_frame
+from bakery.capture.vec import TINY, dot, frame, luminance, vmax
 
 MIN_ALPHA = 1e-3
+_INV_PI = 1.0 / math.pi
 
 
-def cosine_sample(normals: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """Cosine-distributed directions (M, 3) about unit normals (M, 3) (Malley's method)."""
-    r = np.sqrt(u[:, 0])
-    phi = 2.0 * np.pi * u[:, 1]
-    x, y = r * np.cos(phi), r * np.sin(phi)
-    z = np.sqrt(np.maximum(0.0, 1.0 - u[:, 0]))
-    t, s = orthonormal_frame(normals)
-    return x[:, None] * t + y[:, None] * s + z[:, None] * normals
+def _pow5(x: np.ndarray) -> np.ndarray:
+    x2 = x * x
+    return x2 * x2 * x
 
 
 class Bsdf:
-    """The BSDF at M shading points: normals n (M, 3) facing wo, outgoing directions wo (M, 3) (towards the viewer),
-    diffuse albedo (M, 3), F0 (M, 3) and roughness (M,)."""
+    """The BSDF at M shading points, structure-of-arrays (:mod:`bakery.capture.vec`): normals n (3, M) facing wo,
+    outgoing directions wo (3, M) (towards the viewer), diffuse albedo (3, M), F0 (3, M) and roughness (M,).
+
+    The GGX terms are those of :func:`bakery.brdf.ggx.ggx_distribution`, :func:`~bakery.brdf.ggx.
+    smith_visibility_correlated` and the VNDF of :mod:`bakery.brdf.sampling`, written out for (3, M) arrays: with
+    c = wo·wi, the half vector's cosines are v·h = √((1 + c)/2) and n·h = (n·wo + n·wi)/√(2 + 2c), and the
+    specular pdf of a reflected VNDF sample is G1(wo)·D(h)/(4 n·wo) (the v·h factors cancel), so evaluating needs
+    no tangent frame.
+    """
 
     def __init__(self, normals: np.ndarray, wo: np.ndarray, albedo: np.ndarray, f0: np.ndarray,
                  roughness: np.ndarray) -> None:
         self.n = normals
         self.wo = wo
-        self.roughness = np.asarray(roughness, dtype=np.float64)
-        self.albedo = albedo
         self.f0 = f0
-        self.f90 = np.minimum(1.0, 50.0 * (f0 @ LUMINANCE_WEIGHTS))[:, None]
-        self.alpha = np.maximum(np.asarray(roughness, dtype=np.float64) ** 2, MIN_ALPHA)
-        self.t, self.b = orthonormal_frame(normals)
-        self.nv = np.clip(np.einsum("ij,ij->i", normals, wo), 1e-6, 1.0)
-        self.specular = self.f90[:, 0] > 0
-        self.diffuse = albedo.max(axis=1) > 0
-        fv = self._fresnel(self.nv)
-        spec_w = fv @ LUMINANCE_WEIGHTS
-        diff_w = (albedo * (1.0 - fv)) @ LUMINANCE_WEIGHTS
-        total = spec_w + diff_w
-        ps = np.clip(np.where(total > 0, spec_w / np.where(total > 0, total, 1.0), 0.5), 0.05, 0.95)
-        self.p_spec = np.where(~self.specular, 0.0, np.where(~self.diffuse, 1.0, ps))
-
-    def take(self, index: np.ndarray) -> Bsdf:
-        """The BSDF at a subset of the points."""
-        return Bsdf(self.n[index], self.wo[index], self.albedo[index], self.f0[index], self.roughness[index])
+        self.albedo_pi = albedo * _INV_PI
+        self.f90 = np.minimum(1, 50 * luminance(f0))
+        alpha = np.maximum(roughness * roughness, MIN_ALPHA)
+        self.alpha = alpha
+        self.a2 = alpha * alpha
+        self.nv_raw = dot(normals, wo)
+        nv = np.clip(self.nv_raw, 1e-6, 1)
+        self.nv = nv
+        specular = self.f90 > 0
+        diffuse = vmax(albedo) > 0
+        self.any_specular = bool(specular.any())
+        #: whether some lobe is sharp enough (α < 0.03) for float32 cancellation in D's denominator to matter
+        self.sharp = self.any_specular and bool((alpha[specular] < 0.03).any())
+        fv = self._fresnel(nv)
+        spec_w = luminance(fv)
+        total = spec_w + luminance(albedo * (1 - fv))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ps = np.clip(np.where(total > 0, spec_w / total, 0.5), 0.05, 0.95)
+        self.p_spec = np.where(specular, np.where(diffuse, ps, 1), 0).astype(nv.dtype, copy=False)
+        if self.any_specular:
+            a2 = self.a2
+            self.sqv = np.sqrt(nv * nv * (1 - a2) + a2)  # the n·v half of the correlated Smith visibility
+            tan2 = (1 - nv * nv) / (nv * nv)
+            g1v = 1 / (1 + 0.5 * (np.sqrt(1 + a2 * tan2) - 1))  # Smith G1(wo)
+            self.spec_pdf_scale = self.p_spec * g1v / (4 * nv)
 
     def _fresnel(self, c: np.ndarray) -> np.ndarray:
-        return self.f0 + (self.f90 - self.f0) * ((1.0 - np.clip(c, 0.0, 1.0)) ** 5)[:, None]
-
-    def _local(self, w: np.ndarray, index: np.ndarray | slice = slice(None)) -> np.ndarray:
-        return np.stack([np.einsum("ij,ij->i", w, self.t[index]), np.einsum("ij,ij->i", w, self.b[index]),
-                         np.einsum("ij,ij->i", w, self.n[index])], axis=-1)
+        return self.f0 + (self.f90 - self.f0) * _pow5(1 - np.clip(c, 0, 1))
 
     def evaluate(self, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """f·cos θi (M, 3) and the sampling pdf (M,) (solid angle) for directions wi (M, 3)."""
-        nl = np.einsum("ij,ij->i", self.n, wi)
-        above = nl > 0
-        nlc = np.maximum(nl, 0.0)
-        h = self.wo + wi
-        h /= np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
-        vh = np.clip(np.einsum("ij,ij->i", self.wo, h), 0.0, 1.0)
-        nh = np.einsum("ij,ij->i", self.n, h)
-        f = self._fresnel(vh)
-        value = self.albedo / np.pi * (1.0 - f) * nlc[:, None]
-        pdf = (1.0 - self.p_spec) * nlc / np.pi
-        if self.specular.any():
-            d = ggx_distribution(nh, self.alpha)
-            vis = smith_visibility_correlated(self.nv, nlc, self.alpha)
-            value = value + f * (d * vis * nlc)[:, None]
-            v_local = self._local(self.wo)
-            h_local = self._local(h)
-            pdf_h = vndf_pdf(v_local, h_local, self.alpha)
-            pdf = pdf + self.p_spec * pdf_h / np.maximum(4.0 * vh, 1e-12)
-        value = np.where(above[:, None], value, 0.0)
-        return value, np.where(above, pdf, 0.0)
+        """f·cos θi (3, ..., M) and the sampling pdf (..., M) (solid angle) for directions wi (3, M) or (3, J, M)
+        (J directions per point)."""
+        e = (lambda a: a[..., None, :]) if wi.ndim == 3 else (lambda a: a)
+        n, wo = e(self.n), e(self.wo)
+        nl = dot(n, wi)
+        above = (nl > 0).astype(wi.dtype)
+        nlc = np.maximum(nl, 0)
+        c = dot(wo, wi)
+        inv_h = 1 / np.sqrt(np.maximum(2 + 2 * c, TINY))
+        vh = np.clip((1 + c) * inv_h, 0, 1)
+        f0 = e(self.f0)
+        f = f0 + (e(self.f90) - f0) * _pow5(1 - vh)
+        value = e(self.albedo_pi) * (1 - f) * nlc
+        pdf = (1 - e(self.p_spec)) * _INV_PI * nlc
+        if self.any_specular:
+            a2 = e(self.a2)
+            nh = (e(self.nv_raw) + nl) * inv_h
+            if self.sharp:  # 1 − (n·h)² cancels in float32 near the peak of a sharp lobe: |n × h|² instead
+                h = wo + wi
+                cx = n[1] * h[2] - n[2] * h[1]
+                cy = n[2] * h[0] - n[0] * h[2]
+                cz = n[0] * h[1] - n[1] * h[0]
+                den = (cx * cx + cy * cy + cz * cz) * (inv_h * inv_h) + nh * nh * a2
+            else:
+                den = nh * nh * (a2 - 1) + 1
+            d = (nh > 0) * a2 / (math.pi * den * den)
+            vis = 0.5 / np.maximum(nlc * e(self.sqv) + e(self.nv) * np.sqrt(nlc * nlc * (1 - a2) + a2), TINY)
+            value = value + f * (d * vis * nlc)
+            pdf = pdf + e(self.spec_pdf_scale) * d
+        return value * above, pdf * above
 
-    def sample(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Directions wi (M, 3), weights f·cos/pdf (M, 3) and pdfs (M,) from uniform numbers u (M, 3)."""
-        m = self.n.shape[0]
-        use_spec = u[:, 2] < self.p_spec
-        wi = cosine_sample(self.n, u[:, :2])
-        if use_spec.any():
-            idx = np.flatnonzero(use_spec)
-            v_local = self._local(self.wo[idx], idx)
-            h_local = sample_ggx_vndf(v_local, u[idx, 0], u[idx, 1], self.alpha[idx])
-            h = (h_local[:, 0:1] * self.t[idx] + h_local[:, 1:2] * self.b[idx] + h_local[:, 2:3] * self.n[idx])
-            wi[idx] = 2.0 * np.einsum("ij,ij->i", self.wo[idx], h)[:, None] * h - self.wo[idx]
+    def sample(self, u0: np.ndarray, u1: np.ndarray, u2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Directions wi (3, M), weights f·cos/pdf (3, M) and pdfs (M,) from uniform numbers u0, u1, u2 (M,)."""
+        t, b = frame(self.n)
+        r = np.sqrt(u0)
+        phi = (2 * math.pi) * u1
+        x, y = r * np.cos(phi), r * np.sin(phi)
+        z = np.sqrt(np.maximum(0, 1 - u0))
+        wi = x * t + y * b + z * self.n  # cosine-distributed (Malley)
+        if self.any_specular:
+            idx = np.flatnonzero(u2 < self.p_spec)
+            if idx.size:
+                tk, bk, nk = (np.take(a, idx, axis=1) for a in (t, b, self.n))
+                wo = np.take(self.wo, idx, axis=1)
+                h = _sample_vndf(dot(wo, tk), dot(wo, bk), dot(wo, nk), np.take(u0, idx), np.take(u1, idx),
+                                 np.take(self.alpha, idx))
+                h = h[0] * tk + h[1] * bk + h[2] * nk
+                wi[:, idx] = 2 * dot(wo, h) * h - wo
         value, pdf = self.evaluate(wi)
         ok = pdf > 0
-        weight = np.where(ok[:, None], value / np.where(ok, pdf, 1.0)[:, None], 0.0)
-        return wi, weight, np.where(ok, pdf, 0.0) if m else pdf
+        with np.errstate(divide="ignore", invalid="ignore"):
+            weight = np.where(ok, value / np.where(ok, pdf, 1), 0)
+        return wi, weight, pdf
+
+
+def _sample_vndf(vx: np.ndarray, vy: np.ndarray, vz: np.ndarray, u1: np.ndarray, u2: np.ndarray,
+                 alpha: np.ndarray) -> np.ndarray:
+    """h (3, M) ~ D_v(h), the visible normals seen from local v (v_z > 0), isotropic α ([Hei18] Listing 1, as
+    :func:`bakery.brdf.sampling.sample_ggx_vndf`)."""
+    hx, hy, hz = alpha * vx, alpha * vy, vz
+    inv = 1 / np.sqrt(hx * hx + hy * hy + hz * hz)
+    hx, hy, hz = hx * inv, hy * inv, hz * inv
+    lensq = hx * hx + hy * hy
+    positive = lensq > 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        il = np.where(positive, 1 / np.sqrt(lensq), 0)
+    t1x = np.where(positive, -hy * il, 1)
+    t1y = hx * il
+    # t2 = vh × t1 (t1_z = 0)
+    t2x, t2y, t2z = -hz * t1y, hz * t1x, hx * t1y - hy * t1x
+    r = np.sqrt(u1)
+    phi = (2 * math.pi) * u2
+    p1 = r * np.cos(phi)
+    p2 = r * np.sin(phi)
+    s = 0.5 * (1 + hz)
+    p2 = (1 - s) * np.sqrt(np.maximum(0, 1 - p1 * p1)) + s * p2
+    p3 = np.sqrt(np.maximum(0, 1 - p1 * p1 - p2 * p2))
+    nx = p1 * t1x + p2 * t2x + p3 * hx
+    ny = p1 * t1y + p2 * t2y + p3 * hy
+    nz = p2 * t2z + p3 * hz
+    ex, ey, ez = alpha * nx, alpha * ny, np.maximum(1e-12, nz)
+    inv = 1 / np.sqrt(ex * ex + ey * ey + ez * ez)
+    return np.stack([ex * inv, ey * inv, ez * inv])

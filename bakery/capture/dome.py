@@ -112,6 +112,8 @@ class DomeSampler:
         self.constant = dome is None or dome.pixels is None
         self.scale = np.zeros(3) if dome is None else np.asarray(dome.scale, dtype=np.float64)
         self.rotation = np.eye(3) if dome is None else np.asarray(dome.rotation, dtype=np.float64)
+        self._rot = tuple(tuple(float(x) for x in row) for row in self.rotation)
+        self._identity = bool(np.array_equal(self.rotation, np.eye(3)))
         self.has_sun = False
         self._filtered: dict[int, np.ndarray] = {}
         self._sun_points: dict[int, tuple[np.ndarray, np.ndarray]] = {}
@@ -152,7 +154,13 @@ class DomeSampler:
         sun_weight = np.zeros_like(weight)
         sun_weight[self.sun_index] = weight[self.sun_index]
         self.sun_distribution = _Distribution(sun_weight)
+        # the same distribution over the sun texels alone (a short CDF to search; zero weights add nothing)
+        self._sun_compact = _Distribution(weight[self.sun_index]) if self.has_sun else None
         self.sun_flux = (self.texels[self.sun_index] * self.omega[self.sun_index, None]).sum(axis=0)
+        # channel-major copies for the (3, M) lookups
+        self._rest_t = np.ascontiguousarray(self.rest.T, dtype=np.float32)
+        self._texels_t = np.ascontiguousarray(self.texels.T, dtype=np.float32)
+        self._sun_t = np.ascontiguousarray((self.texels - self.rest).T, dtype=np.float32)
 
     # ------------------------------------------------------------------------------------------------------------
     def _local(self, directions: np.ndarray) -> np.ndarray:
@@ -242,6 +250,106 @@ class DomeSampler:
         local, density = self._texel_points(k, u[:, 1], u[:, 2])
         pdf = self.sun_distribution.probability[k] / np.maximum(density, 1e-300)
         return local @ self.rotation.T, self.texels[k], pdf
+
+    # -- (3, M) float32 lookups and samplers of the renderer (bakery.capture.vec) ---------------------------------
+    def _local_soa(self, d: np.ndarray) -> np.ndarray:
+        if self._identity:
+            return d
+        r = self._rot
+        return np.stack([r[0][i] * d[0] + r[1][i] * d[1] + r[2][i] * d[2] for i in range(3)])  # Rᵀω
+
+    def _world_soa(self, d: np.ndarray) -> np.ndarray:
+        if self._identity:
+            return d
+        r = self._rot
+        return np.stack([r[i][0] * d[0] + r[i][1] * d[1] + r[i][2] * d[2] for i in range(3)])  # Rω
+
+    def _texel_index_soa(self, d: np.ndarray, density: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+        """Flat texel index (and density dΩ/dA if asked) at bake-frame directions (3, M)."""
+        local = self._local_soa(d)
+        if self.layout != "equirect":
+            index, dens = self._texel_index(np.ascontiguousarray(local.T, dtype=np.float64))
+            return index, dens.astype(d.dtype) if density else None
+        x, y, z = local[0], local[1], local[2]
+        norm = np.sqrt(x * x + y * y + z * z)
+        latitude = np.arcsin(np.clip(y / np.maximum(norm, 1e-30), -1, 1))
+        longitude = np.arctan2(x, z)
+        rows = (0.5 - latitude * (1.0 / np.pi)) * self.height
+        cols = (0.5 - longitude * (0.5 / np.pi)) * self.width
+        r = np.clip(rows.astype(np.int64), 0, self.height - 1)
+        c = np.mod(np.floor(cols).astype(np.int64), self.width)
+        dens = np.cos(latitude) * ((np.pi / self.height) * (2.0 * np.pi / self.width)) if density else None
+        return r * self.width + c, dens
+
+    def _texel_points_soa(self, k: np.ndarray, fr: np.ndarray, fc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Bake-frame directions (3, M) and density dΩ/dA (M,) of points (fr, fc) ∈ [0, 1)² inside flat texels k."""
+        if self.layout != "equirect":
+            local, density = self._texel_points(k, fr.astype(np.float64), fc.astype(np.float64))
+            return self._world_soa(np.ascontiguousarray(local.T, dtype=fr.dtype)), density.astype(fr.dtype)
+        row, col = k // self.width, k % self.width
+        latitude = (0.5 - (row + fr) * (1.0 / self.height)) * np.pi
+        longitude = (1.0 - (col + fc) * (2.0 / self.width)) * np.pi
+        c = np.cos(latitude)
+        local = np.stack([c * np.sin(longitude), np.sin(latitude), c * np.cos(longitude)]).astype(fr.dtype, copy=False)
+        density = (c * ((np.pi / self.height) * (2.0 * np.pi / self.width))).astype(fr.dtype, copy=False)
+        return self._world_soa(local), density
+
+    def _channels(self, table: np.ndarray, index: np.ndarray, dtype) -> np.ndarray:  # noqa: ANN001
+        return np.stack([np.take(table[c], index) for c in range(3)]).astype(dtype, copy=False)
+
+    def rest_radiance_soa(self, d: np.ndarray) -> np.ndarray:
+        """:meth:`rest_radiance` of directions (3, M): (3, M)."""
+        if self.constant:
+            return np.broadcast_to(self.scale.astype(d.dtype)[:, None], d.shape).copy()
+        index, _ = self._texel_index_soa(d)
+        return self._channels(self._rest_t, index, d.dtype)
+
+    def rest_lookup_soa(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rest radiance (3, M) and :meth:`rest_pdf` (M,) of directions (3, M) with one texel lookup."""
+        if self.constant:
+            return (np.broadcast_to(self.scale.astype(d.dtype)[:, None], d.shape).copy(),
+                    np.full(d.shape[1], 1.0 / (4.0 * np.pi), dtype=d.dtype))
+        index, density = self._texel_index_soa(d, density=True)
+        pdf = np.take(self.rest_distribution.probability, index) / np.maximum(density, 1e-30)
+        return self._channels(self._rest_t, index, d.dtype), pdf.astype(d.dtype, copy=False)
+
+    def sun_lookup_soa(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Sun radiance (3, M) and :meth:`sun_pdf` (M,) of directions (3, M)."""
+        if not self.has_sun:
+            return np.zeros(d.shape, dtype=d.dtype), np.zeros(d.shape[1], dtype=d.dtype)
+        index, density = self._texel_index_soa(d, density=True)
+        pdf = np.take(self.sun_distribution.probability, index) / np.maximum(density, 1e-30)
+        return self._channels(self._sun_t, index, d.dtype), pdf.astype(d.dtype, copy=False)
+
+    def sample_rest_soa(self, u0: np.ndarray, u1: np.ndarray, u2: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`sample_rest` with (3, M) outputs; u0 (the texel choice) should be float64."""
+        dtype = u1.dtype
+        m = u1.shape[0]
+        if self.constant:
+            z = 1 - 2 * u0.astype(dtype)
+            r = np.sqrt(np.maximum(0, 1 - z * z))
+            phi = (2.0 * np.pi) * u1
+            d = np.stack([r * np.cos(phi), r * np.sin(phi), z])
+            return (d, np.broadcast_to(self.scale.astype(dtype)[:, None], d.shape).copy(),
+                    np.full(m, 1.0 / (4.0 * np.pi), dtype=dtype))
+        if self.rest_distribution.empty:
+            d = np.zeros((3, m), dtype=dtype)
+            d[1] = 1
+            return d, np.zeros((3, m), dtype=dtype), np.zeros(m, dtype=dtype)
+        k = self.rest_distribution.sample(u0)
+        d, density = self._texel_points_soa(k, u1, u2)
+        pdf = np.take(self.rest_distribution.probability, k) / np.maximum(density, 1e-30)
+        return d, self._channels(self._rest_t, k, dtype), pdf.astype(dtype, copy=False)
+
+    def sample_sun_soa(self, u0: np.ndarray, u1: np.ndarray, u2: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`sample_sun` with (3, M) outputs; u0 should be float64."""
+        dtype = u1.dtype
+        k = self.sun_index[self._sun_compact.sample(u0)]
+        d, density = self._texel_points_soa(k, u1, u2)
+        pdf = np.take(self.sun_distribution.probability, k) / np.maximum(density, 1e-30)
+        return d, self._channels(self._texels_t, k, dtype), pdf.astype(dtype, copy=False)
 
     # ------------------------------------------------------------------------------------------------------------
     def filtered_cube(self, face_size: int) -> np.ndarray:

@@ -34,8 +34,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from bakery.capture import vec
 from bakery.capture.scene import FAR, Light
-from bakery.sphere.sampling import orthonormal_frame
+from bakery.capture.vec import TINY, dot, dotc
 
 #: Relative shortening of shadow segments so the sampled light point itself does not occlude.
 SHADOW_EPSILON = 1e-4
@@ -43,12 +44,9 @@ SHADOW_EPSILON = 1e-4
 
 def sample_cone(axis: np.ndarray, one_minus_cos_max: np.ndarray, u: np.ndarray) -> np.ndarray:
     """Uniform directions (M, 3) in cones around unit axes (M, 3) with 1 − cos θmax (M,); u (M, 2)."""
-    one_minus_cos = u[:, 0] * one_minus_cos_max
-    cos_t = 1.0 - one_minus_cos
-    sin_t = np.sqrt(np.maximum(0.0, one_minus_cos * (2.0 - one_minus_cos)))
-    phi = 2.0 * np.pi * u[:, 1]
-    t, s = orthonormal_frame(axis)
-    return (sin_t * np.cos(phi))[:, None] * t + (sin_t * np.sin(phi))[:, None] * s + cos_t[:, None] * axis
+    u = np.asarray(u, dtype=np.float64)
+    return np.ascontiguousarray(vec.cone(np.asarray(axis, dtype=np.float64).T, one_minus_cos_max, u[:, 0],
+                                         u[:, 1]).T)
 
 
 @dataclass(frozen=True)
@@ -81,13 +79,19 @@ class LightSample:
 
 def _smoothstep(t: np.ndarray, lo: float, hi: float) -> np.ndarray:
     if hi - lo <= 0:
-        return np.where(t <= lo, 0.0, 1.0)
-    x = np.clip((t - lo) / (hi - lo), 0.0, 1.0)
-    return x * x * (3.0 - 2.0 * x)
+        return (t > lo).astype(t.dtype)
+    x = np.clip((t - lo) / (hi - lo), 0, 1)
+    return x * x * (3 - 2 * x)
 
 
 class LightModel:
-    """Interface of one light kind (module docstring). Instances wrap one :class:`Light`."""
+    """Interface of one light kind (module docstring). Instances wrap one :class:`Light`.
+
+    Rendering methods come in two layouts: the ``*_soa`` methods used by the renderer take and return
+    structure-of-arrays vectors (3, M) of any float dtype (float32 in the renderer, see :mod:`bakery.capture.vec`);
+    :meth:`sample`, :meth:`pdf`, :meth:`intersect`, :meth:`emitted` and :meth:`occludes` are the same with (M, 3)
+    arrays. Subclasses implement the ``*_soa`` methods.
+    """
 
     kind: ClassVar[str] = ""
     usd_types: ClassVar[tuple[str, ...]] = ()
@@ -104,6 +108,17 @@ class LightModel:
         self.texture = None
         if light.texture >= 0 and light.texture < len(textures):
             self.texture = np.asarray(textures[light.texture].pixels, dtype=np.float64)[..., :3]
+        # constants as Python floats (keep float32 arrays float32) and (3, 1) columns per dtype
+        self.x_axis, self.y_axis, self.z_axis = (vec.const(a) for a in self.axes)
+        self.c = vec.const(self.centre)
+        self._columns: dict[Any, tuple[np.ndarray, np.ndarray]] = {}
+
+    def _cols(self, dtype) -> tuple[np.ndarray, np.ndarray]:  # noqa: ANN001
+        """(centre, colour) as (3, 1) columns of ``dtype``."""
+        key = np.dtype(dtype)
+        if key not in self._columns:
+            self._columns[key] = (vec.column(self.c, key), vec.column(vec.const(self.colour), key))
+        return self._columns[key]
 
     # -- reading (called by bakery.usd.scene with plain values) ----------------------------------------------------
     @classmethod
@@ -112,50 +127,81 @@ class LightModel:
         """The :class:`Light` for a prim of this kind, and messages about what was approximated."""
         raise NotImplementedError
 
-    # -- rendering ------------------------------------------------------------------------------------------------
-    def sample(self, points: np.ndarray, u: np.ndarray) -> LightSample:
+    # -- rendering, (3, M) ----------------------------------------------------------------------------------------
+    def sample_soa(self, points: np.ndarray, u0: np.ndarray, u1: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Next-event samples from points (3, M) with uniform numbers u0, u1 (M,): direction to the light (3, M),
+        shadow distance (M,), radiance arriving along it (3, M), solid-angle pdf (M,) (∞ for delta lights, 0 where
+        invalid)."""
         raise NotImplementedError
+
+    def pdf_soa(self, points: np.ndarray, wi: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Solid-angle pdf (M,) of :meth:`sample_soa` from points (3, M) for directions wi that reach the light
+        at t."""
+        raise NotImplementedError
+
+    def intersect_soa(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Nearest intersection t (M,) (FAR if none) of rays (3, M) with the light's surface, and its local (a, b)
+        surface coordinates (2, M) (for textures; None if the light has none). Distant lights have no surface."""
+        return np.full(origins.shape[1], FAR, dtype=origins.dtype), None
+
+    def emitted_soa(self, wi: np.ndarray, coords: np.ndarray | None, facing: np.ndarray) -> np.ndarray:
+        """Radiance (3, M) arriving along wi (3, M) (receiver → light) from surface points with local coordinates
+        ``coords`` (2, M); ``facing`` (M,) whether the surface emits towards the receiver there."""
+        _centre, colour = self._cols(wi.dtype)
+        scale = facing.astype(wi.dtype)
+        shaping = self.light.shaping
+        if shaping:
+            cone, softness, focus = float(shaping[0]), float(shaping[1]), float(shaping[2])
+            c = np.clip(dotc(self.z_axis, wi), -1, 1)  # emission direction (−wi) against the light's −Z
+            if cone < 180.0:
+                cone_r = math.radians(cone)
+                scale = scale * (1 - _smoothstep(np.arccos(c), (1.0 - softness) * cone_r, cone_r))
+            radiance = colour * scale
+            if focus > 0:
+                tint = vec.column(vec.const(shaping[3:6]), wi.dtype)
+                ff = np.abs(c) ** focus
+                radiance = radiance * ((1 - ff) * tint + ff)
+        else:
+            radiance = colour * scale
+        if self.texture is not None and coords is not None:
+            radiance = radiance * self._texel(coords)
+        return radiance
+
+    def _texel(self, coords: np.ndarray) -> np.ndarray:
+        return np.ones((3, coords.shape[1]), dtype=coords.dtype)
+
+    def occludes_soa(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray) -> np.ndarray:
+        """Whether the light's surface blocks the segments origin + t·direction, 0 < t < distance (M,)."""
+        if not self.visible:
+            return np.zeros(origins.shape[1], dtype=bool)
+        t, _ = self.intersect_soa(origins, directions)
+        return t < distances
+
+    # -- rendering, (M, 3) ----------------------------------------------------------------------------------------
+    def sample(self, points: np.ndarray, u: np.ndarray) -> LightSample:
+        u = np.asarray(u, dtype=np.float64)
+        wi, dist, radiance, pdf = self.sample_soa(_soa(points), u[:, 0], u[:, 1])
+        return LightSample(_aos(wi), dist, _aos(radiance), pdf)
 
     def pdf(self, points: np.ndarray, wi: np.ndarray, t: np.ndarray) -> np.ndarray:
         """Solid-angle pdf (M,) of :meth:`sample` from ``points`` for directions wi that reach the light at t."""
-        raise NotImplementedError
+        return self.pdf_soa(_soa(points), _soa(wi), None if t is None else np.asarray(t, dtype=np.float64))
 
     def intersect(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Nearest intersection t (M,) (FAR if none) of rays with the light's surface and its local (a, b) surface
         coordinates (M, 2) (for textures). Distant lights have no surface."""
-        m = origins.shape[0]
-        return np.full(m, FAR), np.zeros((m, 2))
+        t, coords = self.intersect_soa(_soa(origins), _soa(directions))
+        return t, np.zeros((t.size, 2)) if coords is None else _aos(coords)
 
     def emitted(self, wi: np.ndarray, coords: np.ndarray, facing: np.ndarray) -> np.ndarray:
         """Radiance (M, 3) arriving along wi (receiver → light) from surface points with local coordinates
         ``coords``; ``facing`` (M,) whether the surface emits towards the receiver there."""
-        m = wi.shape[0]
-        radiance = np.broadcast_to(self.colour, (m, 3)).copy()
-        if self.texture is not None:
-            radiance *= self._texel(coords)
-        shaping = self.light.shaping
-        if shaping:
-            cone, softness, focus = shaping[0], shaping[1], shaping[2]
-            tint = np.asarray(shaping[3:6], dtype=np.float64)
-            c = np.clip(wi @ self.axes[2], -1.0, 1.0)  # emission direction (−wi) against the light's −Z
-            if focus > 0:
-                ff = np.abs(c) ** focus
-                radiance *= (1.0 - ff)[:, None] * tint + ff[:, None]
-            if cone < 180.0:
-                theta = np.arccos(c)
-                cone_r = math.radians(cone)
-                radiance *= (1.0 - _smoothstep(theta, (1.0 - softness) * cone_r, cone_r))[:, None]
-        return np.where(facing[:, None], radiance, 0.0)
-
-    def _texel(self, coords: np.ndarray) -> np.ndarray:
-        return np.ones((coords.shape[0], 3))
+        return _aos(self.emitted_soa(_soa(wi), _soa(coords), np.asarray(facing, dtype=bool)))
 
     def occludes(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray) -> np.ndarray:
         """Whether the light's surface blocks the segments origin + t·direction, 0 < t < distance."""
-        if not self.visible:
-            return np.zeros(origins.shape[0], dtype=bool)
-        t, _ = self.intersect(origins, directions)
-        return t < distances
+        return self.occludes_soa(_soa(origins), _soa(directions), np.asarray(distances, dtype=np.float64))
 
     # -- incremental bakes ----------------------------------------------------------------------------------------
     @property
@@ -166,6 +212,15 @@ class LightModel:
         """(centre, bounding radius, largest radiance channel × emitting area) (the dependency bound's inputs)."""
         return tuple(float(c) for c in self.centre), float(self.bounding_radius), float(
             np.max(self.colour) * self.light.area)
+
+
+def _soa(a: np.ndarray) -> np.ndarray:
+    """(M, k) → (k, M) float64 (the (M, 3) wrappers compute in float64)."""
+    return np.ascontiguousarray(np.asarray(a, dtype=np.float64).T)
+
+
+def _aos(a: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(a.T)
 
 
 LIGHT_MODELS: dict[str, type[LightModel]] = {}
@@ -226,31 +281,37 @@ class DistantLightModel(LightModel):
     def delta(self) -> bool:
         return self.alpha <= 0
 
-    def sample(self, points, u):  # noqa: ANN001, ANN201
-        m = points.shape[0]
-        axis = np.broadcast_to(self.direction, (m, 3))
+    def sample_soa(self, points, u0, u1):  # noqa: ANN001, ANN201
+        m, dtype = points.shape[1], points.dtype
+        axis = np.broadcast_to(np.asarray(self.direction, dtype=dtype)[:, None], (3, m))
         if self.delta:
-            return LightSample(np.array(axis), np.full(m, FAR), np.broadcast_to(self.illuminance, (m, 3)).copy(),
-                               np.full(m, np.inf))
-        wi = sample_cone(axis, np.full(m, self.one_minus_cos), u)
-        pdf = np.full(m, 1.0 / (2.0 * np.pi * self.one_minus_cos))
-        return LightSample(wi, np.full(m, FAR), np.broadcast_to(self.disc_radiance, (m, 3)).copy(), pdf)
+            return (np.array(axis), np.full(m, FAR, dtype=dtype),
+                    np.broadcast_to(np.asarray(self.illuminance, dtype=dtype)[:, None], (3, m)).copy(),
+                    np.full(m, np.inf, dtype=dtype))
+        wi = vec.cone(axis, self.one_minus_cos, u0, u1)
+        pdf = np.full(m, 1.0 / (2.0 * np.pi * self.one_minus_cos), dtype=dtype)
+        return (wi, np.full(m, FAR, dtype=dtype),
+                np.broadcast_to(np.asarray(self.disc_radiance, dtype=dtype)[:, None], (3, m)).copy(), pdf)
 
-    def pdf(self, points, wi, t):  # noqa: ANN001, ANN201
+    def pdf_soa(self, points, wi, t):  # noqa: ANN001, ANN201
         if self.delta:
-            return np.zeros(wi.shape[0])
-        inside = wi @ self.direction >= math.cos(self.alpha)
-        return np.where(inside, 1.0 / (2.0 * np.pi * self.one_minus_cos), 0.0)
+            return np.zeros(wi.shape[1], dtype=wi.dtype)
+        inside = dotc(vec.const(self.direction), wi) >= math.cos(self.alpha)
+        return inside.astype(wi.dtype) * (1.0 / (2.0 * np.pi * self.one_minus_cos))
+
+    def escaped_soa(self, directions: np.ndarray) -> np.ndarray:
+        """Radiance (3, M) seen by rays escaping the scene along ``directions`` (3, M) (inside the disc)."""
+        if self.delta:
+            return np.zeros(directions.shape, dtype=directions.dtype)
+        inside = dotc(vec.const(self.direction), directions) >= math.cos(self.alpha)
+        return np.asarray(self.disc_radiance, dtype=directions.dtype)[:, None] * inside.astype(directions.dtype)
 
     def escaped(self, directions: np.ndarray) -> np.ndarray:
         """Radiance (M, 3) seen by rays escaping the scene along ``directions`` (inside the disc)."""
-        if self.delta:
-            return np.zeros((directions.shape[0], 3))
-        inside = directions @ self.direction >= math.cos(self.alpha)
-        return np.where(inside[:, None], self.disc_radiance, 0.0)
+        return _aos(self.escaped_soa(_soa(directions)))
 
-    def occludes(self, origins, directions, distances):  # noqa: ANN001, ANN201
-        return np.zeros(origins.shape[0], dtype=bool)
+    def occludes_soa(self, origins, directions, distances):  # noqa: ANN001, ANN201
+        return np.zeros(origins.shape[1], dtype=bool)
 
     def bound(self):  # noqa: ANN201
         return (0.0, 0.0, 0.0), math.inf, float(np.max(self.illuminance))
@@ -290,85 +351,98 @@ class SphereLightModel(LightModel):
         return self.radius
 
     def _cone(self, points: np.ndarray):  # noqa: ANN202
+        """Points (3, M) → (vector to the centre (3, M), squared distance, outside, 1 − cos θmax)."""
         r = self.radius
-        to_c = self.centre - points
-        d2 = np.einsum("ij,ij->i", to_c, to_c)
-        d = np.sqrt(d2)
-        outside = d > r * (1.0 + 1e-9)
-        sin2 = np.where(outside, r * r / np.maximum(d2, 1e-300), 1.0)
-        cos_max = np.sqrt(np.maximum(0.0, 1.0 - sin2))
-        one_minus_cos = sin2 / (1.0 + cos_max)  # 1 − cos θmax without cancellation
-        return to_c, d2, d, outside, one_minus_cos
+        centre, _ = self._cols(points.dtype)
+        to_c = centre - points
+        d2 = dot(to_c, to_c)
+        outside = d2 > (r * r) * (1.0 + 1e-6)
+        sin2 = np.where(outside, (r * r) / np.maximum(d2, TINY), 1).astype(points.dtype, copy=False)
+        cos_max = np.sqrt(np.maximum(0, 1 - sin2))
+        one_minus_cos = sin2 / (1 + cos_max)  # 1 − cos θmax without cancellation
+        return to_c, d2, outside, one_minus_cos
 
-    def sample(self, points, u):  # noqa: ANN001, ANN201
+    def sample_soa(self, points, u0, u1):  # noqa: ANN001, ANN201
         r = self.radius
-        to_c, d2, d, outside, one_minus_cos = self._cone(points)
-        axis = to_c / np.maximum(d, 1e-300)[:, None]
-        wi = sample_cone(axis, one_minus_cos, u)
-        b = np.einsum("ij,ij->i", wi, to_c)
-        disc = np.maximum(0.0, b * b - (d2 - r * r))
-        dist = np.maximum(0.0, b - np.sqrt(disc))
-        pdf = np.where(outside, 1.0 / (2.0 * np.pi * np.maximum(one_minus_cos, 1e-300)), 0.0)
-        radiance = self.emitted(wi, np.zeros((wi.shape[0], 2)), outside)
-        return LightSample(wi, dist, radiance, pdf)
+        to_c, d2, outside, one_minus_cos = self._cone(points)
+        axis = to_c / np.sqrt(np.maximum(d2, TINY))
+        wi = vec.cone(axis, one_minus_cos, u0, u1)
+        # nearest root of |p + t·wi − c| = r, in the forms without cancellation: the squared distance of the
+        # centre from the ray, and t = (d² − r²) / (b + √disc)
+        b = dot(wi, to_c)
+        perp = to_c - b * wi
+        disc = np.maximum(0, (r * r) - dot(perp, perp))
+        dist = np.maximum(0, (d2 - r * r) / np.maximum(b + np.sqrt(disc), TINY))
+        pdf = outside / (2.0 * np.pi * np.maximum(one_minus_cos, TINY))
+        radiance = self.emitted_soa(wi, None, outside)
+        return wi, dist, radiance, pdf.astype(points.dtype, copy=False)
 
-    def pdf(self, points, wi, t):  # noqa: ANN001, ANN201
-        _, _, _, outside, one_minus_cos = self._cone(points)
-        return np.where(outside, 1.0 / (2.0 * np.pi * np.maximum(one_minus_cos, 1e-300)), 0.0)
+    def pdf_soa(self, points, wi, t):  # noqa: ANN001, ANN201
+        _, _, outside, one_minus_cos = self._cone(points)
+        return (outside / (2.0 * np.pi * np.maximum(one_minus_cos, TINY))).astype(points.dtype, copy=False)
 
-    def intersect(self, origins, directions):  # noqa: ANN001, ANN201
-        m = origins.shape[0]
+    def intersect_soa(self, origins, directions):  # noqa: ANN001, ANN201
+        m = origins.shape[1]
         if not self.visible:
-            return np.full(m, FAR), np.zeros((m, 2))
+            return np.full(m, FAR, dtype=origins.dtype), None
         r = self.radius
-        oc = origins - self.centre
-        b = np.einsum("ij,ij->i", oc, directions)
-        c = np.einsum("ij,ij->i", oc, oc) - r * r
-        disc = b * b - c
-        sq = np.sqrt(np.maximum(disc, 0.0))
-        t0, t1 = -b - sq, -b + sq
-        t = np.where(t0 > 0, t0, t1)
-        hit = (disc >= 0) & (t > 0)
-        return np.where(hit, t, FAR), np.zeros((m, 2))
+        centre, _ = self._cols(origins.dtype)
+        oc = origins - centre
+        b = dot(oc, directions)
+        c = dot(oc, oc) - r * r
+        perp = oc - b * directions
+        disc = (r * r) - dot(perp, perp)
+        sq = np.sqrt(np.maximum(disc, 0))
+        q = sq - b  # the far root −b + √disc
+        with np.errstate(divide="ignore", invalid="ignore"):
+            near = c / q  # (−b − √disc) without cancellation (the product of the roots is c)
+        t = np.where(c > 0, near, q)
+        hit = (disc >= 0) & (t > 0) & (q > 0)
+        return np.where(hit, t, FAR).astype(origins.dtype, copy=False), None
 
 
 class _PlanarLight(LightModel):
     """Rect and disk: a surface in the local XY plane emitting towards local −Z, sampled uniformly by area."""
 
-    def _surface_point(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _surface_point(self, u0: np.ndarray, u1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         raise NotImplementedError
 
     def _inside(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         raise NotImplementedError
 
-    def sample(self, points, u):  # noqa: ANN001, ANN201
-        a, b = self._surface_point(u)
-        q = self.centre + a[:, None] * self.axes[0] + b[:, None] * self.axes[1]
-        to_q = q - points
-        dist = np.linalg.norm(to_q, axis=-1)
-        wi = to_q / np.maximum(dist, 1e-300)[:, None]
-        cos_l = wi @ self.axes[2]  # the emitting side is −Z: seen from points where ωᵢ·Z > 0
+    def sample_soa(self, points, u0, u1):  # noqa: ANN001, ANN201
+        a, b = self._surface_point(u0, u1)
+        centre, _ = self._cols(points.dtype)
+        x, y = self.x_axis, self.y_axis
+        to_q = np.stack([a * x[0] + b * y[0], a * x[1] + b * y[1], a * x[2] + b * y[2]]) + (centre - points)
+        dist = np.sqrt(dot(to_q, to_q))
+        wi = to_q / np.maximum(dist, TINY)
+        cos_l = dotc(self.z_axis, wi)  # the emitting side is −Z: seen from points where ωᵢ·Z > 0
         facing = cos_l > 0
-        pdf = np.where(facing, dist * dist / (self.light.area * np.maximum(cos_l, 1e-300)), 0.0)
-        radiance = self.emitted(wi, np.stack([a, b], axis=-1), facing)
-        return LightSample(wi, dist, radiance, pdf)
+        pdf = np.where(facing, dist * dist / (self.light.area * np.maximum(cos_l, TINY)), 0)
+        radiance = self.emitted_soa(wi, np.stack([a, b]), facing)
+        return wi, dist, radiance, pdf.astype(points.dtype, copy=False)
 
-    def pdf(self, points, wi, t):  # noqa: ANN001, ANN201
-        cos_l = wi @ self.axes[2]
-        return np.where(cos_l > 0, t * t / (self.light.area * np.maximum(np.abs(cos_l), 1e-300)), 0.0)
+    def pdf_soa(self, points, wi, t):  # noqa: ANN001, ANN201
+        cos_l = dotc(self.z_axis, wi)
+        return np.where(cos_l > 0, t * t / (self.light.area * np.maximum(np.abs(cos_l), TINY)), 0).astype(
+            wi.dtype, copy=False)
 
-    def intersect(self, origins, directions):  # noqa: ANN001, ANN201
-        m = origins.shape[0]
+    def intersect_soa(self, origins, directions):  # noqa: ANN001, ANN201
+        m = origins.shape[1]
         if not self.visible:
-            return np.full(m, FAR), np.zeros((m, 2))
-        denom = directions @ self.axes[2]
+            return np.full(m, FAR, dtype=origins.dtype), None
+        centre, _ = self._cols(origins.dtype)
+        denom = dotc(self.z_axis, directions)
+        rel = origins - centre
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = ((self.centre - origins) @ self.axes[2]) / denom
+            t = -dotc(self.z_axis, rel) / denom
         finite = np.isfinite(t)
-        p = origins + np.where(finite, t, 0.0)[:, None] * directions - self.centre
-        a, b = p @ self.axes[0], p @ self.axes[1]
+        t = np.where(finite, t, 0)
+        p = rel + t * directions
+        a, b = dotc(self.x_axis, p), dotc(self.y_axis, p)
         hit = finite & (t > 0) & self._inside(a, b)
-        return np.where(hit, t, FAR), np.stack([a, b], axis=-1)
+        return np.where(hit, t, FAR).astype(origins.dtype, copy=False), np.stack([a, b])
 
     @property
     def bounding_radius(self) -> float:
@@ -392,19 +466,21 @@ class RectLightModel(_PlanarLight):
         return Light("rect", name, radiance=tuple(float(x) for x in radiance), position=placement.position,
                      axes=placement.axes, size=(width, height)), []
 
-    def _surface_point(self, u):  # noqa: ANN001, ANN202
-        return (u[:, 0] - 0.5) * self.light.size[0], (u[:, 1] - 0.5) * self.light.size[1]
+    def _surface_point(self, u0, u1):  # noqa: ANN001, ANN202
+        return (u0 - 0.5) * float(self.light.size[0]), (u1 - 0.5) * float(self.light.size[1])
 
     def _inside(self, a, b):  # noqa: ANN001, ANN202
-        return (np.abs(a) <= 0.5 * self.light.size[0]) & (np.abs(b) <= 0.5 * self.light.size[1])
+        return (np.abs(a) <= 0.5 * float(self.light.size[0])) & (np.abs(b) <= 0.5 * float(self.light.size[1]))
 
     def _texel(self, coords):  # noqa: ANN001, ANN202
         """HdEmbree's RectLight lookup: s = a/width + ½ (local +X to the right), t = 1 − (b/height + ½) (row 0 at
         local +Y), nearest texel."""
         h, w = self.texture.shape[:2]
-        s = np.clip(coords[:, 0] / self.light.size[0] + 0.5, 0.0, 1.0 - 1e-9)
-        t = np.clip(0.5 - coords[:, 1] / self.light.size[1], 0.0, 1.0 - 1e-9)
-        return self.texture[(t * h).astype(np.int64), (s * w).astype(np.int64)]
+        s = np.clip(coords[0].astype(np.float64) / self.light.size[0] + 0.5, 0.0, 1.0 - 1e-9)
+        t = np.clip(0.5 - coords[1].astype(np.float64) / self.light.size[1], 0.0, 1.0 - 1e-9)
+        index = (t * h).astype(np.int64) * w + (s * w).astype(np.int64)
+        flat = self.texture.reshape(-1, 3)
+        return np.stack([np.take(flat[:, c], index) for c in range(3)]).astype(coords.dtype, copy=False)
 
 
 @register_light
@@ -423,13 +499,13 @@ class DiskLightModel(_PlanarLight):
         return Light("disk", name, radiance=tuple(float(x) for x in radiance), position=placement.position,
                      axes=placement.axes, size=(radius, 0.0)), []
 
-    def _surface_point(self, u):  # noqa: ANN001, ANN202
-        rad = self.light.size[0] * np.sqrt(u[:, 0])
-        phi = 2.0 * np.pi * u[:, 1]
+    def _surface_point(self, u0, u1):  # noqa: ANN001, ANN202
+        rad = float(self.light.size[0]) * np.sqrt(u0)
+        phi = (2.0 * np.pi) * u1
         return rad * np.cos(phi), rad * np.sin(phi)
 
     def _inside(self, a, b):  # noqa: ANN001, ANN202
-        return a * a + b * b <= self.light.size[0] ** 2
+        return a * a + b * b <= float(self.light.size[0]) ** 2
 
 
 @register_light
@@ -456,61 +532,66 @@ class CylinderLightModel(LightModel):
     def bounding_radius(self) -> float:
         return math.hypot(self.light.size[0], 0.5 * self.light.size[1])
 
-    def _facing_angle(self, points: np.ndarray) -> np.ndarray:
-        """Azimuth (M,) around the axis of the points' projections: the surface facing them lies within ±π/2."""
-        o = points - self.centre
-        return np.arctan2(o @ self.axes[2], o @ self.axes[1])
+    def _facing_angle(self, rel: np.ndarray) -> np.ndarray:
+        """Azimuth (M,) around the axis of the points' projections (rel = point − centre, (3, M)): the surface
+        facing them lies within ±π/2."""
+        return np.arctan2(dotc(self.z_axis, rel), dotc(self.y_axis, rel))
 
-    def sample(self, points, u):  # noqa: ANN001, ANN201
+    def sample_soa(self, points, u0, u1):  # noqa: ANN001, ANN201
         """Uniform on the half of the lateral surface that faces the point (everything it can see lies there)."""
-        r, length = self.light.size
-        z = (u[:, 0] - 0.5) * length
-        phi = self._facing_angle(points) + np.pi * (u[:, 1] - 0.5)
-        normal = np.cos(phi)[:, None] * self.axes[1] + np.sin(phi)[:, None] * self.axes[2]
-        q = self.centre + z[:, None] * self.axes[0] + r * normal
-        to_q = q - points
-        dist = np.linalg.norm(to_q, axis=-1)
-        wi = to_q / np.maximum(dist, 1e-300)[:, None]
-        cos_l = -np.einsum("ij,ij->i", wi, normal)
+        r, length = float(self.light.size[0]), float(self.light.size[1])
+        centre, _ = self._cols(points.dtype)
+        rel = points - centre
+        z = (u0 - 0.5) * length
+        phi = self._facing_angle(rel) + np.pi * (u1 - 0.5)
+        cp, sp = np.cos(phi), np.sin(phi)
+        x, y, zz = self.x_axis, self.y_axis, self.z_axis
+        normal = np.stack([cp * y[0] + sp * zz[0], cp * y[1] + sp * zz[1], cp * y[2] + sp * zz[2]])
+        to_q = r * normal - rel + np.stack([z * x[0], z * x[1], z * x[2]])
+        dist = np.sqrt(dot(to_q, to_q))
+        wi = to_q / np.maximum(dist, TINY)
+        cos_l = -dot(wi, normal)
         facing = cos_l > 0
-        pdf = np.where(facing, dist * dist / (0.5 * self.light.area * np.maximum(cos_l, 1e-300)), 0.0)
-        return LightSample(wi, dist, self.emitted(wi, np.zeros((wi.shape[0], 2)), facing), pdf)
+        pdf = np.where(facing, dist * dist / (0.5 * self.light.area * np.maximum(cos_l, TINY)), 0)
+        return wi, dist, self.emitted_soa(wi, None, facing), pdf.astype(points.dtype, copy=False)
 
     def _hit(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        r, length = self.light.size
-        o = origins - self.centre
-        ox, dx = o @ self.axes[0], directions @ self.axes[0]
-        oy, oz = o @ self.axes[1], o @ self.axes[2]
-        dy, dz = directions @ self.axes[1], directions @ self.axes[2]
+        r, length = float(self.light.size[0]), float(self.light.size[1])
+        centre, _ = self._cols(origins.dtype)
+        o = origins - centre
+        ox, dx = dotc(self.x_axis, o), dotc(self.x_axis, directions)
+        oy, oz = dotc(self.y_axis, o), dotc(self.z_axis, o)
+        dy, dz = dotc(self.y_axis, directions), dotc(self.z_axis, directions)
         a = dy * dy + dz * dz
         b = oy * dy + oz * dz
         c = oy * oy + oz * oz - r * r
         disc = b * b - a * c
-        sq = np.sqrt(np.maximum(disc, 0.0))
-        with np.errstate(divide="ignore", invalid="ignore"):
+        sq = np.sqrt(np.maximum(disc, 0))
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             t0 = (-b - sq) / a
             t1 = (-b + sq) / a
-        best = np.full(origins.shape[0], FAR)
+        best = np.full(origins.shape[1], FAR, dtype=origins.dtype)
+        ok0 = (disc >= 0) & (a > 0)
         for t in (t1, t0):  # t0 last so it wins when both are valid
             x = ox + t * dx
-            ok = (disc >= 0) & (a > 0) & np.isfinite(t) & (t > 0) & (np.abs(x) <= 0.5 * length)
+            ok = ok0 & np.isfinite(t) & (t > 0) & (np.abs(x) <= 0.5 * length)
             best = np.where(ok & (t < best), t, best)
-        p = o + np.where(best < FAR, best, 0.0)[:, None] * directions
-        radial = p - (p @ self.axes[0])[:, None] * self.axes[0]
+        p = o + np.where(best < FAR, best, 0) * directions
+        radial = p - dotc(self.x_axis, p) * np.asarray(self.x_axis, dtype=origins.dtype)[:, None]
         return best, radial
 
-    def pdf(self, points, wi, t):  # noqa: ANN001, ANN201
+    def pdf_soa(self, points, wi, t):  # noqa: ANN001, ANN201
         _, radial = self._hit(points, wi)
-        n = radial / np.maximum(np.linalg.norm(radial, axis=-1), 1e-300)[:, None]
-        cos_l = np.abs(np.einsum("ij,ij->i", wi, n))
-        return np.where(cos_l > 0, t * t / (0.5 * self.light.area * np.maximum(cos_l, 1e-300)), 0.0)
+        n = radial / np.maximum(np.sqrt(dot(radial, radial)), TINY)
+        cos_l = np.abs(dot(wi, n))
+        return np.where(cos_l > 0, t * t / (0.5 * self.light.area * np.maximum(cos_l, TINY)), 0).astype(
+            wi.dtype, copy=False)
 
-    def intersect(self, origins, directions):  # noqa: ANN001, ANN201
-        m = origins.shape[0]
+    def intersect_soa(self, origins, directions):  # noqa: ANN001, ANN201
         if not self.visible:
-            return np.full(m, FAR), np.zeros((m, 2))
+            return np.full(origins.shape[1], FAR, dtype=origins.dtype), None
         t, _ = self._hit(origins, directions)
-        return t, np.zeros((m, 2))
+        return t, None
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -522,39 +603,94 @@ class LightSet:
         self.surfaces = tuple(m for m in self.models if m.visible and not m.is_global)
         self.distant = tuple(m for m in self.models if isinstance(m, DistantLightModel))
 
-    def nearest(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Nearest light surface along rays: distance (M,) (FAR if none), light index into :attr:`surfaces` (M,)
-        (−1 if none) and the radiance it sends back along the ray (M, 3)."""
-        m = origins.shape[0]
-        best = np.full(m, FAR)
+    def _candidates(self, model: LightModel, origins: np.ndarray, directions: np.ndarray,
+                    distances: np.ndarray | float) -> np.ndarray:
+        """Conservative cull (bool, broadcast shape of the rays): segments origin + t·direction, 0 < t < distance,
+        that pass within the light's bounding sphere; origins (3, ..., M) may broadcast against directions."""
+        radius = model.bounding_radius * 1.01 + 1e-4
+        centre, _ = model._cols(directions.dtype)
+        oc = origins - (centre if origins.ndim == 2 else centre[:, None, :])
+        c2 = dot(oc, oc)
+        b = dot(oc, directions)
+        perp2 = c2 - b * b  # squared distance of the centre from the ray's line (unit directions)
+        return (perp2 <= radius * radius + 1e-6 * c2) & (b < radius) & (-b < distances + radius)
+
+    def nearest_soa(self, origins: np.ndarray, directions: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """Nearest light surface along rays (3, M): distance (M,) (FAR if none), light index into :attr:`surfaces`
+        (M,) (−1 if none) and the radiance (3, M) it sends back along the ray (None when there are no surfaces).
+        Only rays passing a light's bounding sphere are intersected with it."""
+        m, dtype = directions.shape[1], directions.dtype
+        best = np.full(m, FAR, dtype=dtype)
         which = np.full(m, -1, dtype=np.int64)
-        coords = np.zeros((m, 2))
+        if not self.surfaces:
+            return best, which, None
+        coords = [None] * len(self.surfaces)
         for k, model in enumerate(self.surfaces):
-            t, c = model.intersect(origins, directions)
-            closer = t < best
-            best = np.where(closer, t, best)
-            which = np.where(closer, k, which)
-            coords[closer] = c[closer]
-        radiance = np.zeros((m, 3))
+            idx = np.flatnonzero(self._candidates(model, origins, directions, FAR))
+            if idx.size == 0:
+                continue
+            t, c = model.intersect_soa(np.take(origins, idx, axis=1), np.take(directions, idx, axis=1))
+            closer = t < best[idx]
+            sel = idx[closer]
+            best[sel] = t[closer]
+            which[sel] = k
+            if c is not None:
+                full = np.zeros((2, m), dtype=dtype)
+                full[:, idx] = c
+                coords[k] = full
+        radiance = np.zeros((3, m), dtype=dtype)
         for k, model in enumerate(self.surfaces):
             sel = np.flatnonzero(which == k)
             if sel.size:
-                facing = self._facing(model, origins[sel], directions[sel], best[sel])
-                radiance[sel] = model.emitted(directions[sel], coords[sel], facing)
+                d = np.take(directions, sel, axis=1)
+                facing = self._facing(model, d)
+                c = None if coords[k] is None else np.take(coords[k], sel, axis=1)
+                radiance[:, sel] = model.emitted_soa(d, c, facing)
         return best, which, radiance
 
+    def nearest(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """As :meth:`nearest_soa` with (M, 3) rays and radiance."""
+        best, which, radiance = self.nearest_soa(_soa(origins), _soa(directions))
+        return best, which, np.zeros((best.size, 3)) if radiance is None else _aos(radiance)
+
     @staticmethod
-    def _facing(model: LightModel, origins: np.ndarray, directions: np.ndarray, t: np.ndarray) -> np.ndarray:
+    def _facing(model: LightModel, directions: np.ndarray) -> np.ndarray:
         if isinstance(model, _PlanarLight):
-            return directions @ model.axes[2] > 0
-        return np.ones(origins.shape[0], dtype=bool)
+            return dotc(model.z_axis, directions) > 0
+        return np.ones(directions.shape[1], dtype=bool)
+
+    def occluded_soa(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray,
+                     skip: np.ndarray | int | None = None) -> np.ndarray:
+        """Whether any light surface blocks the segments (3, ..., M) (shadow rays; ``origins`` may be (3, M) against
+        directions (3, J, M), J segments per origin); ``skip`` (shape of the segments, or one int): index into
+        :attr:`surfaces` of a light each segment ends on (−1: none), which is not tested against it (a convex
+        shape cannot occlude a point of it that faces the segment's origin). Only segments passing a light's
+        bounding sphere are intersected with it."""
+        shape = directions.shape[1:]
+        blocked = np.zeros(shape, dtype=bool)
+        flat = blocked.reshape(-1)
+        m = directions.shape[-1]
+        d_flat = directions.reshape(3, -1)
+        dist_flat = np.broadcast_to(distances, shape).reshape(-1)
+        for k, model in enumerate(self.surfaces):
+            if not model.visible:
+                continue
+            cand = self._candidates(model, origins, directions, distances)
+            if skip is not None:
+                cand &= np.asarray(skip) != k
+            idx = np.flatnonzero(cand)
+            if idx.size == 0:
+                continue
+            o = np.take(origins.reshape(3, -1) if origins.ndim == directions.ndim else origins,
+                        idx if origins.ndim == directions.ndim else idx % m, axis=1)
+            hit = model.occludes_soa(o, np.take(d_flat, idx, axis=1), dist_flat[idx])
+            flat[idx[hit]] = True
+        return blocked
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray) -> np.ndarray:
-        """Whether any light surface blocks the segments (shadow rays)."""
-        blocked = np.zeros(origins.shape[0], dtype=bool)
-        for model in self.surfaces:
-            blocked |= model.occludes(origins, directions, distances)
-        return blocked
+        """Whether any light surface blocks the segments (M, 3) (shadow rays)."""
+        return self.occluded_soa(_soa(origins), _soa(directions), np.asarray(distances, dtype=np.float64))
 
 
 def intersect_light_shapes(

@@ -30,8 +30,18 @@ Noise and adaptive sampling
     ``target_noise`` > 0 the renderer adds passes of S rays per texel until the noise is below it or
     ``max_samples`` rays per texel are spent.
 
+Batching and precision (issue 14)
+    A pass traces all 6·N²·S camera rays of the probe at once (up to :data:`BATCH`); each bounce shades all live
+    paths as one batch: next-event samples of every light, the dome's rest and its sun form one (3, J, M) array,
+    evaluated by the BSDF in one call, culled against the light shapes' bounding spheres and traced in one Embree
+    occlusion query; continuations are one closest-hit query. Per-ray arrays are float32 structure-of-arrays
+    (:mod:`bakery.capture.vec`); sums over rays are float64. A light's own shape is not tested as an occluder of its
+    own samples (convex shapes cannot shadow their own facing points; this also removes float32 self-shadowing).
+
 Randomness comes from ``numpy.random.default_rng(seed)`` with the seed derived from the probe's name
-(:func:`probe_seed`), so captures are identical across runs and worker counts.
+(:func:`probe_seed`), drawn in a fixed order per probe (per pass, per bounce, per strategy), so captures are
+identical across runs, batch sizes and worker counts: a probe's arrays never depend on which other probes share
+its worker or batch.
 """
 
 from __future__ import annotations
@@ -45,15 +55,21 @@ import numpy as np
 
 from bakery.capture.bsdf import Bsdf
 from bakery.capture.dome import DomeSampler, splat_bilinear
-from bakery.capture.lights import SHADOW_EPSILON, DistantLightModel, LightSet, RectLightModel
+from bakery.capture.lights import (
+    SHADOW_EPSILON,
+    DistantLightModel,
+    LightSet,
+    RectLightModel,
+)
 from bakery.capture.scene import CaptureScene, Light
 from bakery.capture.surfaces import BOUNCE_SPREAD, Surfaces
 from bakery.capture.tracer import FAR, SceneTracer
+from bakery.capture.vec import REAL, TINY, dot, dotc, luminance, power, vmax
 from bakery.conventions import LUMINANCE_WEIGHTS
 from bakery.files import sha256_bytes
 from bakery.sh.basis import evaluate_sh_basis
 from bakery.sphere.cubemap import (
-    cube_face_uv_to_direction,
+    _FACE_FRAMES,
     cube_mean_texel_solid_angle,
     cube_texel_directions,
     cube_texel_solid_angles,
@@ -88,11 +104,12 @@ class CaptureStats:
 
 
 def _jittered_texel_directions(face_size: int, samples: int, rng: np.random.Generator) -> np.ndarray:
-    """(samples, 6, N, N, 3) directions through jittered points of every texel.
+    """(3, samples, 6, N, N) float32 unit directions through jittered points of every texel (structure of arrays).
 
     The ``samples`` points of a texel are a Latin hypercube: sample j takes the u-stratum j and a random v-stratum
     (a per-texel permutation), jittered uniformly inside its stratum cell, so every texel's u and v are each
-    stratified into ``samples`` intervals (lower variance than independent jitter, same expectation).
+    stratified into ``samples`` intervals (lower variance than independent jitter, same expectation). Directions
+    are those of :func:`bakery.sphere.cubemap.cube_face_uv_to_direction`.
     """
     n = face_size
     jitter = rng.random((samples, 6, n, n, 2))
@@ -101,22 +118,36 @@ def _jittered_texel_directions(face_size: int, samples: int, rng: np.random.Gene
     fu = (strata_u + jitter[..., 0]) / samples
     fv = (strata_v + jitter[..., 1]) / samples
     idx = np.arange(n, dtype=np.float64)
-    u = (idx[None, None, None, :] + fu) / n * 2.0 - 1.0
-    v = (idx[None, None, :, None] + fv) / n * 2.0 - 1.0
-    face = np.broadcast_to(np.arange(6)[None, :, None, None], u.shape)
-    return cube_face_uv_to_direction(face, u, v)
+    u = ((idx[None, None, None, :] + fu) / n * 2.0 - 1.0).astype(REAL)
+    v = ((idx[None, None, :, None] + fv) / n * 2.0 - 1.0).astype(REAL)
+    d = np.empty((3,) + u.shape, dtype=REAL)
+    for f in range(6):
+        axis, du, dv = (tuple(float(x) for x in row) for row in _FACE_FRAMES[f])
+        uf, vf = u[:, f], v[:, f]
+        for c in range(3):
+            d[c, :, f] = axis[c] + uf * du[c] + vf * dv[c]
+    return d / np.sqrt(dot(d, d))
 
 
-def _power(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Power-heuristic weight a²/(a² + b²) (1 where b = 0, i.e. the other strategy cannot produce the sample)."""
-    a2, b2 = a * a, b * b
-    with np.errstate(invalid="ignore", over="ignore"):
-        w = np.where(np.isinf(a), 1.0, a2 / np.maximum(a2 + b2, 1e-300))
-    return np.where(b > 0, w, 1.0)
+def _take(a: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """Columns ``index`` of a (3, M) array (one gather per call, contiguous result)."""
+    return np.take(a, index, axis=1)
+
+
+def _add_at(a: np.ndarray, index: np.ndarray, value: np.ndarray) -> None:
+    """a[:, index] += value for unique ``index`` (row by row: 1-D fancy indexing is the fast path)."""
+    for c in range(3):
+        row = a[c]
+        row[index] += value[c]
 
 
 class ProbeRenderer:
-    """Renders radiance cubes of probes in one scene (the Embree scene is built once and shared)."""
+    """Renders radiance cubes of probes in one scene (the Embree scene is built once and shared).
+
+    The path tracer works on structure-of-arrays float32 batches (:mod:`bakery.capture.vec`): every bounce of all
+    of a pass's camera rays is one batch, its next-event samples of every light are evaluated and traced together
+    (one BSDF evaluation and one Embree occlusion query per bounce), and no Python code runs per ray.
+    """
 
     def __init__(self, scene: CaptureScene, samples: int = 4, bounces: int = DEFAULT_BOUNCES, base_seed: int = 0,
                  target_noise: float = 0.0, max_samples: int | None = None) -> None:
@@ -138,11 +169,35 @@ class ProbeRenderer:
         self.lights = LightSet(scene.lights, scene.textures)
         self.distant = self.lights.distant
         self._primary_spread = BOUNCE_SPREAD
+        self._basis: dict[int, np.ndarray] = {}  # per face size: SH basis × texel solid angle (6·N·N, 9)
+        self._omega: dict[int, np.ndarray] = {}  # per face size: texel solid angles (6·N·N, 1)
         # PortalLights: rects through which the dome is also sampled (a sampling guide; the dome itself is unchanged)
         self.portals = tuple(RectLightModel(dataclasses.replace(p, visible=True)) for p in scene.portals
                              if p.kind == "rect" and p.size[0] * p.size[1] > 0)
+        # next-event strategies of the analytic lights: whether a BSDF ray can also find the light (MIS) and the
+        # light's index among the shapes (a light's own shape is not tested as an occluder of its samples)
+        surfaces = {id(m): k for k, m in enumerate(self.lights.surfaces)}
+        self._light_can_hit = [bool(m.visible and not (isinstance(m, DistantLightModel) and m.delta))
+                               for m in self.lights.models]
+        self._light_shape = [surfaces.get(id(m), -1) for m in self.lights.models]
 
     # ------------------------------------------------------------------------------------------------------------
+    def prepare(self, face_size: int) -> None:
+        """Build the per-face-size caches (the dome's rest filtered over the cube's texels, the SH basis) ahead of
+        the first :meth:`render` at that size (they are built once per renderer either way; results do not depend
+        on when)."""
+        if not self.dome.black:
+            self.dome.filtered_cube(face_size)
+        self._sh_basis(face_size)
+
+    def _sh_basis(self, n: int) -> np.ndarray:
+        """SH basis (bands ≤ 2) × texel solid angle at the texel centres of an N cube: (6·N·N, 9)."""
+        basis = self._basis.get(n)
+        if basis is None:
+            basis = self._basis[n] = evaluate_sh_basis(cube_texel_directions(n).reshape(-1, 3), 2) * \
+                cube_texel_solid_angles(n).reshape(-1, 1)
+        return basis
+
     def render(self, position: np.ndarray, face_size: int, name: str) -> tuple[np.ndarray, CaptureStats]:
         """Radiance cube (6, N, N, 3) float32 seen from ``position`` (bake frame, metres), and its stats."""
         start_time = time.perf_counter()
@@ -151,33 +206,35 @@ class ProbeRenderer:
         n = face_size
         self._primary_spread = math.sqrt(cube_mean_texel_solid_angle(n))
         position = np.asarray(position, dtype=np.float64)
-        filtered = self.dome.filtered_cube(n) if not self.dome.black else None
-        basis = evaluate_sh_basis(cube_texel_directions(n).reshape(-1, 3), 2) * cube_texel_solid_angles(n).reshape(
-            -1, 1)
+        filtered = None
+        if not self.dome.black:
+            filtered = np.ascontiguousarray(self.dome.filtered_cube(n).reshape(-1, 3).T, dtype=REAL)
+        basis = self._sh_basis(n)
         extra = self._add_distant_lights(self._add_sun(np.zeros((6, n, n, 3)), position), position)
         extra_dc = float((extra.reshape(-1, 3) @ LUMINANCE_WEIGHTS) @ basis[:, 0])
-        total = np.zeros((6, n, n, 3))
+        total = np.zeros((3, 6 * n * n))
         sub_sh: list[np.ndarray] = []
         spent = 0
         noise = 0.0
+        origin = np.asarray(position, dtype=REAL).reshape(3, 1)
         while True:
-            directions = _jittered_texel_directions(n, self.samples, rng).reshape(-1, 3)
-            radiance = np.zeros((directions.shape[0], 3))
-            for start in range(0, directions.shape[0], BATCH):
-                stop = min(directions.shape[0], start + BATCH)
-                d = directions[start:stop]
-                origins = np.broadcast_to(position, d.shape)
+            directions = _jittered_texel_directions(n, self.samples, rng).reshape(3, -1)
+            count = directions.shape[1]
+            radiance = np.empty((3, count), dtype=REAL)
+            for start in range(0, count, BATCH):
+                stop = min(count, start + BATCH)
+                d = directions[:, start:stop]
                 texel = np.arange(start, stop) % (6 * n * n)
-                radiance[start:stop] = self.trace_camera_rays(origins, d, rng, n, filtered, texel)
-            per_sample = radiance.reshape(self.samples, 6, n, n, 3)
-            total += per_sample.sum(axis=0)
+                radiance[:, start:stop] = self._camera(np.broadcast_to(origin, d.shape), d, rng, n, filtered, texel)
+            per_sample = radiance.reshape(3, self.samples, 6 * n * n)
+            total += per_sample.sum(axis=1, dtype=np.float64)
             spent += self.samples
-            lum = per_sample.reshape(self.samples, -1, 3) @ LUMINANCE_WEIGHTS
+            lum = luminance(per_sample.astype(np.float64))
             sub_sh.extend(list(lum @ basis))
             noise = _relative_sh_noise(np.asarray(sub_sh), extra_dc)
             if self.target_noise <= 0 or noise <= self.target_noise or spent + self.samples > self.max_samples:
                 break
-        cube = total / spent + extra
+        cube = (total / spent).T.reshape(6, n, n, 3) + extra
         stats = CaptureStats(self.tracer.rays_cast - start_rays, time.perf_counter() - start_time, spent, noise)
         return cube.astype(np.float32), stats
 
@@ -185,214 +242,271 @@ class ProbeRenderer:
                           face_size: int, filtered: np.ndarray | None = None,
                           texel: np.ndarray | None = None) -> np.ndarray:
         """Radiance (M, 3) arriving at ``origins`` from ``directions`` (both (M, 3)). Escaping rays see the rest of
-        the dome filtered over their texel (flat index ``texel`` into a ``face_size`` cube) when ``filtered`` is
-        given — the sun is then left out, as are distant lights smaller than a texel (:meth:`render` splats them)
-        — else the whole dome point-sampled."""
-        m = origins.shape[0]
+        the dome filtered over their texel (flat index ``texel`` into a ``face_size`` cube of ``filtered`` (6, N,
+        N, 3)) when ``filtered`` is given — the sun is then left out, as are distant lights smaller than a texel
+        (:meth:`render` splats them) — else the whole dome point-sampled."""
+        soa = None if filtered is None else np.ascontiguousarray(np.reshape(filtered, (-1, 3)).T, dtype=REAL)
+        result = self._camera(np.ascontiguousarray(np.asarray(origins).T, dtype=REAL),
+                              np.ascontiguousarray(np.asarray(directions).T, dtype=REAL), rng, face_size, soa, texel)
+        return np.ascontiguousarray(result.T, dtype=np.float64)
+
+    def _camera(self, origins: np.ndarray, directions: np.ndarray, rng: np.random.Generator, face_size: int,
+                filtered: np.ndarray | None, texel: np.ndarray | None) -> np.ndarray:
+        """:meth:`trace_camera_rays` on (3, M) float32 rays; ``filtered`` is the (3, 6·N·N) filtered dome."""
+        m = origins.shape[1]
         prim, t, bu, bv = self._intersect(origins, directions)
-        t_light, _which, l_light = self.lights.nearest(origins, directions)
-        result = np.zeros((m, 3))
-        sees_light = (t_light < FAR) & (t_light < t)
-        result[sees_light] = l_light[sees_light]
-        miss = (prim < 0) & ~sees_light
-        if miss.any():
-            idx = np.flatnonzero(miss)
+        result = np.zeros((3, m), dtype=REAL)
+        sees_light = np.zeros(m, dtype=bool)
+        if self.lights.surfaces:
+            t_light, _which, l_light = self.lights.nearest_soa(origins, directions)
+            sees_light = t_light < t
+            si = np.flatnonzero(sees_light)
+            if si.size:
+                result[:, si] = _take(l_light, si)
+        miss = np.flatnonzero((prim < 0) & ~sees_light)
+        if miss.size:
+            d = _take(directions, miss)
             if self.dome.black:
-                pass
+                seen = np.zeros((3, miss.size), dtype=REAL)
             elif filtered is not None and texel is not None:
-                result[idx] = filtered.reshape(-1, 3)[texel[idx]]
+                seen = _take(filtered, np.take(texel, miss))
             else:  # no texel filter given: point lookups of the whole dome, sun included
-                result[idx] = self.dome.radiance(directions[idx])
+                seen = self.dome.rest_radiance_soa(d) + self.dome.sun_lookup_soa(d)[0]
             for light in self.distant:
                 if not self._splat_distant(light.light, face_size):
-                    result[idx] += light.escaped(directions[idx])
-        hit = (prim >= 0) & ~sees_light
-        if hit.any():
-            idx = np.flatnonzero(hit)
-            result[idx] = self._shade(origins[idx], directions[idx], prim[idx], t[idx], bu[idx], bv[idx], rng)
+                    seen += light.escaped_soa(d)
+            result[:, miss] = seen
+        hit = np.flatnonzero((prim >= 0) & ~sees_light)
+        if hit.size:
+            result[:, hit] = self._shade(_take(origins, hit), _take(directions, hit), np.take(prim, hit),
+                                         np.take(t, hit), np.take(bu, hit), np.take(bv, hit), rng)
         return result
 
     # ------------------------------------------------------------------------------------------------------------
     def _intersect(self, origins: np.ndarray, directions: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Closest hit (prim, t, u, v) that is not cut out (opacity below the material's opacityThreshold)."""
-        prim, t, bu, bv = self.tracer.intersect_uv(origins, directions)
+        """Closest hit (prim, t, u, v) of rays (3, M) that is not cut out (opacity below the material's
+        opacityThreshold)."""
+        prim, t, bu, bv = self.tracer.intersect_uv(origins, directions, soa=True)
         if not self.surfaces.cutout:
             return prim, t, bu, bv
         for _ in range(32):
             idx = np.flatnonzero(prim >= 0)
             if idx.size == 0:
                 break
-            cut = self.surfaces.cut(prim[idx], bu[idx], bv[idx])
+            cut = self.surfaces.cut(prim[idx], bu[idx].astype(np.float64), bv[idx].astype(np.float64))
             if not cut.any():
                 break
             j = idx[cut]
-            hits = origins[j] + t[j, None] * directions[j]
-            off = self.tracer.offset(hits)
-            p2, t2, u2, v2 = self.tracer.intersect_uv(hits + off[:, None] * directions[j], directions[j])
+            dj = _take(directions, j)
+            hits = _take(origins, j) + t[j] * dj
+            off = self.tracer.offset_soa(hits)
+            p2, t2, u2, v2 = self.tracer.intersect_uv(hits + off * dj, dj, soa=True)
             prim[j], bu[j], bv[j] = p2, u2, v2
             t[j] = np.where(p2 >= 0, t2 + t[j] + off, FAR)
         return prim, t, bu, bv
 
-    def _visible(self, points: np.ndarray, wi: np.ndarray, dist: np.ndarray) -> np.ndarray:
-        """Unoccluded segments (by triangles and by light shapes): bool (M,)."""
-        short = np.where(dist < FAR, dist * (1.0 - SHADOW_EPSILON), FAR)
+    def _visible(self, points: np.ndarray, wi: np.ndarray, dist: np.ndarray, skip: np.ndarray | None = None
+                 ) -> np.ndarray:
+        """Unoccluded segments (3, M) (by triangles and by light shapes other than ``skip``): bool (M,)."""
+        short = np.where(dist < FAR, dist * (1.0 - SHADOW_EPSILON), FAR).astype(points.dtype, copy=False)
         if self.surfaces.cutout:
             _prim, t, _u, _v = self._intersect(points, wi)
             blocked = t < short
         else:
-            blocked = self.tracer.occluded(points, wi, short)
-        rest = np.flatnonzero(~blocked)
-        if rest.size and self.lights.surfaces:
-            blocked[rest] = self.lights.occluded(points[rest], wi[rest], short[rest])
+            blocked = self.tracer.occluded(points, wi, short, soa=True)
+        if self.lights.surfaces:
+            rest = np.flatnonzero(~blocked)
+            if rest.size:
+                blocked[rest] = self.lights.occluded_soa(_take(points, rest), _take(wi, rest), short[rest],
+                                                         None if skip is None else skip[rest])
         return ~blocked
 
     def _shade(self, origins: np.ndarray, directions: np.ndarray, prim: np.ndarray, t: np.ndarray, bu: np.ndarray,
                bv: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """Outgoing radiance (M, 3) at the first hits of rays: path tracing with MIS (module docstring)."""
-        m = origins.shape[0]
-        out = np.zeros((m, 3))
-        throughput = np.ones((m, 3))
-        ray_index = np.arange(m)
+        """Outgoing radiance (3, M) at the first hits of rays (3, M): path tracing with MIS (module docstring)."""
+        m = prim.shape[0]
+        out = np.zeros((3, m), dtype=REAL)
+        throughput = None  # ones
+        ray_index = None  # arange(m)
+        normals = self.tracer.normals_soa
         for depth in range(self.bounces + 1):
-            if ray_index.size == 0:
+            k = prim.shape[0]
+            if k == 0:
                 break
-            k = ray_index.size
-            hits = origins + t[:, None] * directions
-            surface = self.surfaces.at(prim, bu, bv, t, self._primary_spread if depth == 0 else BOUNCE_SPREAD)
-            normals = self.tracer.normals[prim]
-            flip = np.einsum("ij,ij->i", normals, directions) > 0
-            normals = np.where(flip[:, None], -normals, normals)
-            points = hits + self.tracer.offset(hits)[:, None] * normals
-            wo = -directions
-            bsdf = Bsdf(normals, wo, surface.albedo, surface.f0, surface.roughness)
-            out_add = surface.emission.copy()
-            out_add += self._direct(points, bsdf, rng)
+            hits = origins + t * directions
+            albedo, f0, roughness, emission = self.surfaces.params_soa(
+                prim, bu, bv, t, self._primary_spread if depth == 0 else BOUNCE_SPREAD)
+            n = np.stack([np.take(normals[c], prim) for c in range(3)])
+            n *= 1 - 2 * (dot(n, directions) > 0).astype(REAL)  # face the incoming ray
+            points = hits + self.tracer.offset_soa(hits) * n
+            bsdf = Bsdf(n, -directions, albedo, f0, roughness)
+            out_add = self._direct(points, bsdf, rng)
+            if emission is not None:
+                out_add += emission
             # BSDF continuation: also the BSDF half of the MIS estimate of lights and dome at this vertex
-            wi, weight, pdf_b = bsdf.sample(rng.random((k, 3)))
-            alive = (pdf_b > 0) & (weight.max(axis=1) > 0)
-            prim2 = np.full(k, -1, dtype=np.int64)
-            t2 = np.full(k, FAR)
-            bu2 = np.zeros(k)
-            bv2 = np.zeros(k)
+            u = rng.random((3, k), dtype=REAL)
+            wi, weight, pdf_b = bsdf.sample(u[0], u[1], u[2])
+            alive = (pdf_b > 0) & (vmax(weight) > 0)
+            prim2 = np.full(k, -1, dtype=np.int32)
+            t2 = np.full(k, FAR, dtype=REAL)
+            bu2 = np.zeros(k, dtype=REAL)
+            bv2 = np.zeros(k, dtype=REAL)
             ai = np.flatnonzero(alive)
             if ai.size:
-                p2, tt, uu, vv = self._intersect(points[ai], wi[ai])
+                pa, wa = _take(points, ai), _take(wi, ai)
+                p2, tt, uu, vv = self._intersect(pa, wa)
                 prim2[ai], t2[ai], bu2[ai], bv2[ai] = p2, tt, uu, vv
-                found, on_light = self._emitted_along(points[ai], wi[ai], tt, p2 < 0, pdf_b[ai])
-                out_add[ai] += weight[ai] * found
-                prim2[ai[on_light]] = -1  # light shapes are opaque and do not reflect: the path ends there
-            out[ray_index] += throughput * out_add
+                found, on_light = self._emitted_along(pa, wa, tt, p2 < 0, pdf_b[ai])
+                if found is not None:
+                    _add_at(out_add, ai, _take(weight, ai) * found)
+                    prim2[ai[on_light]] = -1  # light shapes are opaque and do not reflect: the path ends there
+            contribution = out_add if throughput is None else throughput * out_add
+            if ray_index is None:
+                out += contribution
+            else:
+                _add_at(out, ray_index, contribution)
             if depth == self.bounces:
                 break
-            throughput = throughput * weight
+            throughput = weight if throughput is None else throughput * weight
             keep = alive & (prim2 >= 0)
             if depth + 1 > RR_START:
-                q = np.minimum(0.95, throughput.max(axis=1))
-                survive = rng.random(k) < q
-                keep &= survive
-                throughput = throughput / np.maximum(q, 1e-300)[:, None]
-            ray_index = ray_index[keep]
-            throughput = throughput[keep]
-            origins, directions = points[keep], wi[keep]
-            prim, t, bu, bv = prim2[keep], t2[keep], bu2[keep], bv2[keep]
+                q = np.minimum(0.95, vmax(throughput))
+                keep &= rng.random(k, dtype=REAL) < q
+                throughput = throughput / np.maximum(q, TINY)
+            ki = np.flatnonzero(keep)
+            ray_index = ki if ray_index is None else ray_index[ki]
+            throughput = _take(throughput, ki)
+            origins, directions = _take(points, ki), _take(wi, ki)
+            prim, t, bu, bv = prim2[ki], t2[ki], bu2[ki], bv2[ki]
         return out
 
     def _emitted_along(self, points: np.ndarray, wi: np.ndarray, t: np.ndarray, escaped: np.ndarray,
-                       pdf_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Radiance (M, 3) a BSDF-sampled ray finds at a light shape, the dome or a distant disc, weighted by the
-        power heuristic against the next-event pdfs, and whether the ray ended on a light shape (M,)."""
-        m = points.shape[0]
-        result = np.zeros((m, 3))
+                       pdf_b: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:
+        """Radiance (3, M) a BSDF-sampled ray finds at a light shape, the dome or a distant disc, weighted by the
+        power heuristic against the next-event pdfs (None if nothing can be found), and whether the ray ended on a
+        light shape (M,)."""
+        m = points.shape[1]
+        result = None
         on_light = np.zeros(m, dtype=bool)
         if self.lights.surfaces:
-            t_l, which, l_l = self.lights.nearest(points, wi)
+            result = np.zeros((3, m), dtype=REAL)
+            t_l, which, l_l = self.lights.nearest_soa(points, wi)
             on_light = (which >= 0) & (t_l < t)
             for k, model in enumerate(self.lights.surfaces):
                 sel = np.flatnonzero(on_light & (which == k))
                 if sel.size:
-                    pdf_l = model.pdf(points[sel], wi[sel], t_l[sel])
-                    result[sel] += l_l[sel] * _power(pdf_b[sel], pdf_l)[:, None]
+                    pdf_l = model.pdf_soa(_take(points, sel), _take(wi, sel), t_l[sel])
+                    _add_at(result, sel, _take(l_l, sel) * power(pdf_b[sel], pdf_l))
             escaped = escaped & ~on_light
+        distant = [light for light in self.distant if not light.delta]
+        if self.dome.black and not distant:
+            return result, on_light
         ei = np.flatnonzero(escaped)
         if ei.size == 0:
             return result, on_light
-        w_dirs = wi[ei]
+        w_dirs = _take(wi, ei)
+        pb = pdf_b[ei]
+        found = np.zeros((3, ei.size), dtype=REAL)
         if not self.dome.black:
-            rest = self.dome.rest_radiance(w_dirs)
-            result[ei] += rest * _power(pdf_b[ei], self._dome_pdf(points[ei], w_dirs))[:, None]
+            rest, pdf_rest = self.dome.rest_lookup_soa(w_dirs)
+            if self.portals:
+                pdf_rest = self._dome_pdf(_take(points, ei), w_dirs, pdf_rest)
+            found += rest * power(pb, pdf_rest)
             if self.dome.has_sun:
-                result[ei] += self.dome.sun_radiance(w_dirs) * _power(pdf_b[ei], self.dome.sun_pdf(w_dirs))[:, None]
-        for light in self.distant:
-            if not light.delta:
-                result[ei] += light.escaped(w_dirs) * _power(pdf_b[ei], light.pdf(points[ei], w_dirs, None))[:, None]
+                sun, pdf_sun = self.dome.sun_lookup_soa(w_dirs)
+                found += sun * power(pb, pdf_sun)
+        for light in distant:
+            found += light.escaped_soa(w_dirs) * power(pb, light.pdf_soa(None, w_dirs, None))
+        if result is None:
+            result = np.zeros((3, m), dtype=REAL)
+        _add_at(result, ei, found)
         return result, on_light
 
     def _direct(self, points: np.ndarray, bsdf: Bsdf, rng: np.random.Generator) -> np.ndarray:
-        """Next-event estimates (M, 3) of every light, the dome's rest and its sun (MIS-weighted, shadowed)."""
-        m = points.shape[0]
-        total = np.zeros((m, 3))
-        for model in self.lights.models:
-            s = model.sample(points, rng.random((m, 2)))
-            total += self._nee(points, bsdf, s.wi, s.distance, s.radiance, s.pdf,
-                               can_hit=model.visible and not (isinstance(model, DistantLightModel) and model.delta))
+        """Next-event estimates (3, M) of every light, the dome's rest and its sun (MIS-weighted, shadowed).
+
+        All strategies' samples (J per point) are evaluated as one (3, J, M) batch and their shadow rays traced in
+        one occlusion query."""
+        m = points.shape[1]
+        wis, dists, radiances, pdfs, can_hit, shapes = [], [], [], [], [], []
+        for j, model in enumerate(self.lights.models):
+            u = rng.random((2, m), dtype=REAL)
+            wi, dist, radiance, pdf = model.sample_soa(points, u[0], u[1])
+            wis.append(wi), dists.append(dist), radiances.append(radiance), pdfs.append(pdf)
+            can_hit.append(self._light_can_hit[j]), shapes.append(self._light_shape[j])
         if not self.dome.black:
+            far = np.full(m, FAR, dtype=REAL)
+            u0 = rng.random(m)  # the texel choice in float64 (the CDF's resolution)
+            u = rng.random((3, m), dtype=REAL)
             if self.portals:
-                u = rng.random((m, 4))
-                wi, _radiance, _pdf = self.dome.sample_rest(u[:, :3])
-                through = u[:, 3] < 0.5
-                if through.any():
-                    k = np.flatnonzero(through)
-                    which = (u[k, 3] * 2.0 * len(self.portals)).astype(np.int64).clip(0, len(self.portals) - 1)
+                wi, _radiance, _pdf = self.dome.sample_rest_soa(u0, u[0], u[1])
+                through = np.flatnonzero(u[2] < 0.5)
+                if through.size:
+                    which = (u[2][through] * (2 * len(self.portals))).astype(np.int64).clip(0, len(self.portals) - 1)
                     for j, portal in enumerate(self.portals):
-                        sel = k[which == j]
+                        sel = through[which == j]
                         if sel.size:
-                            wi[sel] = portal.sample(points[sel], rng.random((sel.size, 2))).wi
-                radiance = self.dome.rest_radiance(wi)
-                pdf = self._dome_pdf(points, wi)
+                            up = rng.random((2, sel.size), dtype=REAL)
+                            wi[:, sel] = portal.sample_soa(_take(points, sel), up[0], up[1])[0]
+                radiance, pdf = self.dome.rest_lookup_soa(wi)
+                pdf = self._dome_pdf(points, wi, pdf)
             else:
-                wi, radiance, pdf = self.dome.sample_rest(rng.random((m, 3)))
-            total += self._nee(points, bsdf, wi, np.full(m, FAR), radiance, pdf, can_hit=True)
+                wi, radiance, pdf = self.dome.sample_rest_soa(u0, u[0], u[1])
+            wis.append(wi), dists.append(far), radiances.append(radiance), pdfs.append(pdf)
+            can_hit.append(True), shapes.append(-1)
             if self.dome.has_sun:
-                wi, radiance, pdf = self.dome.sample_sun(rng.random((m, 3)))
-                total += self._nee(points, bsdf, wi, np.full(m, FAR), radiance, pdf, can_hit=True)
-        return total
-
-    def _dome_pdf(self, points: np.ndarray, wi: np.ndarray) -> np.ndarray:
-        """Solid-angle pdf of the dome-rest next-event strategy: the dome's importance sampling, or with portals the
-        mixture ½ p_dome + ½ (1/K) Σ_k p_portal_k (uniform area sampling of one of K portals)."""
-        pdf = self.dome.rest_pdf(wi)
-        if not self.portals:
-            return pdf
-        through = np.zeros(wi.shape[0])
-        for portal in self.portals:
-            t, _ = portal.intersect(points, wi)
-            hit = t < FAR
-            if hit.any():  # the density of uniform area sampling, from either side of the portal
-                cos = np.abs(wi[hit] @ portal.axes[2])
-                through[hit] += t[hit] ** 2 / (portal.light.area * np.maximum(cos, 1e-300))
-        return 0.5 * pdf + 0.5 * through / len(self.portals)
-
-    def _nee(self, points: np.ndarray, bsdf: Bsdf, wi: np.ndarray, dist: np.ndarray, radiance: np.ndarray,
-             pdf: np.ndarray, can_hit: bool) -> np.ndarray:
-        m = points.shape[0]
-        result = np.zeros((m, 3))
-        valid = (pdf > 0) & (radiance.max(axis=1) > 0)
+                u0 = rng.random(m)
+                u = rng.random((2, m), dtype=REAL)
+                wi, radiance, pdf = self.dome.sample_sun_soa(u0, u[0], u[1])
+                wis.append(wi), dists.append(far), radiances.append(radiance), pdfs.append(pdf)
+                can_hit.append(True), shapes.append(-1)
+        count = len(wis)
+        if count == 0:
+            return np.zeros((3, m), dtype=REAL)
+        wi = np.stack(wis, axis=1)  # (3, J, M)
+        radiance = np.stack(radiances, axis=1)
+        pdf = np.stack(pdfs)  # (J, M)
+        value, pdf_b = bsdf.evaluate(wi)
+        valid = (pdf > 0) & (vmax(radiance) > 0) & (vmax(value) > 0)
+        weight = power(pdf, pdf_b)
+        for j in range(count):
+            if not can_hit[j]:
+                weight[j] = 1
+        with np.errstate(divide="ignore"):
+            inv = np.where(np.isinf(pdf), 1, np.where(pdf > 0, 1 / pdf, 0)).astype(REAL, copy=False)
+        dist = np.stack(dists)
+        short = np.where(dist < FAR, dist * (1.0 - SHADOW_EPSILON), FAR).astype(REAL, copy=False)
+        if self.lights.surfaces:  # light shapes first, on all (J, M) segments at once (no gathers)
+            skip = np.asarray(shapes, dtype=np.int64)[:, None]
+            valid &= ~self.lights.occluded_soa(points, wi, short, skip)
         idx = np.flatnonzero(valid)
         if idx.size == 0:
-            return result
-        value, pdf_b = bsdf.take(idx).evaluate(wi[idx])
-        good = value.max(axis=1) > 0
-        idx, value, pdf_b = idx[good], value[good], pdf_b[good]
-        if idx.size == 0:
-            return result
-        visible = self._visible(points[idx], wi[idx], dist[idx])
-        idx, value, pdf_b = idx[visible], value[visible], pdf_b[visible]
-        p = pdf[idx]
-        weight = _power(p, pdf_b) if can_hit else np.ones(idx.size)
-        inv = np.where(np.isinf(p), 1.0, 1.0 / np.where(np.isinf(p), 1.0, p))
-        result[idx] = value * radiance[idx] * (weight * inv)[:, None]
-        return result
+            return np.zeros((3, m), dtype=REAL)
+        sp, sw, sd = _take(points, idx % m), _take(wi.reshape(3, -1), idx), short.reshape(-1)[idx]
+        if self.surfaces.cutout:
+            visible = self._intersect(sp, sw)[1] >= sd
+        else:
+            visible = ~self.tracer.occluded(sp, sw, sd, soa=True)
+        scale = np.zeros(count * m, dtype=REAL)
+        scale[idx[visible]] = 1
+        scale = scale.reshape(count, m) * weight * inv
+        return (value * radiance * scale).sum(axis=1)
+
+    def _dome_pdf(self, points: np.ndarray, wi: np.ndarray, pdf: np.ndarray) -> np.ndarray:
+        """Solid-angle pdf (M,) of the dome-rest next-event strategy from the dome's own ``pdf``: with portals the
+        mixture ½ p_dome + ½ (1/K) Σ_k p_portal_k (uniform area sampling of one of K portals)."""
+        if not self.portals:
+            return pdf
+        through = np.zeros(wi.shape[1], dtype=REAL)
+        for portal in self.portals:
+            t, _ = portal.intersect_soa(points, wi)
+            hit = t < FAR
+            if hit.any():  # the density of uniform area sampling, from either side of the portal
+                th = np.where(hit, t, 0)
+                cos = np.abs(dotc(portal.z_axis, wi))
+                through += np.where(hit, th * th / (portal.light.area * np.maximum(cos, TINY)), 0)
+        return 0.5 * pdf + 0.5 * through / len(self.portals)
 
     # ------------------------------------------------------------------------------------------------------------
     def _splat_distant(self, light: Light, face_size: int) -> bool:
@@ -401,13 +515,18 @@ class ProbeRenderer:
         disc = 2.0 * np.pi * (1.0 - np.cos(alpha))
         return disc < cube_mean_texel_solid_angle(face_size)
 
+    def _visible_from(self, position: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """Whether the probe at ``position`` sees the dome along directions (K, 3): bool (K,)."""
+        d = np.ascontiguousarray(np.asarray(directions, dtype=np.float64).T, dtype=REAL)
+        o = np.broadcast_to(np.asarray(position, dtype=REAL).reshape(3, 1), d.shape)
+        return self._visible(o, d, np.full(d.shape[1], FAR, dtype=REAL))
+
     def _add_sun(self, cube: np.ndarray, position: np.ndarray) -> np.ndarray:
         """Splat the dome's sun points that the probe sees (bilinear, flux-exact)."""
         if self.dome.black or not self.dome.has_sun:
             return cube
         directions, flux = self.dome.sun_points()
-        origins = np.broadcast_to(position, directions.shape)
-        seen = self._visible(origins, directions, np.full(directions.shape[0], FAR))
+        seen = self._visible_from(position, directions)
         if not seen.any():
             return cube
         return self._splat(cube, directions[seen], flux[seen])
@@ -416,7 +535,9 @@ class ProbeRenderer:
         n = cube.shape[1]
         flux_cube = np.zeros((6 * n * n, 3))
         splat_bilinear(flux_cube, directions, flux)
-        return cube + (flux_cube / cube_texel_solid_angles(n).reshape(-1, 1)).reshape(cube.shape)
+        if n not in self._omega:
+            self._omega[n] = cube_texel_solid_angles(n).reshape(-1, 1)
+        return cube + (flux_cube / self._omega[n]).reshape(cube.shape)
 
     def _add_distant_lights(self, cube: np.ndarray, position: np.ndarray) -> np.ndarray:
         n = cube.shape[1]
@@ -424,7 +545,7 @@ class ProbeRenderer:
             if not self._splat_distant(light.light, n):
                 continue
             d = light.direction[None, :]
-            if not self._visible(position[None, :], d, np.array([FAR]))[0]:
+            if not self._visible_from(position, d)[0]:
                 continue
             cube = self._splat(cube, d, light.illuminance[None, :])
         return cube

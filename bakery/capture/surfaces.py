@@ -61,6 +61,53 @@ class MipTexture:
                     _shrink(level, 1)
             self.levels.append(level)
         self.height, self.width = self.levels[0].shape[:2]
+        # all levels as one channel-major float32 table (4, Σ h·w) with per-level offsets and sizes, for
+        # :meth:`lookup_soa`
+        sizes = [lvl.shape[:2] for lvl in self.levels]
+        self._flat = np.ascontiguousarray(np.concatenate([lvl.reshape(-1, 4) for lvl in self.levels]).T,
+                                          dtype=np.float32)
+        self._offset = np.cumsum([0] + [h * w for h, w in sizes[:-1]]).astype(np.int64)
+        self._h = np.array([h for h, _ in sizes], dtype=np.int64)
+        self._w = np.array([w for _, w in sizes], dtype=np.int64)
+
+    def lookup_soa(self, s: np.ndarray, t: np.ndarray, lod: np.ndarray, wrap: tuple[str, str],
+                   channels: tuple[int, ...]) -> list[np.ndarray]:
+        """:meth:`lookup` for float32 coordinates s, t and level of detail (M,), returning the ``channels`` (0–3)
+        as a list of (M,) arrays; every level is looked up in one pass (per-element level sizes)."""
+        top = len(self.levels) - 1
+        lod = np.clip(lod, 0, top)
+        l0 = lod.astype(np.int64)  # floor (lod ≥ 0)
+        frac = lod - l0
+        a = self._bilinear_soa(l0, s, t, wrap, channels)
+        blend = np.flatnonzero(frac > 0)  # footprints under a texel (lod 0) need no second level
+        if blend.size == 0:
+            return a
+        fb = frac[blend]
+        b = self._bilinear_soa(np.minimum(l0[blend] + 1, top), s[blend], t[blend], wrap, channels)
+        for x, y in zip(a, b):
+            x[blend] = x[blend] * (1 - fb) + y * fb
+        return a
+
+    def _bilinear_soa(self, level: np.ndarray, s: np.ndarray, t: np.ndarray, wrap: tuple[str, str],
+                      channels: tuple[int, ...]) -> list[np.ndarray]:
+        h, w = np.take(self._h, level), np.take(self._w, level)
+        offset = np.take(self._offset, level)
+        x = s * w.astype(s.dtype) - 0.5
+        y = (1 - t) * h.astype(t.dtype) - 0.5
+        x0, y0 = np.floor(x), np.floor(y)
+        fx, fy = x - x0, y - y0
+        x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
+        out = [np.zeros(s.shape, dtype=s.dtype) for _ in channels]
+        for dx, dy, weight in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy),
+                               (1, 1, fx * fy)):
+            cx, vx = _wrap(x0 + dx, w, wrap[0])
+            cy, vy = _wrap(y0 + dy, h, wrap[1])
+            index = offset + cy * w + cx
+            if wrap[0] == "black" or wrap[1] == "black":
+                weight = weight * (vx & vy)
+            for acc, c in zip(out, channels):
+                acc += weight * np.take(self._flat[c], index)
+        return out
 
     def lookup(self, st: np.ndarray, lod: np.ndarray, wrap: tuple[str, str]) -> np.ndarray:
         """RGBA (M, 4) at texture coordinates st (M, 2) (s right, t up: t = 1 is row 0) and level of detail (M,)."""
@@ -152,6 +199,7 @@ class Surfaces:
         self.triangles = tracer.triangles
         self.uvs = None
         self.uv_density = None
+        self._uvs_soa = None
         if self.textured:
             uvs = [np.asarray(m.uvs, dtype=np.float64).reshape(-1, 3, 2) if m.uvs is not None
                    else np.zeros((m.triangles.reshape(-1, 3, 3).shape[0], 3, 2)) for m in scene.meshes]
@@ -161,6 +209,89 @@ class Surfaces:
             e1, e2 = self.uvs[:, 1] - self.uvs[:, 0], self.uvs[:, 2] - self.uvs[:, 0]
             area_uv = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
             self.uv_density = np.sqrt(area_uv / np.maximum(area_w, 1e-300))  # uv units per metre
+
+        # per-material BSDF parameters (rows: albedo rgb, F0 rgb, roughness, emission rgb) for the renderer's
+        # structure-of-arrays gathers; textured materials are re-evaluated per hit on top
+        point = self._point({name: array.copy() for name, array in self.base.items()}, np.arange(len(mats)))
+        self.table = np.ascontiguousarray(np.concatenate(
+            [point.albedo.T, point.f0.T, point.roughness[None], point.emission.T]), dtype=np.float32)
+        self.emissive = bool(point.emission.max() > 0) or any(
+            entry.get("input") == "emissiveColor" for k in self.textured for entry in self.materials[k].maps)
+        self.mesh_of_soa = np.ascontiguousarray(self.mesh_of, dtype=np.int32)
+
+    def params_soa(self, prim: np.ndarray, bu: np.ndarray, bv: np.ndarray, t: np.ndarray, spread: float
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+        """BSDF parameters at hits as float32 structure-of-arrays: albedo (3, M), F0 (3, M), roughness (M,) and
+        emission (3, M) (None when no material emits)."""
+        mi = np.take(self.mesh_of_soa, prim) if len(self.materials) else np.zeros(prim.shape, dtype=np.int32)
+        rows = 10 if self.emissive else 7
+        cols = [np.take(self.table[c], mi) for c in range(rows)]
+        albedo, f0, rough = np.stack(cols[0:3]), np.stack(cols[3:6]), cols[6]
+        emission = np.stack(cols[7:10]) if self.emissive else None
+        for k in self.textured:
+            sel = np.flatnonzero(mi == k)
+            if sel.size:
+                a, f, r, e = self._textured_soa(k, np.take(prim, sel), np.take(bu, sel), np.take(bv, sel),
+                                                np.take(t, sel), spread)
+                albedo[:, sel] = a
+                f0[:, sel] = f
+                rough[sel] = r
+                if emission is not None:
+                    emission[:, sel] = e
+        return albedo, f0, rough, emission
+
+    def _textured_soa(self, k: int, prim: np.ndarray, bu: np.ndarray, bv: np.ndarray, t: np.ndarray, spread: float
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`at` (textures, then :meth:`_point`) for hits on material ``k``, float32 (3, M) / (M,)."""
+        m = prim.shape[0]
+        dtype = t.dtype
+        if self._uvs_soa is None:
+            self._uvs_soa = np.ascontiguousarray(self.uvs.reshape(-1, 6).T, dtype=np.float32)
+            self._uv_density32 = np.ascontiguousarray(self.uv_density, dtype=np.float32)
+        uv = [np.take(self._uvs_soa[i], prim) for i in range(6)]
+        w0 = 1 - bu - bv
+        s = w0 * uv[0] + bu * uv[2] + bv * uv[4]
+        tt = w0 * uv[1] + bu * uv[3] + bv * uv[5]
+        density = np.take(self._uv_density32, prim) * (t * spread)
+        values: dict[str, np.ndarray] = {}
+        for entry in self.materials[k].maps:
+            name = entry["input"]
+            if name not in self.base:
+                continue
+            texture = self.texture(int(entry["texture"]))
+            lod = np.log2(np.maximum(density * max(texture.width, texture.height), 1))
+            channels = entry.get("channels", "rgb")
+            index = {"r": (0,), "g": (1,), "b": (2,), "a": (3,)}.get(channels, (0, 1, 2))
+            texels = texture.lookup_soa(s, tt, lod, tuple(entry.get("wrap", ("repeat", "repeat"))), index)
+            scale = entry.get("scale", (1.0, 1.0, 1.0, 1.0))
+            bias = entry.get("bias", (0.0, 0.0, 0.0, 0.0))
+            texels = [x * float(scale[c]) + float(bias[c]) for x, c in zip(texels, index)]
+            if self.base[name].ndim == 2:  # colour input
+                values[name] = np.stack(texels if len(texels) == 3 else texels * 3)
+            else:
+                values[name] = texels[0] if len(texels) == 1 else (
+                    0.2126 * texels[0] + 0.7152 * texels[1] + 0.0722 * texels[2])
+
+        def get(name: str) -> np.ndarray:
+            if name in values:
+                return values[name]
+            base = self.base[name][k]
+            return np.asarray(base, dtype=dtype).reshape(3, 1) if np.ndim(base) else np.asarray(base, dtype=dtype)
+
+        diffuse = np.maximum(get("diffuseColor"), 0)
+        metallic = np.clip(get("metallic"), 0, 1)
+        if self.specular_workflow[k]:
+            f0 = np.clip(get("specularColor"), 0, 1)
+            albedo = diffuse
+        else:
+            ior = get("ior")
+            dielectric = np.where(ior > 0, ((ior - 1) / (ior + 1)) ** 2, 0)
+            f0 = np.clip((1 - metallic) * dielectric + metallic * diffuse, 0, 1)
+            albedo = diffuse * (1 - metallic)
+        shape = (3, m)
+        return (np.broadcast_to(np.clip(albedo, 0, 1), shape), np.broadcast_to(f0, shape),
+                np.broadcast_to(np.clip(get("roughness"), 0, 1), (m,)),
+                np.broadcast_to(np.maximum(get("emissiveColor"), 0), shape))
 
     def texture(self, index: int) -> MipTexture:
         if index not in self._textures:

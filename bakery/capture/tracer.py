@@ -2,7 +2,10 @@
 
 All triangles of all meshes go into one Embree scene; ``primID`` indexes the concatenated triangle arrays, so
 per-triangle normals (and, in :mod:`bakery.capture.surfaces`, materials) are plain numpy gathers. Queries are
-issued in chunks of :data:`CHUNK` rays (Embree's stream API is single-call per chunk; there is no per-ray Python loop).
+issued in chunks of :data:`CHUNK` rays (Embree's stream API is single-call per chunk; there is no per-ray Python loop)
+as contiguous (M, 3) float32 arrays; shadow rays use occlusion queries (``query="OCCLUDED"``: any hit ends the
+search), camera and bounce rays closest-hit queries. The renderer passes structure-of-arrays (3, M) rays
+(``soa=True``), transposed here into Embree's layout.
 """
 
 from __future__ import annotations
@@ -40,6 +43,8 @@ class SceneTracer:
         cross = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]) if len(tris) else np.zeros((0, 3))
         length = np.linalg.norm(cross, axis=-1, keepdims=True)
         self.normals = np.where(length > 0, cross / np.maximum(length, 1e-300), np.array([0.0, 1.0, 0.0]))
+        #: the normals' x, y and z rows in float32 (structure-of-arrays gathers of the renderer)
+        self.normals_soa = np.ascontiguousarray(self.normals.T, dtype=np.float32)
         if len(tris):
             lo, hi = tris.reshape(-1, 3).min(axis=0), tris.reshape(-1, 3).max(axis=0)
             diagonal = float(np.linalg.norm(hi - lo))
@@ -59,66 +64,56 @@ class SceneTracer:
         accurate to about 1e-7·|p| (the 1e-5 factor leaves two orders of margin)."""
         return self.epsilon * (1e-2 + np.abs(points).max(axis=-1))
 
-    def intersect(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Closest hit of rays (M, 3): triangle index (M,) (−1 on miss) and distance t (M,) (FAR on miss)."""
-        m = origins.shape[0]
-        self.rays_cast += m
-        prim = np.full(m, -1, dtype=np.int64)
-        t = np.full(m, FAR)
-        if self._scene is None or m == 0:
-            return prim, t
-        for start in range(0, m, CHUNK):
-            stop = min(m, start + CHUNK)
-            out = self._scene.run(
-                np.ascontiguousarray(origins[start:stop], dtype=np.float32),
-                np.ascontiguousarray(directions[start:stop], dtype=np.float32),
-                output=1,
-            )
-            hit = out["primID"] >= 0
-            prim[start:stop] = out["primID"]
-            t[start:stop] = np.where(hit, out["tfar"].astype(np.float64), FAR)
-        return prim, t
+    def offset_soa(self, points: np.ndarray) -> np.ndarray:
+        """:meth:`offset` of points (3, M)."""
+        a = np.abs(points)
+        return self.epsilon * (1e-2 + np.maximum(np.maximum(a[0], a[1]), a[2]))
 
-    def intersect_uv(self, origins: np.ndarray, directions: np.ndarray
+    def intersect_uv(self, origins: np.ndarray, directions: np.ndarray, soa: bool = False
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """As :meth:`intersect`, plus the hit's barycentric coordinates u, v (M,) (p = (1−u−v)·v0 + u·v1 + v·v2)."""
-        m = origins.shape[0]
+        """Closest hit of rays (M, 3) (or (3, M) with ``soa``): triangle index (M,) int32 (−1 on miss), distance t
+        (M,) float32 (FAR on miss) and the hit's barycentric coordinates u, v (M,) float32
+        (p = (1−u−v)·v0 + u·v1 + v·v2)."""
+        o = np.ascontiguousarray(origins.T if soa else origins, dtype=np.float32)
+        d = np.ascontiguousarray(directions.T if soa else directions, dtype=np.float32)
+        m = o.shape[0]
         self.rays_cast += m
-        prim = np.full(m, -1, dtype=np.int64)
-        t = np.full(m, FAR)
-        bu = np.zeros(m)
-        bv = np.zeros(m)
+        prim = np.full(m, -1, dtype=np.int32)
+        t = np.full(m, FAR, dtype=np.float32)
+        bu = np.zeros(m, dtype=np.float32)
+        bv = np.zeros(m, dtype=np.float32)
         if self._scene is None or m == 0:
             return prim, t, bu, bv
         for start in range(0, m, CHUNK):
             stop = min(m, start + CHUNK)
-            out = self._scene.run(
-                np.ascontiguousarray(origins[start:stop], dtype=np.float32),
-                np.ascontiguousarray(directions[start:stop], dtype=np.float32),
-                output=1,
-            )
+            out = self._scene.run(o[start:stop], d[start:stop], output=1)
             hit = out["primID"] >= 0
             prim[start:stop] = out["primID"]
-            t[start:stop] = np.where(hit, out["tfar"].astype(np.float64), FAR)
+            t[start:stop] = np.where(hit, out["tfar"], FAR)
             bu[start:stop] = out["u"]
             bv[start:stop] = out["v"]
         return prim, t, bu, bv
 
-    def occluded(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray) -> np.ndarray:
-        """Whether each segment origin + t·direction, 0 < t < distance, hits a triangle: bool (M,)."""
-        m = origins.shape[0]
+    def intersect(self, origins: np.ndarray, directions: np.ndarray, soa: bool = False
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """Closest hit of rays: triangle index (M,) (−1 on miss) and distance t (M,) (FAR on miss)."""
+        prim, t, _u, _v = self.intersect_uv(origins, directions, soa)
+        return prim, t
+
+    def occluded(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray,
+                 soa: bool = False) -> np.ndarray:
+        """Whether each segment origin + t·direction, 0 < t < distance, hits a triangle: bool (M,). An occlusion
+        query (Embree stops at the first hit found, no closest-hit search)."""
+        o = np.ascontiguousarray(origins.T if soa else origins, dtype=np.float32)
+        d = np.ascontiguousarray(directions.T if soa else directions, dtype=np.float32)
+        m = o.shape[0]
         self.rays_cast += m
         if self._scene is None or m == 0:
             return np.zeros(m, dtype=bool)
+        dist = np.ascontiguousarray(np.minimum(distances, FAR), dtype=np.float32)
         result = np.zeros(m, dtype=bool)
         for start in range(0, m, CHUNK):
             stop = min(m, start + CHUNK)
-            dist = np.minimum(distances[start:stop], FAR).astype(np.float32)
-            out = self._scene.run(
-                np.ascontiguousarray(origins[start:stop], dtype=np.float32),
-                np.ascontiguousarray(directions[start:stop], dtype=np.float32),
-                dists=np.ascontiguousarray(dist),
-                query="OCCLUDED",
-            )
+            out = self._scene.run(o[start:stop], d[start:stop], dists=dist[start:stop], query="OCCLUDED")
             result[start:stop] = np.asarray(out) >= 0
         return result

@@ -46,7 +46,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Literal
 
 import numpy as np
 
@@ -55,7 +54,14 @@ from bakery.encodings.base import Encoding, EncodingParams, FieldSpec
 from bakery.encodings.registry import register
 from bakery.probe import ProbeBatch
 from bakery.reflection.lights import evaluate_lights, extract_lights
-from bakery.reflection.shexp import TABLE_SAMPLES, TABLE_SIZE, SHExpSettings, evaluate_shexp, fit_shexp
+from bakery.reflection.shexp import (
+    TABLE_SAMPLES,
+    TABLE_SIZE,
+    SHExpFitFields,
+    SHExpSettings,
+    evaluate_shexp,
+    fit_shexp,
+)
 from bakery.reflection.tables import compute_dfg_tables
 
 operator_cache.install()
@@ -71,18 +77,8 @@ class SHExp(Encoding):
     """SH exponentials ([SHExp] Sec. 4): p (bands 0..p_band) and q (bands 1..q_band) float32 + Fresnel tail."""
 
     @dataclass(frozen=True)
-    class Params(EncodingParams):
-        p_band: int = 4
-        q_band: int = 2
-        n_normals: int = 64
-        n_views: int = 64
-        n_alphas: int = 4
-        alpha_min: float = 0.2
-        alpha_max: float = 1.0
-        fit_face_size: int = 16
-        min_fit_face_size: int = 8
-        fit: Literal["weighted", "log"] = "weighted"
-        albedo_normalized: bool = True
+    class Params(EncodingParams, SHExpFitFields):
+        """The fields (p_band … albedo_normalized) and defaults are :class:`SHExpFitFields`'s (one home)."""
 
         #: Fit modes of stores written before 1.1.0 (both were the unweighted log-space fit).
         LEGACY_VALUES = {"fit": {"dense": "log", "fast": "log"}}
@@ -125,12 +121,7 @@ class SHExp(Encoding):
 
     @cached_property
     def model(self) -> SHExpSettings:
-        p = self.params
-        return SHExpSettings(
-            p_band=p.p_band, q_band=p.q_band, n_normals=p.n_normals, n_views=p.n_views, n_alphas=p.n_alphas,
-            alpha_min=p.alpha_min, alpha_max=p.alpha_max, fit_face_size=p.fit_face_size,
-            min_fit_face_size=p.min_fit_face_size, fit=p.fit, albedo_normalized=p.albedo_normalized,
-        )
+        return SHExpSettings.from_fields(self.params)
 
     def field_specs(self) -> tuple[FieldSpec, ...]:
         return (

@@ -21,7 +21,10 @@ import numpy as np
 from bakery.encodings import Encoding
 from bakery.environment.sanitize import SanitizeReport
 from bakery.errors import BakeryWarning, EncodingError
-from bakery.irradiance.reference import reference_irradiance
+from bakery.irradiance.reference import (
+    reference_irradiance_binned,
+    reference_irradiance_cubes,
+)
 from bakery.pipeline.settings import BakeSettings, build_encodings, default_encodings
 from bakery.pipeline.skip import irradiance_band_energy
 from bakery.probe import PROBE_KINDS, Probe, ProbeBatch
@@ -78,8 +81,13 @@ def full_length(values: np.ndarray, rows: np.ndarray, count: int) -> np.ndarray:
 
 
 def reference_irradiance_values(batch: ProbeBatch, normals: np.ndarray) -> np.ndarray:
-    """Exact irradiance (P, N, 3) float32 of every probe's reference quadrature at ``normals`` (N, 3)."""
-    return np.stack([reference_irradiance(batch.samples(j), normals, dtype=np.float32) for j in range(batch.count)])
+    """Reference irradiance (P, N, 3) float32 of every probe's reference quadrature at ``normals`` (N, 3): the
+    capture's brute force as one GEMM with a cached operator when the capture is the reference, else the binned
+    full-resolution quadrature (exact but for the terminator texels; bound and measured error in
+    :mod:`bakery.irradiance.reference`)."""
+    if batch.reference_samples is None:
+        return reference_irradiance_cubes(batch.cubes, normals)
+    return reference_irradiance_binned(batch.reference_samples, normals)
 
 
 def irradiance_diagnostics(

@@ -64,6 +64,17 @@ Weighted solve (beyond the paper; ``fit = "weighted"``, default)
     A_mi A_mj, i ≤ j), ~1 M multiply-adds per probe instead of 9 M over the rows; the solve stays
     GEMM → log → GEMM. ``fit = "log"`` is the paper's unweighted fit (A⁺ · log E0).
 
+Fused fit (:func:`fit_shexp`; :func:`fit_shexp_stepwise` is the same solve one full pass per step)
+    Everything but W·F and the log is a fixed linear map of the flux, so it is precomposed: the probe means of E0
+    and of Y(E0) (log floor, row-weight normaliser) are (1ᵀW)·F / M, the albedo term Aᵀ W log a is
+    Σ_b [Aᵀ diag(log a) W_b] · Y(F_b) / mean + w_min Aᵀ log a, and the Gram as above. What is left runs over row
+    chunks of ~2 MB (E0 chunk = W_rows·F, luminance, weights, floor, log, weighting in place, += Aᵀ_rows · chunk),
+    so the (M, 3P) samples never exist and the temporaries stay in cache; columns are (channel, probe) so the
+    weights broadcast over contiguous probes. Measured by :mod:`bakery.bench.shexp_fit` (batch 64, 6×128²).
+    The W·F GEMM (2.1 G multiply-adds per 64 probes, at the BLAS peak) and the splat's read of the capture
+    are what remain; W is full rank (all 1536 / 384 singular values above 1e-7 of the largest) and half zero
+    (⟨l, n⟩₊), a per-normal gather of the nonzero half measured no faster.
+
 Notation
     M design rows, T fit-grid texels, P probes, C = 3 channels, K_p = (p_band+1)², K_q = (q_band+1)² − 1.
 
@@ -73,14 +84,15 @@ References
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from functools import lru_cache
+from typing import Literal
 
 import numpy as np
 
 from bakery.brdf.ggx import reflect
-from bakery.conventions import LUMINANCE_WEIGHTS
 from bakery.brdf.sampling import to_world
+from bakery.conventions import LUMINANCE_WEIGHTS
 from bakery.reflection.reference import _weights_float32
 from bakery.reflection.tables import OperatorCache
 from bakery.sh.basis import evaluate_sh_basis, sh_bands
@@ -99,8 +111,10 @@ FIT_MODES = ("weighted", "log")
 
 
 @dataclass(frozen=True)
-class SHExpSettings:
-    """Model orders, fit design, fit grid and solve (all recorded in the store's ``settings``)."""
+class SHExpFitFields:
+    """The model orders, fit design, fit grid and solve of an SH-exp fit: the one home of these fields and their
+    defaults, shared by :class:`SHExpSettings` and the encodings' recipe parameters
+    (:class:`bakery.encodings.shexp.SHExp.Params` derives from it)."""
 
     p_band: int = 4
     q_band: int = 2
@@ -111,8 +125,14 @@ class SHExpSettings:
     alpha_max: float = 1.0
     fit_face_size: int = 16
     min_fit_face_size: int = 8
-    fit: str = "weighted"
+    fit: Literal["weighted", "log"] = "weighted"
     albedo_normalized: bool = True
+
+
+@dataclass(frozen=True)
+class SHExpSettings(SHExpFitFields):
+    """Model orders, fit design, fit grid and solve (all recorded in the store's ``settings``)."""
+
     alpha_spacing: str = "linear"
 
     def __post_init__(self) -> None:
@@ -121,6 +141,13 @@ class SHExpSettings:
         if not 1 <= self.min_fit_face_size <= self.fit_face_size:
             raise ValueError(f"need 1 <= min_fit_face_size <= fit_face_size, got {self.min_fit_face_size}, "
                              f"{self.fit_face_size}")
+
+    @classmethod
+    def from_fields(cls, source: SHExpFitFields, **overrides: object) -> SHExpSettings:
+        """Settings with every :class:`SHExpFitFields` field of ``source`` (e.g. an encoding's Params), then
+        ``overrides``."""
+        values = {f.name: getattr(source, f.name) for f in fields(SHExpFitFields)}
+        return cls(**{**values, **overrides})
 
     @property
     def p_count(self) -> int:
@@ -253,6 +280,12 @@ def splat_flux(cubes: np.ndarray, grids: tuple[int, ...],
     batched matmul; then the row splat); coarser grids are splatted from the finest grid's flux (flux stays
     exact; the coarse grids serve the wide lobes). ``removed`` = (probe index (R,), flat texel index (R,) into
     6·N·N): texels treated as black (their splatted flux is subtracted — the capture is not copied)."""
+    return _splat_flux(cubes, grids, removed, channel_major=False)
+
+
+def _splat_flux(cubes: np.ndarray, grids: tuple[int, ...], removed: tuple[np.ndarray, np.ndarray] | None,
+                channel_major: bool) -> dict[int, np.ndarray]:
+    """:func:`splat_flux`; ``channel_major`` orders the columns (channel, probe) instead of (probe, channel)."""
     cubes = np.asarray(cubes, dtype=np.float32)
     p, n = cubes.shape[0], cubes.shape[2]
     grids = tuple(sorted(set(grids), reverse=True))
@@ -269,7 +302,8 @@ def splat_flux(cubes: np.ndarray, grids: tuple[int, ...],
             grid = (splat_matrix(finest, g) @ coarse).reshape(g, p * 6, 3 * g)
         else:
             grid = nodes
-        out[g] = np.ascontiguousarray(grid.reshape(g, p, 6, g, 3).transpose(2, 0, 3, 1, 4)).reshape(6 * g * g, 3 * p)
+        order = (2, 0, 3, 4, 1) if channel_major else (2, 0, 3, 1, 4)  # → (face, row, column, …)
+        out[g] = np.ascontiguousarray(grid.reshape(g, p, 6, g, 3).transpose(order)).reshape(6 * g * g, 3 * p)
     return out
 
 
@@ -322,6 +356,10 @@ class SHExpOperators:
     albedo_design_t: np.ndarray
     gram_operators: tuple[np.ndarray, ...]
     design_gram_upper: np.ndarray
+    #: per W block, its column sums 1ᵀW (6g²,) float32: Σ_m E0_m = (1ᵀW)·F without forming E0 (fused fit)
+    column_sums: tuple[np.ndarray, ...] = ()
+    #: per W block, Aᵀ diag(log a) W (K, 6g²) float32: Aᵀ W log a = Σ_b (…)·Y(F_b)/mean + w_min Aᵀ log a (fused fit)
+    albedo_flux_operators: tuple[np.ndarray, ...] = ()
 
 
 #: Shared table resolution used by the albedo normalisation (same table as the encodings store).
@@ -396,11 +434,14 @@ def build_operators(settings: SHExpSettings, capture_face_size: int | None = Non
     gram_operators = tuple((products[b.start : b.stop].T @ b.weights.astype(np.float64)).astype(np.float32)
                            for b in blocks)
     design_gram_upper = products.sum(axis=0)  # AᵀA, i ≤ j
+    column_sums = tuple(b.weights.astype(np.float64).sum(axis=0).astype(np.float32) for b in blocks)
+    albedo_flux = tuple((albedo_design_t[:, b.start : b.stop].astype(np.float64) @ b.weights).astype(np.float32)
+                        for b in blocks)
     for array in (design, pinv, pair_products_t, log_albedo, pinv_log_albedo, design_t, albedo_design_t,
-                  design_gram_upper, *gram_operators):
+                  design_gram_upper, *gram_operators, *column_sums, *albedo_flux):
         array.setflags(write=False)
     return SHExpOperators(blocks, design, pinv, pair_products_t, log_albedo, pinv_log_albedo, design_t,
-                          albedo_design_t, gram_operators, design_gram_upper)
+                          albedo_design_t, gram_operators, design_gram_upper, column_sums, albedo_flux)
 
 
 def design_e0_samples(cubes: np.ndarray, settings: SHExpSettings,
@@ -500,7 +541,75 @@ def solve_from_samples(e0: np.ndarray, settings: SHExpSettings, operators: SHExp
 def fit_shexp(cubes: np.ndarray, settings: SHExpSettings,
               removed: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Fit P captures (P, 6, N, N, 3) → coefficients (P, K_p + K_q, 3) float32: splat → GEMM → log → GEMM.
-    ``removed`` = (probe index, flat texel index) arrays of texels fitted as black (:func:`splat_flux`)."""
+    ``removed`` = (probe index, flat texel index) arrays of texels fitted as black (:func:`splat_flux`).
+
+    Fused over row chunks (module doc "Fused fit"); the same least squares as :func:`fit_shexp_stepwise`."""
+    cubes = np.asarray(cubes, dtype=np.float32)
+    ops = build_operators(settings, int(cubes.shape[2]))
+    p = cubes.shape[0]
+    # flux with channel-major columns (c, p): the row weights (r, P) then broadcast over contiguous P
+    flux = _splat_flux(cubes, tuple(b.face_size for b in ops.blocks), removed, channel_major=True)
+    m, k = ops.design.shape
+    # row means of E0 per (channel, probe) from the flux: Σ_m (W·F)_m = (1ᵀW)·F
+    total = sum(c.astype(np.float64) @ flux[b.face_size] for c, b in zip(ops.column_sums, ops.blocks, strict=True))
+    mean = total.reshape(3, p).sum(axis=0) / (3 * m)  # (P,) over rows and channels (module doc "Log guard")
+    floor = np.tile(np.maximum(EPS_REL * mean, EPS_ABS).astype(np.float32), 3)  # (3P,)
+    weighted = settings.fit == "weighted"
+    if weighted:
+        lum_flux = {g: np.matmul(LUMINANCE, f.reshape(-1, 3, p)) for g, f in flux.items()}  # Y(F) (6g², P)
+        lum_mean = np.maximum(LUMINANCE.astype(np.float64) @ total.reshape(3, p) / m, EPS_ABS)  # (P,)
+        inv_mean = (1.0 / lum_mean).astype(np.float32)
+    rows = int(np.clip(_CHUNK_FLOATS // (3 * p), 64, 4096))
+    e0 = np.empty((rows, 3 * p), dtype=np.float32)
+    w = np.empty((rows, p), dtype=np.float32)
+    part = np.empty((k, 3 * p), dtype=np.float32)
+    rhs = np.zeros((k, 3 * p))  # float64 accumulator over the chunks
+    right = ops.design_t if weighted else ops.pinv  # Aᵀ (weighted normal equations) or A⁺ (plain log fit)
+    for block in ops.blocks:
+        f = flux[block.face_size]
+        for r0 in range(block.start, block.stop, rows):
+            r1 = min(r0 + rows, block.stop)
+            e, ww = e0[: r1 - r0], w[: r1 - r0]
+            np.matmul(block.weights[r0 - block.start : r1 - block.start], f, out=e)  # E0 = W·F (GEMM)
+            if weighted:  # w = Y(E0)/mean + w_min of the unfloored samples
+                np.matmul(LUMINANCE, e.reshape(-1, 3, p), out=ww)
+                ww *= inv_mean
+                ww += np.float32(WEIGHT_MIN)
+            np.maximum(e, floor, out=e)  # log guard
+            np.log(e, out=e)
+            if weighted:
+                e.reshape(-1, 3, p)[...] *= ww[:, None, :]  # W log E0
+            np.matmul(right[:, r0:r1], e, out=part)
+            rhs += part
+    rhs = rhs.reshape(k, 3, p)
+    if not weighted:
+        return np.ascontiguousarray((rhs - ops.pinv_log_albedo[:, None, None]).transpose(2, 0, 1), dtype=np.float32)
+    # Aᵀ W log a and Aᵀ W A from the luminance flux (w is linear in it; module doc "Weighted solve")
+    albedo = sum(o @ lum_flux[b.face_size] for o, b in zip(ops.albedo_flux_operators, ops.blocks, strict=True))
+    albedo = albedo * inv_mean[None, :] + np.float32(WEIGHT_MIN) * ops.albedo_design_t.sum(axis=1)[:, None]
+    gram = sum(g @ lum_flux[b.face_size] for g, b in zip(ops.gram_operators, ops.blocks, strict=True))
+    gram_upper = (gram.T.astype(np.float64) / lum_mean[:, None]) + WEIGHT_MIN * ops.design_gram_upper[None, :]
+    return _solve_normal_equations(gram_upper, (rhs - albedo[:, None, :]).transpose(0, 2, 1), k)
+
+
+#: Floats per row chunk of the fused fit's E0 (512 k: 2 MB, one L2; the chunk and its log stay in cache).
+_CHUNK_FLOATS = 1 << 19
+
+
+def _solve_normal_equations(gram_upper: np.ndarray, rhs: np.ndarray, k: int) -> np.ndarray:
+    """Solve G x = b per probe: upper triangles (P, K(K+1)/2) float64, right-hand sides (K, P, 3) → (P, K, 3)."""
+    p = gram_upper.shape[0]
+    gram = np.empty((p, k, k))
+    i, j = np.triu_indices(k)
+    gram[:, i, j] = gram_upper
+    gram[:, j, i] = gram_upper
+    return np.linalg.solve(gram, rhs.transpose(1, 0, 2).astype(np.float64)).astype(np.float32)
+
+
+def fit_shexp_stepwise(cubes: np.ndarray, settings: SHExpSettings,
+              removed: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """:func:`fit_shexp` step by step (one full pass over the (M, 3P) samples per step; the 1.1 formulation,
+    kept for the bench and as the batched reference of the fused fit): splat → W·F → log → weights → solve."""
     cubes = np.asarray(cubes, dtype=np.float32)
     ops = build_operators(settings, int(cubes.shape[2]))
     e0, flux = _samples_and_flux(cubes, settings, removed)

@@ -1,0 +1,142 @@
+"""SH-exponential fit speed, fused vs step-by-step (issue 14): ``bakery bench shexp``.
+
+Protocol
+    Captures: every ``.hdr``/``.exr`` under ``env_dir`` resampled to ``face_size`` (default 128), repeated to a batch
+    of ``batch_size`` (default 64 — a bake's batch); without ``env_dir``, deterministic sky-and-sun cubes.
+    Settings: the default :class:`~bakery.reflection.shexp.SHExpSettings` (weighted) and ``fit = "log"``.
+    For each: wall-clock median (and minimum) over ``repeats`` (≥ 5) runs of :func:`fit_shexp` (fused, current) and
+    :func:`fit_shexp_stepwise` (the previous formulation, same least squares), interleaved in one process so that
+    both see the same machine load; ms per probe = seconds / batch_size. The fused path's pieces are timed
+    alone: the splat, the W·F GEMMs (the floor of any formulation keeping the fit grid), and the rest (by
+    difference). Agreement: the largest coefficient difference and the relative RMS of E0 over the design rows
+    between the two paths — the error against the plain fit is unchanged when they agree to float32 rounding.
+    The operators are built (or loaded from the operator cache) before timing and reported separately.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from bakery.reflection.shexp import (
+    SHExpSettings,
+    build_operators,
+    evaluate_e0,
+    fit_design,
+    fit_shexp,
+    fit_shexp_stepwise,
+    splat_flux,
+)
+from bakery.sphere.cubemap import cube_texel_directions
+
+
+def synthetic_captures(face_size: int, count: int = 4) -> np.ndarray:
+    """Sky gradient + ground + a one-texel sun per capture, the sun moving between captures (P, 6, N, N, 3)."""
+    d = cube_texel_directions(face_size)
+    sky = np.where(d[..., 1:2] > 0, (0.4 + 0.6 * d[..., 1:2]) * np.array([0.3, 0.5, 1.0]), [0.2, 0.15, 0.1])
+    out = []
+    for i in range(count):
+        cube = sky.copy()
+        angle = 2.0 * np.pi * i / count
+        sun = np.array([np.cos(angle) * 0.6, 0.7, np.sin(angle) * 0.6])
+        cube[np.unravel_index(np.argmax(d @ sun), d.shape[:3])] = 5e4 * np.array([1.0, 0.9, 0.8])
+        out.append(cube)
+    return np.stack(out).astype(np.float32)
+
+
+def environment_captures(env_dir: Path, face_size: int) -> tuple[np.ndarray, list[str]]:
+    from bakery.environment import resample_to_cube
+    from bakery.environment.io import read_environment
+
+    paths = sorted(p for p in Path(env_dir).rglob("*") if p.suffix.lower() in (".hdr", ".exr"))
+    if not paths:
+        raise FileNotFoundError(f"no .hdr/.exr environments under {env_dir}")
+    return np.stack([resample_to_cube(read_environment(p)[0], face_size) for p in paths]), [p.stem for p in paths]
+
+
+def _timings(fns: dict[str, Callable[[], object]], repeats: int) -> dict[str, list[float]]:
+    """Interleaved wall-clock runs of every function (one warm-up each)."""
+    for fn in fns.values():
+        fn()
+    out: dict[str, list[float]] = {k: [] for k in fns}
+    for _ in range(repeats):
+        for key, fn in fns.items():
+            start = time.perf_counter()
+            fn()
+            out[key].append(time.perf_counter() - start)
+    return out
+
+
+def run_shexp_fit_bench(env_dir: Path | None = None, batch_size: int = 64, face_size: int = 128, repeats: int = 7,
+                        echo: Callable[[str], object] | None = None) -> dict:
+    """Fused vs step-by-step SH-exp fit (module doc); ``echo`` (e.g. ``print``) receives the table.
+
+    Returns {"batch_size", "face_size", "repeats", "environments", "operator_build_s", "variants": {name:
+    {"fused_ms_per_probe", "fused_min_ms_per_probe", "stepwise_ms_per_probe", "stepwise_min_ms_per_probe",
+    "speedup", "max_abs_coefficient_difference", "rel_rms_e0_difference"}}, "fused_breakdown_ms_per_probe":
+    {"splat", "W_times_F", "rest"}}."""
+    if repeats < 5:
+        raise ValueError(f"repeats must be >= 5, got {repeats}")
+    if env_dir is not None:
+        cubes, names = environment_captures(env_dir, face_size)
+    else:
+        cubes, names = synthetic_captures(face_size), ["synthetic sky + sun"]
+    batch = np.ascontiguousarray(cubes[np.arange(batch_size) % len(cubes)], dtype=np.float32)
+    default = SHExpSettings()
+    variants = {"weighted (default)": default, "log (unweighted)": replace(default, fit="log")}
+    start = time.perf_counter()
+    for settings in variants.values():
+        build_operators(settings, face_size)
+    result: dict = {"batch_size": batch_size, "face_size": face_size, "repeats": repeats, "environments": names,
+                    "operator_build_s": time.perf_counter() - start, "variants": {}}
+    v, n, a = fit_design(default)
+    per_probe = 1e3 / batch_size
+    for key, settings in variants.items():
+        runs = _timings({"fused": lambda s=settings: fit_shexp(batch, s),
+                         "stepwise": lambda s=settings: fit_shexp_stepwise(batch, s)}, repeats)
+        fused, stepwise = fit_shexp(batch, settings), fit_shexp_stepwise(batch, settings)
+        e_new = evaluate_e0(fused[: len(cubes)], v, n, a, settings)
+        e_old = evaluate_e0(stepwise[: len(cubes)], v, n, a, settings)
+        result["variants"][key] = {
+            "fused_ms_per_probe": per_probe * float(np.median(runs["fused"])),
+            "fused_min_ms_per_probe": per_probe * float(np.min(runs["fused"])),
+            "stepwise_ms_per_probe": per_probe * float(np.median(runs["stepwise"])),
+            "stepwise_min_ms_per_probe": per_probe * float(np.min(runs["stepwise"])),
+            "speedup": float(np.median(runs["stepwise"]) / np.median(runs["fused"])),
+            "max_abs_coefficient_difference": float(np.abs(fused - stepwise).max()),
+            "rel_rms_e0_difference": float(np.sqrt(np.mean((e_new - e_old) ** 2)) / np.sqrt(np.mean(e_old**2))),
+        }
+    ops = build_operators(default, face_size)
+    grids = tuple(b.face_size for b in ops.blocks)
+    flux = splat_flux(batch, grids)
+    pieces = _timings({"splat": lambda: splat_flux(batch, grids),
+                       "W_times_F": lambda: [b.weights @ flux[b.face_size] for b in ops.blocks]}, repeats)
+    splat_ms = per_probe * float(np.median(pieces["splat"]))
+    wf_ms = per_probe * float(np.median(pieces["W_times_F"]))
+    total = result["variants"]["weighted (default)"]["fused_ms_per_probe"]
+    result["fused_breakdown_ms_per_probe"] = {"splat": splat_ms, "W_times_F": wf_ms,
+                                              "rest": max(0.0, total - splat_ms - wf_ms)}
+    if echo is not None:
+        echo(format_shexp_fit_table(result))
+    return result
+
+
+def format_shexp_fit_table(result: dict) -> str:
+    """The bench result as a small Markdown table."""
+    title = (f"SH-exp fit, batch {result['batch_size']} × 6×{result['face_size']}², median of {result['repeats']} "
+             f"(min in brackets), ms/probe; operators {result['operator_build_s']:.2f} s")
+    lines = [title,
+             "", "| settings | fused (new) | step-by-step (old) | speed-up | max |Δ coeff| | rel. RMS ΔE0 |",
+             "|---|---|---|---|---|---|"]
+    for key, r in result["variants"].items():
+        lines.append(f"| {key} | {r['fused_ms_per_probe']:.3f} ({r['fused_min_ms_per_probe']:.3f}) | "
+                     f"{r['stepwise_ms_per_probe']:.3f} ({r['stepwise_min_ms_per_probe']:.3f}) | "
+                     f"{r['speedup']:.2f}× | {r['max_abs_coefficient_difference']:.1e} | "
+                     f"{r['rel_rms_e0_difference']:.1e} |")
+    b = result["fused_breakdown_ms_per_probe"]
+    lines += ["", f"fused, by piece: splat {b['splat']:.3f}, W·F {b['W_times_F']:.3f}, rest {b['rest']:.3f} ms/probe"]
+    return "\n".join(lines)
