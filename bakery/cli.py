@@ -379,7 +379,7 @@ def bench_pareto(folder: Path, output: Path, quick: bool) -> None:
     out.print(format_pareto_table(run_pareto_bench(folder, output, quick=quick)))
 
 
-@bench.command("shexp")
+@bench.command("shexp-fit")
 @click.argument("folder", required=False, type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=Path("bench-results/shexp"), show_default=True)
 @click.option("--batch-size", type=click.IntRange(min=1), default=64, show_default=True)
@@ -393,6 +393,24 @@ def bench_shexp(folder: Path | None, output: Path, batch_size: int, face_size: i
     result = run_shexp_fit_bench(folder, batch_size=batch_size, face_size=face_size, repeats=repeats, echo=click.echo)
     output.mkdir(parents=True, exist_ok=True)
     (output / "shexp.json").write_text(json.dumps(result, indent=2, default=str))
+
+
+@bench.command("splitsum")
+@click.argument("environments", nargs=-1, type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("-o", "--output", type=click.Path(path_type=Path), default=Path("bench-results/splitsum"), show_default=True)
+@click.option("--face-size", type=click.IntRange(min=8), default=128, show_default=True)
+@click.option("--repeats", type=click.IntRange(min=1), default=5, show_default=True)
+@click.option("--no-fis", is_flag=True, help="Skip the (slow) filtered-importance-sampling formulation.")
+def bench_splitsum(environments: tuple[Path, ...], output: Path, face_size: int, repeats: int, no_fis: bool) -> None:
+    """Split-sum and hybrid chain prefilter per probe: cached sparse operators against filtered importance sampling,
+    side by side, with each level's error against the exact prefilter (ENVIRONMENTS: HDR images; default the
+    shipped examples')."""
+    from bakery.bench.splitsum import run_splitsum_bench
+
+    result = run_splitsum_bench(face_size=face_size, env_paths=list(environments) or None, repeats=repeats,
+                                fis_batch_sizes=() if no_fis else (1,), echo=click.echo)
+    output.mkdir(parents=True, exist_ok=True)
+    (output / "splitsum.json").write_text(json.dumps(result, indent=2, default=str))
 
 
 @bench.command("scale")

@@ -8,6 +8,11 @@ Location: ``$BAKERY_CACHE_DIR`` or ``~/.cache/bakery/operators``. Files are name
 on and its formulation version) and bakery's version, then the SHA-256 of the array (dtype, shape, bytes). They
 are written atomically (temp file + rename) so concurrent workers never read a partial file.
 
+Sparse operators (the split-sum prefilter's kernel operators, :mod:`bakery.reflection.prefilter_operator`, 2–60 MB
+each) are stored as four such arrays — ``<key>#shape`` (rows, cols, nnz), ``#indptr``, ``#indices`` (int32) and
+``#data`` (float32) — by :func:`save_sparse`; :func:`load_sparse` returns None (rebuild) unless all four are present,
+verified and consistent, and then a CSR matrix over the memory-mapped arrays (no copy).
+
 Integrity: :func:`load` re-hashes the memory-mapped array and compares it with its name. A file that does not
 match (a damaged disk, a poisoned cache: valid header, altered values) is removed with a
 :class:`OperatorCacheWarning` and the operator is rebuilt — a cached operator is never used unverified. Temporary
@@ -101,6 +106,20 @@ def save(key: str, array: np.ndarray) -> np.ndarray:
         return np.load(path, mmap_mode="r")
     except OSError:
         return array  # a read-only home or full disk only costs the rebuild next time
+
+
+def load_sparse(key: str):
+    """The ``scipy.sparse`` CSR matrix stored under ``key`` by :func:`save_sparse`, or None (module doc)."""
+    from bakery.reflection.prefilter_operator import load_sparse as _load_sparse
+
+    return _load_sparse(key, load)
+
+
+def save_sparse(key: str, matrix):
+    """Store a CSR matrix as four checksummed arrays (module doc); returns it backed by the memory-mapped files."""
+    from bakery.reflection.prefilter_operator import save_sparse as _save_sparse
+
+    return _save_sparse(key, matrix, save)
 
 
 def install() -> None:

@@ -57,7 +57,7 @@ from bakery.reflection.lights import evaluate_light_parts, extract_lights
 from bakery.reflection.shexp import SHExpSettings, clamped_pq, fit_shexp
 from bakery.reflection.splitsum import (
     BandwidthChainSettings,
-    prefilter_bandwidth_chain,
+    prefilter_bandwidth_batch,
     sample_levels,
 )
 
@@ -176,11 +176,10 @@ class SHExpHybrid(SHExpLights):
         cubes = _cubes_at(batch, self.chain.face_size)
         levels = [np.zeros((batch.count, 6, s, s, 3), np.float16) for s in self.chain.level_sizes()]
         clamped = 0
-        for i, cube in enumerate(cubes):
-            for k, level in enumerate(prefilter_bandwidth_chain(cube, self.chain, first)):
-                if level is not None:
-                    clamped += int(np.count_nonzero(level > FLOAT16_MAX))
-                    levels[k][i] = np.minimum(level, FLOAT16_MAX).astype(np.float16)
+        for k, level in enumerate(prefilter_bandwidth_batch(cubes, self.chain, first)):  # the batch at once
+            if level is not None:
+                clamped += int(np.count_nonzero(level > FLOAT16_MAX))
+                levels[k][:] = np.minimum(level, FLOAT16_MAX).astype(np.float16)
         if clamped:
             warnings.warn(f"{self.name}: {clamped} prefiltered values above float16's maximum {FLOAT16_MAX:g} were "
                           f"clamped to it", ClampWarning, stacklevel=2)
