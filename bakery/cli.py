@@ -395,7 +395,7 @@ def bench_shexp(folder: Path | None, output: Path, batch_size: int, face_size: i
     (output / "shexp.json").write_text(json.dumps(result, indent=2, default=str))
 
 
-@bench.command("splitsum")
+@bench.command("split-sum")
 @click.argument("environments", nargs=-1, type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=Path("bench-results/splitsum"), show_default=True)
 @click.option("--face-size", type=click.IntRange(min=8), default=128, show_default=True)

@@ -221,19 +221,28 @@ def run_scale_bench(out_dir: Path, volume_counts=(25, 16, 25), reflection: int =
     return result
 
 
-def reflection_at_capture_size(recipe: str, face_size: int) -> dict[str, dict[str, int]]:
+def reflection_at_capture_size(recipe: str, face_size: int) -> dict[str, dict[str, Any]]:
     """Encoding settings that put ``recipe``'s reflection encodings which follow the bake's face size (their chains)
-    at the reflection probes' capture size ``face_size`` instead."""
+    at the reflection probes' capture size ``face_size`` instead, and make those that can drop the capture keep it
+    (``keep_capture``), so that the store can be exported."""
+    import dataclasses
+
     from bakery.encodings import ENCODINGS
     from bakery.pipeline.recipe import load_recipe
 
-    return {name: {"face_size": face_size} for name in load_recipe(recipe).targets.get("reflection", ())
-            if ENCODINGS[name].follows_bake_face_size}
+    settings: dict[str, dict[str, Any]] = {}
+    for name in load_recipe(recipe).targets.get("reflection", ()):
+        keys = {f.name for f in dataclasses.fields(ENCODINGS[name].Params)}
+        entry = {"face_size": face_size} if ENCODINGS[name].follows_bake_face_size else {}
+        entry |= {"keep_capture": True} if "keep_capture" in keys else {}
+        if entry:
+            settings[name] = entry
+    return settings
 
 
 #: ``bakery bench scale --production``: the production-size scene of issue 14 — 10,000 irradiance probes at face 32
 #: and 1,000 reflection probes captured at 128² with the ``console`` recipe's reflection encoding (its chain at the
-#: capture's 128², :func:`reflection_at_capture_size`), 2 workers, then exported as KTX2 (the engine-neutral
-#: container).
+#: capture's 128², keeping the capture for the export: :func:`reflection_at_capture_size`), 2 workers, then exported
+#: as KTX2 (the engine-neutral container).
 PRODUCTION = {"volume_counts": (25, 16, 25), "reflection": 1000, "recipe": "console", "face_size": 32,
               "reflection_resolution": 128, "jobs": (2,), "exports": ("ktx2",)}

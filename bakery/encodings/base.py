@@ -366,6 +366,13 @@ class Encoding(ABC):
         """Bytes an engine stores per probe: the sum of the per-probe fields (shared tables excluded)."""
         return sum(spec.nbytes for spec in self.field_specs())
 
+    @classmethod
+    def layer_fields(cls, fields: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """The fields {name: (R, *shape)} of one prim's R probes to write into the baked USD layer: every stored field
+        by default; an encoding may leave out fields that no probe of the prim uses (the layer is what an engine
+        uploads; the store keeps its fixed layout)."""
+        return fields
+
     @abstractmethod
     def encode(self, batch: ProbeBatch) -> dict[str, np.ndarray]:
         """{field: (P, *shape)} for every field of :meth:`field_specs` and :meth:`aux_specs`."""

@@ -24,6 +24,9 @@ Parameters (besides every ``shexp_lights`` parameter)
                                    E1 blend [0.297, 0.841]; a probe whose materials all have α ≥ 0.841 has no chain)
     band_energy      float         ε of the kernel order F_ε (0 < ε < 1, default 1e-2)
     oversampling     float         chain face size / kernel order (≥ 0.5, default 1.25)
+    keep_capture     bool          store ``level0`` (α = 0: the capture) for every probe, also where ``first_level``
+                                   > 0, so that cube-map exports (``bakery export``) can re-prefilter it; store size
+                                   only — engines still upload levels ≥ ``first_level`` (default false: zero-filled)
 
 Layout and runtime (HLSL) in ``schemas/store-reflection.md``; ``bytes_per_probe`` counts every level (what the store
 holds per probe, the upload of a probe that needs the whole chain); :meth:`SHExpHybrid.upload_bytes` is what an
@@ -49,7 +52,7 @@ import numpy as np
 from bakery.encodings.base import FieldSpec
 from bakery.encodings.registry import register
 from bakery.encodings.shexp import SHExpLights
-from bakery.encodings.splitsum import DEFAULT_FACE_SIZE, FLOAT16_MAX, _cubes_at
+from bakery.encodings.splitsum import DEFAULT_FACE_SIZE, FLOAT16_MAX, _cubes_at, probe_chunks
 from bakery.errors import ClampWarning
 from bakery.probe import ProbeBatch
 from bakery.reflection import hybrid as hy
@@ -74,6 +77,7 @@ class SHExpHybrid(SHExpLights):
         blend_octaves: float = 1.5
         band_energy: float = 1e-2
         oversampling: float = 1.25
+        keep_capture: bool = False
 
         def normalize(self):
             # No SH-exp fit floor here: alpha_min is the probe's true smallest α (the chain goes down to it).
@@ -159,6 +163,14 @@ class SHExpHybrid(SHExpLights):
             FieldSpec("first_level", (1,), "int32",
                       "sharpest chain level the probe needs (levels below are zero); n_levels = SH exponential only"),)
 
+    @classmethod
+    def layer_fields(cls, fields: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Every field except the levels below the smallest ``first_level`` of the prim's probes: zero-filled and
+        never uploaded (a reflection probe is one prim, so its layer holds exactly its upload)."""
+        first = int(np.min(np.asarray(fields["first_level"]))) if len(fields["first_level"]) else 0
+        unused = {f"level{k}" for k in range(first)}
+        return {name: value for name, value in fields.items() if name not in unused}
+
     def upload_bytes(self, fields) -> np.ndarray:
         """(P,) bytes an engine uploads per probe: every field except the levels below ``first_level``."""
         first = np.asarray(fields["first_level"]).reshape(-1)
@@ -176,10 +188,14 @@ class SHExpHybrid(SHExpLights):
         cubes = _cubes_at(batch, self.chain.face_size)
         levels = [np.zeros((batch.count, 6, s, s, 3), np.float16) for s in self.chain.level_sizes()]
         clamped = 0
-        for k, level in enumerate(prefilter_bandwidth_batch(cubes, self.chain, first)):  # the batch at once
-            if level is not None:
-                clamped += int(np.count_nonzero(level > FLOAT16_MAX))
-                levels[k][:] = np.minimum(level, FLOAT16_MAX).astype(np.float16)
+        for part in probe_chunks(batch.count):  # bounded memory; each probe's levels do not depend on its batch
+            for k, level in enumerate(prefilter_bandwidth_batch(cubes[part], self.chain, first)):
+                if level is not None:
+                    clamped += int(np.count_nonzero(level > FLOAT16_MAX))
+                    levels[k][part] = np.minimum(level, FLOAT16_MAX).astype(np.float16)
+        if p.keep_capture and first > 0:  # level 0 is α = 0 at the chain's face: the capture itself
+            clamped += int(np.count_nonzero(cubes > FLOAT16_MAX))
+            levels[0][:] = np.minimum(cubes, FLOAT16_MAX).astype(np.float16)
         if clamped:
             warnings.warn(f"{self.name}: {clamped} prefiltered values above float16's maximum {FLOAT16_MAX:g} were "
                           f"clamped to it", ClampWarning, stacklevel=2)

@@ -49,6 +49,16 @@ FLOAT16_MAX = 65504.0
 DEFAULT_FACE_SIZE = 64
 
 
+#: Probes prefiltered together: the chain's temporaries (mip pyramid and levels of every probe as (texels, P·3)
+#: float32, ≈ 12 MB per probe at 128²) stay bounded whatever the recipe's batch size; results do not depend on it.
+PREFILTER_PROBES = 16
+
+
+def probe_chunks(count: int, size: int = PREFILTER_PROBES) -> list[slice]:
+    """Slices of ≤ ``size`` consecutive probes covering ``count`` probes."""
+    return [slice(start, min(start + size, count)) for start in range(0, count, size)]
+
+
 def _cubes_at(batch: ProbeBatch, face_size: int) -> np.ndarray:
     """The batch's captures at ``face_size`` (P, 6, F, F, 3) float32, resampled flux-exactly when the sizes differ
     (:func:`bakery.sphere.cubemap.resample_cube`)."""
@@ -106,13 +116,17 @@ class SplitSum(Encoding):
         return {"dfg": compute_dfg_tables(TABLE_SIZE, TABLE_SAMPLES).dfg}
 
     def encode(self, batch: ProbeBatch) -> dict[str, np.ndarray]:
-        levels = prefilter_batch(_cubes_at(batch, self.chain.face_size), self.chain)
-        clamped = sum(int(np.count_nonzero(np.asarray(level) > FLOAT16_MAX)) for level in levels)
+        cubes = _cubes_at(batch, self.chain.face_size)
+        levels = [np.zeros((batch.count, 6, s, s, 3), np.float16) for s in self.chain.level_sizes()]
+        clamped = 0
+        for part in probe_chunks(batch.count):  # bounded memory; each probe's chain is the same whatever its batch
+            for level, out in zip(prefilter_batch(cubes[part], self.chain), levels, strict=True):
+                clamped += int(np.count_nonzero(np.asarray(level) > FLOAT16_MAX))
+                out[part] = np.minimum(np.asarray(level), FLOAT16_MAX).astype(np.float16)
         if clamped:
             warnings.warn(f"{self.name}: {clamped} prefiltered values above float16's maximum {FLOAT16_MAX:g} were "
                           f"clamped to it", ClampWarning, stacklevel=2)
-        return {f"level{i}": np.minimum(np.asarray(level), FLOAT16_MAX).astype(np.float16)
-                for i, level in enumerate(levels)}
+        return {f"level{i}": level for i, level in enumerate(levels)}
 
     def evaluate_reflection(self, fields, shared, view, normal, alpha, f0):
         levels = [np.asarray(fields[f"level{i}"], dtype=np.float32) for i in range(self.chain.n_levels)]

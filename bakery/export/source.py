@@ -3,7 +3,8 @@
 
 The capture kept in the store
     A reflection encoding whose field ``level0`` is its α = 0 level (settings ``level_alphas[0] == 0``) stores the
-    capture itself at the bake face size (the split-sum chain: ``schemas/store-reflection.md``). It is float16:
+    capture itself at the chain's face size (``schemas/store-reflection.md``; an encoding with a per-probe
+    ``first_level`` keeps it only where that is 0 or ``keep_capture`` is set: :func:`captures`). It is float16:
     values carry a relative rounding error ≤ 2⁻¹¹ ≈ 4.9e-4 and radiance above 65504 was clamped at bake time
     (the bake warns). Re-prefiltering therefore matches a float32 capture within 4.9e-4 relative wherever the
     capture stayed below 65504; the exported float16 textures round the same way, so the export adds no visible
@@ -11,8 +12,8 @@ The capture kept in the store
 
 Re-prefiltering
     :func:`prefilter_for_profile` runs bakery's own chain prefilter (:func:`bakery.reflection.splitsum.prefilter_chain`:
-    SH-domain levels where the kernel is band-limited, filtered importance sampling for sharp levels, α = 0 a copy)
-    with the profile's α per level and standard halving sizes.
+    SH-domain levels where the kernel is band-limited, cached sparse operators of the exact kernel for sharp levels,
+    α = 0 a copy) with the profile's α per level and standard halving sizes.
 
 Irradiance SH
     :func:`radiance_sh` fits radiance SH f (9, 3) in bakery's basis to the store's own ``evaluate_irradiance`` of an
@@ -95,9 +96,21 @@ def require_capture_encoding(store) -> str:  # noqa: ANN001
 
 
 def captures(store, encoding: str, probes: list[str]) -> dict[str, np.ndarray]:  # noqa: ANN001
-    """{probe: capture (6, N, N, 3) float32} from the α = 0 level of ``encoding``."""
+    """{probe: capture (6, N, N, 3) float32} from the α = 0 level of ``encoding``.
+
+    An encoding with a per-probe ``first_level`` (levels below it are not stored: zero-filled) keeps the capture
+    only where ``first_level`` is 0 or its setting ``keep_capture`` is true; any other requested probe is an
+    :class:`InputError` (nothing is exported: its cube maps would be black)."""
     fields = store.fields(encoding)
     rows = store.rows(encoding, probes)
+    if "first_level" in fields and not store.encodings[encoding].settings.get("keep_capture", False):
+        first = np.asarray(fields["first_level"]).reshape(-1)
+        missing = [p for p, r in zip(probes, rows, strict=True) if first[r] > 0]
+        if missing:
+            raise InputError(f"{store.path}: {len(missing)} reflection probe(s) of {encoding} keep no capture (their "
+                             f"materials need no level sharper than first_level > 0, so level0 was not stored), e.g. "
+                             f"{missing[0]}; re-bake with the encoding setting {encoding}.keep_capture = true to "
+                             f"export them, or export only the others (--probes)")
     return {p: np.asarray(fields["level0"][r], dtype=np.float32) for p, r in zip(probes, rows, strict=True)}
 
 

@@ -201,8 +201,9 @@ class UsdSceneSource(Source):
                 if not all(r in index for r in rows):
                     continue
                 kind = ENCODINGS[encoding].kind
-                for field_name, array in values.items():
-                    fields[attribute_name(kind, encoding, field_name)] = np.asarray(array)[[index[r] for r in rows]]
+                prim_values = {k: np.asarray(v)[[index[r] for r in rows]] for k, v in values.items()}
+                for field_name, array in ENCODINGS[encoding].layer_fields(prim_values).items():
+                    fields[attribute_name(kind, encoding, field_name)] = array
                 names.append(encoding)
             baked.append(BakedPrim(prim, len(rows), tuple(names), fields))
         write_bake_layer(

@@ -100,9 +100,9 @@ def test_exported_levels_are_the_capture_prefiltered_at_the_profiles_alpha(store
         got = k2.level_array(tex, i)[..., :3]
         assert got.shape == (6, size, size, 3)
         np.testing.assert_allclose(got, chain[i], rtol=1e-6, atol=1e-7)  # the file holds the profile's chain
-        # ... and that chain is the GGX prefilter at the profile's α (dense quadrature): SH-domain levels within
-        # 1 % (measured ≤ 0.5 %), filtered-importance-sampled sharp levels within 15 % L1 and 2 % flux (measured
-        # ≤ 12 % / 1.6 % with a 5000× sun texel: FIS noise, the bake's own split-sum has the same)
+        # ... and that chain is the GGX prefilter at the profile's α (dense quadrature): SH-domain and sparse-operator
+        # sharp levels within 1 % L1 (measured ≤ 0.5 %); the legacy filtered-importance-sampling formulation, where
+        # selected, within 15 % L1 and 2 % flux (≤ 12 % / 1.6 % measured with a 5000× sun texel: FIS noise)
         exact = _exact_prefilter_level(capture, alpha, size)
         omega = cube_texel_solid_angles(size)[..., None]
         l1 = np.abs(got - exact).mean() / np.abs(exact).mean()

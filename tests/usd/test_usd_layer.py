@@ -172,3 +172,29 @@ def test_scene_bake_is_identical_with_one_or_two_worker_processes(tmp_path):
     a = Path(serial.layer).read_text().replace("a.h5", "X")
     b = Path(parallel.layer).read_text().replace("b.h5", "X")
     assert a == b
+
+
+def test_layer_holds_only_the_chain_levels_a_reflection_probe_uploads(tmp_path):
+    """``shexp_hybrid`` levels below a probe's ``first_level`` are zero in the store and not uploaded: the layer leaves
+    them out (schemas/store-reflection.md "Fixed layout") and holds the others exactly as stored."""
+    indoor = Path(__file__).resolve().parents[2] / "examples" / "indoor" / "indoor.usda"
+    summary = bakery.bake(indoor, tmp_path / "h.h5", encodings=("shexp_hybrid",), face_size=32, samples=1,
+                          bounces=1, resume=False)
+    store = bakery.open_store(summary.store)
+    fields = store.fields("shexp_hybrid")
+    levels = sum(1 for name in fields if name.startswith("level"))
+    values = read_baked_values(summary.layer)
+    checked = 0
+    for row, probe_row in enumerate(fields["probe_index"]):
+        prim = store.probe_names[int(probe_row)]
+        first = int(fields["first_level"][row, 0])
+        written = {k for k in range(levels)
+                   if attribute_name("reflection", "shexp_hybrid", f"level{k}") in values.get(prim, {})}
+        small = {k for k in range(levels) if fields[f"level{k}"][row].size <= 16384}  # the rest is store-only
+        assert written == {k for k in small if k >= first}, (prim, first, written)
+        for k in written:
+            np.testing.assert_array_equal(
+                values[prim][attribute_name("reflection", "shexp_hybrid", f"level{k}")][0],
+                np.asarray(fields[f"level{k}"][row], dtype=np.float32))
+        checked += first > 0
+    assert checked, "no probe of the indoor example skips a level: the test would prove nothing"
