@@ -116,7 +116,12 @@ class ProcessExecutor:
                                    initializer=_worker_init, initargs=(os.getpid(),))
 
     def run(self, tasks: Iterable[BatchTask]) -> Iterator[BatchOutcome]:
-        pending = list(tasks)
+        try:
+            yield from self._run(list(tasks))
+        finally:  # the caller stopped early (an error writing a checkpoint, SIGTERM): stop the workers now
+            self.close()
+
+    def _run(self, pending: list[BatchTask]) -> Iterator[BatchOutcome]:
         attempts = {t.key: 0 for t in pending}
         while pending:
             self._pool = self._new_pool()
@@ -151,8 +156,14 @@ class ProcessExecutor:
             self._pool = None
 
     def close(self) -> None:
+        """Stop a pool that is still running: terminate its workers (a running batch would otherwise finish first),
+        then shut it down and join its manager thread, so that nothing of it is left for the interpreter's exit
+        (CPython's exit hook otherwise races with the closed pool: "Bad file descriptor")."""
         if self._pool is not None:
-            self._pool.shutdown(wait=False, cancel_futures=True)
+            pool, self._pool = self._pool, None
+            for process in list((getattr(pool, "_processes", None) or {}).values()):
+                process.terminate()
+            pool.shutdown(wait=True, cancel_futures=True)
 
 
 class DaskExecutor:
