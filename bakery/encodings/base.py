@@ -373,6 +373,13 @@ class Encoding(ABC):
         uploads; the store keeps its fixed layout)."""
         return fields
 
+    @classmethod
+    def captures_kept(cls, fields: dict[str, np.ndarray], settings: dict[str, Any]) -> np.ndarray:
+        """(P,) bool: which stored probes hold their capture in an α = 0 ``level0`` field (what cube-map exports
+        re-prefilter), given the stored ``fields`` and ``settings``; every probe by default (encodings without such
+        a level are never asked)."""
+        return np.ones(len(next(iter(fields.values()))), dtype=bool)
+
     @abstractmethod
     def encode(self, batch: ProbeBatch) -> dict[str, np.ndarray]:
         """{field: (P, *shape)} for every field of :meth:`field_specs` and :meth:`aux_specs`."""

@@ -46,6 +46,7 @@ import dataclasses
 import warnings
 from dataclasses import dataclass
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 
@@ -170,6 +171,12 @@ class SHExpHybrid(SHExpLights):
         first = int(np.min(np.asarray(fields["first_level"]))) if len(fields["first_level"]) else 0
         unused = {f"level{k}" for k in range(first)}
         return {name: value for name, value in fields.items() if name not in unused}
+
+    @classmethod
+    def captures_kept(cls, fields: dict[str, np.ndarray], settings: dict[str, Any]) -> np.ndarray:
+        """Level 0 holds the capture where ``first_level`` is 0, or everywhere with ``keep_capture``."""
+        first = np.asarray(fields["first_level"]).reshape(-1)
+        return np.ones(first.shape, dtype=bool) if settings.get("keep_capture", False) else first == 0
 
     def upload_bytes(self, fields) -> np.ndarray:
         """(P,) bytes an engine uploads per probe: every field except the levels below ``first_level``."""

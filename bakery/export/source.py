@@ -98,19 +98,18 @@ def require_capture_encoding(store) -> str:  # noqa: ANN001
 def captures(store, encoding: str, probes: list[str]) -> dict[str, np.ndarray]:  # noqa: ANN001
     """{probe: capture (6, N, N, 3) float32} from the α = 0 level of ``encoding``.
 
-    An encoding with a per-probe ``first_level`` (levels below it are not stored: zero-filled) keeps the capture
-    only where ``first_level`` is 0 or its setting ``keep_capture`` is true; any other requested probe is an
+    The encoding says which probes keep it (:meth:`~bakery.encodings.Encoding.captures_kept`; e.g. the hybrid
+    only where ``first_level`` is 0 or with ``keep_capture``); any other requested probe is an
     :class:`InputError` (nothing is exported: its cube maps would be black)."""
     fields = store.fields(encoding)
     rows = store.rows(encoding, probes)
-    if "first_level" in fields and not store.encodings[encoding].settings.get("keep_capture", False):
-        first = np.asarray(fields["first_level"]).reshape(-1)
-        missing = [p for p, r in zip(probes, rows, strict=True) if first[r] > 0]
-        if missing:
-            raise InputError(f"{store.path}: {len(missing)} reflection probe(s) of {encoding} keep no capture (their "
-                             f"materials need no level sharper than first_level > 0, so level0 was not stored), e.g. "
-                             f"{missing[0]}; re-bake with the encoding setting {encoding}.keep_capture = true to "
-                             f"export them, or export only the others (--probes)")
+    kept = ENCODINGS[encoding].captures_kept(fields, store.encodings[encoding].settings)
+    missing = [p for p, r in zip(probes, rows, strict=True) if not kept[r]]
+    if missing:
+        raise InputError(f"{store.path}: {len(missing)} reflection probe(s) of {encoding} keep no capture (their "
+                         f"materials need no level sharper than first_level > 0, so level0 was not stored), e.g. "
+                         f"{missing[0]}; re-bake with the encoding setting {encoding}.keep_capture = true to "
+                         f"export them, or export only the others (--probes)")
     return {p: np.asarray(fields["level0"][r], dtype=np.float32) for p, r in zip(probes, rows, strict=True)}
 
 
