@@ -385,12 +385,17 @@ def bench_pareto(folder: Path, output: Path, quick: bool) -> None:
 @click.option("--batch-size", type=click.IntRange(min=1), default=64, show_default=True)
 @click.option("--face-size", type=click.IntRange(min=8), default=128, show_default=True)
 @click.option("--repeats", type=click.IntRange(min=5), default=7, show_default=True)
-def bench_shexp(folder: Path | None, output: Path, batch_size: int, face_size: int, repeats: int) -> None:
-    """SH-exponential fit speed per probe: the fused fit against the step-by-step one, side by side (FOLDER: HDR
-    environments; default synthetic sky-and-sun captures)."""
+@click.option("--processes", type=click.IntRange(min=1), default=2, show_default=True,
+              help="Single-threaded processes of the bake-configuration throughput (1: skip it).")
+def bench_shexp(folder: Path | None, output: Path, batch_size: int, face_size: int, repeats: int,
+                processes: int) -> None:
+    """SH-exponential fit speed per probe: the fused fit against the step-by-step one, side by side, and the
+    throughput of bake-like single-threaded workers (FOLDER: HDR environments; default synthetic sky-and-sun
+    captures)."""
     from bakery.bench.shexp_fit import run_shexp_fit_bench
 
-    result = run_shexp_fit_bench(folder, batch_size=batch_size, face_size=face_size, repeats=repeats, echo=click.echo)
+    result = run_shexp_fit_bench(folder, batch_size=batch_size, face_size=face_size, repeats=repeats, echo=click.echo,
+                                 processes=processes)
     output.mkdir(parents=True, exist_ok=True)
     (output / "shexp.json").write_text(json.dumps(result, indent=2, default=str))
 

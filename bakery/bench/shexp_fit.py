@@ -1,4 +1,4 @@
-"""SH-exponential fit speed, fused vs step-by-step (issue 14): ``bakery bench shexp``.
+"""SH-exponential fit speed, fused vs step-by-step (issue 14): ``bakery bench shexp-fit``.
 
 Protocol
     Captures: every ``.hdr``/``.exr`` under ``env_dir`` resampled to ``face_size`` (default 128), repeated to a batch
@@ -6,15 +6,23 @@ Protocol
     Settings: the default :class:`~bakery.reflection.shexp.SHExpSettings` (weighted) and ``fit = "log"``.
     For each: wall-clock median (and minimum) over ``repeats`` (≥ 5) runs of :func:`fit_shexp` (fused, current) and
     :func:`fit_shexp_stepwise` (the previous formulation, same least squares), interleaved in one process so that
-    both see the same machine load; ms per probe = seconds / batch_size. The fused path's pieces are timed
-    alone: the splat, the W·F GEMMs (the floor of any formulation keeping the fit grid), and the rest (by
-    difference). Agreement: the largest coefficient difference and the relative RMS of E0 over the design rows
-    between the two paths — the error against the plain fit is unchanged when they agree to float32 rounding.
+    both see the same machine load; ms per probe = seconds / batch_size, and the CPU time of the process per probe
+    (all BLAS threads; ``time.process_time``). The fused path's pieces are timed alone: the splat, W·F over the
+    normal-cluster tiles (what the fit multiplies) and W·F as the dense blocks (before the tiles). Agreement: the
+    largest coefficient difference and the relative RMS of E0 over the design rows between the two paths — the
+    error against the plain fit is unchanged when they agree to float32 rounding.
+
+    Bake configuration (``processes`` ≥ 2): a bake runs one single-threaded worker per core, each fitting its own
+    batches. That many spawned processes (one BLAS thread each, as :mod:`bakery.pipeline.executors` starts them)
+    fit their own copy of the batch ``repeats`` times, starting each round together at a barrier; ms per probe =
+    the median round's wall-clock span (first start to last finish) / (processes · batch_size): the machine's fit
+    throughput as a bake sees it.
     The operators are built (or loaded from the operator cache) before timing and reported separately.
 """
 
 from __future__ import annotations
 
+import multiprocessing
 import time
 from collections.abc import Callable
 from dataclasses import replace
@@ -58,27 +66,59 @@ def environment_captures(env_dir: Path, face_size: int) -> tuple[np.ndarray, lis
     return np.stack([resample_to_cube(read_environment(p)[0], face_size) for p in paths]), [p.stem for p in paths]
 
 
-def _timings(fns: dict[str, Callable[[], object]], repeats: int) -> dict[str, list[float]]:
-    """Interleaved wall-clock runs of every function (one warm-up each)."""
+def _timings(fns: dict[str, Callable[[], object]], repeats: int,
+             clock: Callable[[], float] = time.perf_counter) -> dict[str, list[float]]:
+    """Interleaved runs of every function (one warm-up each), timed by ``clock``."""
     for fn in fns.values():
         fn()
     out: dict[str, list[float]] = {k: [] for k in fns}
     for _ in range(repeats):
         for key, fn in fns.items():
-            start = time.perf_counter()
+            start = clock()
             fn()
-            out[key].append(time.perf_counter() - start)
+            out[key].append(clock() - start)
     return out
 
 
+def _bake_worker(args: tuple[np.ndarray, SHExpSettings, int, object]) -> list[tuple[float, float]]:
+    """One bake-like worker: build the operators, then ``repeats`` rounds of fitting its batch, each started at the
+    shared barrier; (start, end) monotonic seconds per round."""
+    batch, settings, repeats, barrier = args
+    fit_shexp(batch, settings)  # operators and allocator warm
+    rounds = []
+    for _ in range(repeats):
+        barrier.wait()
+        start = time.monotonic()
+        fit_shexp(batch, settings)
+        rounds.append((start, time.monotonic()))
+    return rounds
+
+
+def bake_configuration_ms_per_probe(batch: np.ndarray, settings: SHExpSettings, processes: int,
+                                    repeats: int) -> dict:
+    """Fit throughput of ``processes`` single-threaded workers (module doc "Bake configuration")."""
+    from bakery.pipeline.executors import _single_threaded_children
+
+    context = multiprocessing.get_context("spawn")
+    with _single_threaded_children(), context.Manager() as manager, context.Pool(processes) as pool:
+        barrier = manager.Barrier(processes)
+        rounds = pool.map(_bake_worker, [(batch, settings, repeats, barrier)] * processes)
+    spans = [max(r[i][1] for r in rounds) - min(r[i][0] for r in rounds) for i in range(repeats)]
+    per_probe = 1e3 / (processes * batch.shape[0])
+    return {"processes": processes, "ms_per_probe": per_probe * float(np.median(spans)),
+            "min_ms_per_probe": per_probe * float(np.min(spans))}
+
+
 def run_shexp_fit_bench(env_dir: Path | None = None, batch_size: int = 64, face_size: int = 128, repeats: int = 7,
-                        echo: Callable[[str], object] | None = None) -> dict:
-    """Fused vs step-by-step SH-exp fit (module doc); ``echo`` (e.g. ``print``) receives the table.
+                        echo: Callable[[str], object] | None = None, processes: int = 2) -> dict:
+    """Fused vs step-by-step SH-exp fit (module doc); ``echo`` (e.g. ``print``) receives the table; ``processes``
+    < 2 skips the bake configuration.
 
     Returns {"batch_size", "face_size", "repeats", "environments", "operator_build_s", "variants": {name:
-    {"fused_ms_per_probe", "fused_min_ms_per_probe", "stepwise_ms_per_probe", "stepwise_min_ms_per_probe",
-    "speedup", "max_abs_coefficient_difference", "rel_rms_e0_difference"}}, "fused_breakdown_ms_per_probe":
-    {"splat", "W_times_F", "rest"}}."""
+    {"fused_ms_per_probe", "fused_min_ms_per_probe", "fused_cpu_ms_per_probe", "stepwise_ms_per_probe",
+    "stepwise_min_ms_per_probe", "stepwise_cpu_ms_per_probe", "speedup", "max_abs_coefficient_difference",
+    "rel_rms_e0_difference"}}, "fused_breakdown_ms_per_probe": {"splat", "W_times_F_tiles", "W_times_F_dense",
+    "rest"}, "bake_configuration": {"processes", "ms_per_probe", "min_ms_per_probe"} or None}."""
     if repeats < 5:
         raise ValueError(f"repeats must be >= 5, got {repeats}")
     if env_dir is not None:
@@ -96,15 +136,19 @@ def run_shexp_fit_bench(env_dir: Path | None = None, batch_size: int = 64, face_
     v, n, a = fit_design(default)
     per_probe = 1e3 / batch_size
     for key, settings in variants.items():
-        runs = _timings({"fused": lambda s=settings: fit_shexp(batch, s),
-                         "stepwise": lambda s=settings: fit_shexp_stepwise(batch, s)}, repeats)
+        fns = {"fused": lambda s=settings: fit_shexp(batch, s),
+               "stepwise": lambda s=settings: fit_shexp_stepwise(batch, s)}
+        runs = _timings(fns, repeats)
+        cpu = _timings(fns, repeats, clock=time.process_time)
         fused, stepwise = fit_shexp(batch, settings), fit_shexp_stepwise(batch, settings)
         e_new = evaluate_e0(fused[: len(cubes)], v, n, a, settings)
         e_old = evaluate_e0(stepwise[: len(cubes)], v, n, a, settings)
         result["variants"][key] = {
             "fused_ms_per_probe": per_probe * float(np.median(runs["fused"])),
             "fused_min_ms_per_probe": per_probe * float(np.min(runs["fused"])),
+            "fused_cpu_ms_per_probe": per_probe * float(np.median(cpu["fused"])),
             "stepwise_ms_per_probe": per_probe * float(np.median(runs["stepwise"])),
+            "stepwise_cpu_ms_per_probe": per_probe * float(np.median(cpu["stepwise"])),
             "stepwise_min_ms_per_probe": per_probe * float(np.min(runs["stepwise"])),
             "speedup": float(np.median(runs["stepwise"]) / np.median(runs["fused"])),
             "max_abs_coefficient_difference": float(np.abs(fused - stepwise).max()),
@@ -114,12 +158,15 @@ def run_shexp_fit_bench(env_dir: Path | None = None, batch_size: int = 64, face_
     grids = tuple(b.face_size for b in ops.blocks)
     flux = splat_flux(batch, grids)
     pieces = _timings({"splat": lambda: splat_flux(batch, grids),
-                       "W_times_F": lambda: [b.weights @ flux[b.face_size] for b in ops.blocks]}, repeats)
-    splat_ms = per_probe * float(np.median(pieces["splat"]))
-    wf_ms = per_probe * float(np.median(pieces["W_times_F"]))
+                       "W_times_F_tiles": lambda: [t.weights @ np.take(flux[t.face_size], t.nodes, axis=0)
+                                                   for t in ops.tiles],
+                       "W_times_F_dense": lambda: [b.weights @ flux[b.face_size] for b in ops.blocks]}, repeats)
+    breakdown = {k: per_probe * float(np.median(v)) for k, v in pieces.items()}
     total = result["variants"]["weighted (default)"]["fused_ms_per_probe"]
-    result["fused_breakdown_ms_per_probe"] = {"splat": splat_ms, "W_times_F": wf_ms,
-                                              "rest": total - splat_ms - wf_ms}
+    breakdown["rest"] = total - breakdown["splat"] - breakdown["W_times_F_tiles"]
+    result["fused_breakdown_ms_per_probe"] = breakdown
+    result["bake_configuration"] = (bake_configuration_ms_per_probe(batch, default, processes, repeats)
+                                    if processes >= 2 else None)
     if echo is not None:
         echo(format_shexp_fit_table(result))
     return result
@@ -130,15 +177,22 @@ def format_shexp_fit_table(result: dict) -> str:
     title = (f"SH-exp fit, batch {result['batch_size']} × 6×{result['face_size']}², median of {result['repeats']} "
              f"(min in brackets), ms/probe; operators {result['operator_build_s']:.2f} s")
     lines = [title,
-             "", "| settings | fused (new) | step-by-step (old) | speed-up | max |Δ coeff| | rel. RMS ΔE0 |",
-             "|---|---|---|---|---|---|"]
+             "", "| settings | fused (new) | CPU | step-by-step (old) | CPU | speed-up | max |Δ coeff| | rel. RMS ΔE0 |",
+             "|---|---|---|---|---|---|---|---|"]
     for key, r in result["variants"].items():
         lines.append(f"| {key} | {r['fused_ms_per_probe']:.3f} ({r['fused_min_ms_per_probe']:.3f}) | "
+                     f"{r['fused_cpu_ms_per_probe']:.3f} | "
                      f"{r['stepwise_ms_per_probe']:.3f} ({r['stepwise_min_ms_per_probe']:.3f}) | "
+                     f"{r['stepwise_cpu_ms_per_probe']:.3f} | "
                      f"{r['speedup']:.2f}× | {r['max_abs_coefficient_difference']:.1e} | "
                      f"{r['rel_rms_e0_difference']:.1e} |")
     b = result["fused_breakdown_ms_per_probe"]
     # the rest is a difference of medians: below the pieces' own noise it is not a measurement
     rest = f"rest {b['rest']:.3f}" if b["rest"] > 0 else "rest below the timing noise (pieces timed alone)"
-    lines += ["", f"fused, by piece: splat {b['splat']:.3f}, W·F {b['W_times_F']:.3f}, {rest} ms/probe"]
+    lines += ["", f"fused, by piece: splat {b['splat']:.3f}, W·F {b['W_times_F_tiles']:.3f} (dense blocks "
+                  f"{b['W_times_F_dense']:.3f}), {rest} ms/probe"]
+    bake = result.get("bake_configuration")
+    if bake:
+        lines += [f"bake configuration, {bake['processes']} single-threaded processes: {bake['ms_per_probe']:.3f} "
+                  f"({bake['min_ms_per_probe']:.3f}) ms/probe"]
     return "\n".join(lines)

@@ -11,13 +11,16 @@ key ``exports`` and ``tests/export/test_export_conformance.py`` pick formats up 
 
 1. the format, profile and options are checked (ConfigError, exit 3), the store is opened (exit 2 if it is not one),
    the output folder must be creatable and writable (exit 2);
-2. the format builds every file in memory (a store without the encodings it needs is exit 2 before any write);
+2. the format yields its files one at a time (``build`` is a generator: a store without the encodings it needs is
+   exit 2 before the first file; reflection formats prefilter a chunk of probes at a time,
+   :class:`bakery.export.source.ProfileChains`), and each is staged at once — written to a temporary file beside its
+   target (:func:`bakery.files.atomic_replace`) and dropped from memory, so an export holds one chunk, not the whole
+   output;
 3. files already in the folder are overwritten only if the folder's manifest ``bakery-export.json`` lists them with
    their current sha256 (i.e. bakery wrote them and nobody changed them); any other existing file is *foreign* and
-   the export is refused (exit 2) before anything is written;
-4. every file is written to a temporary file beside its target, fsync'ed, then all are renamed
-   (:func:`bakery.files.atomic_replace`); a failure before the renames removes the temporaries and the folders the
-   export created, so nothing is left;
+   the export is refused (exit 2) before any target is replaced;
+4. once every file is staged (fsync'ed) all are renamed; a failure before the renames (a foreign file, a format
+   error, a full disk) removes the temporaries and the folders the export created, so nothing is left;
 5. the manifest is updated last, then the USD layer of the bake (``--layer``, default ``<store stem>.bake.usda`` /
    ``.usdc`` beside the store when it exists and names this store) gets ``bakery:export:<format>`` asset attributes
    on each exported probe (:func:`bakery.usd.layer.add_export_attributes`, atomic).
@@ -30,6 +33,7 @@ import json
 import os
 import re
 from abc import ABC, abstractmethod
+from collections.abc import Iterable
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -80,8 +84,9 @@ class ExportFormat(ABC):
     Params: ClassVar[type[EncodingParams]] = NoParams
 
     @abstractmethod
-    def build(self, context: ExportContext) -> list[ExportedFile]:
-        """Every file of the export, in memory. Raise :class:`InputError` if the store lacks what is needed."""
+    def build(self, context: ExportContext) -> Iterable[ExportedFile]:
+        """Every file of the export, best yielded one at a time (a generator: the writer stages each as it comes).
+        Raise :class:`InputError` (before the first file) if the store lacks what is needed."""
 
 
 #: name → format class, in registration order.
@@ -175,68 +180,91 @@ def _can_create_in(folder: Path) -> bool:
         return False
 
 
-def _check_foreign(folder: Path, files: list[ExportedFile], manifest: dict[str, Any]) -> None:
-    foreign = []
-    for f in files:
-        target = folder / f.path
-        if target.is_dir():
-            foreign.append(f"{f.path} (a folder)")
-            continue
-        if not target.exists():
-            continue
-        entry = manifest["files"].get(f.path)
-        if entry is None or entry.get("sha256") != sha256_file(target):
-            foreign.append(f.path)
-    if foreign:
-        raise InputError(f"{folder}: refusing to overwrite file(s) bakery did not write or that changed since "
-                         f"({', '.join(sorted(foreign)[:5])}{' …' if len(foreign) > 5 else ''}); choose another "
-                         f"folder or remove them")
-    names = [f.path for f in files]
-    if len(set(names)) != len(names) or MANIFEST in names:
-        raise InputError("export produced duplicate file names (probe names that differ only in punctuation?)")
+@dataclass(frozen=True)
+class WrittenFile:
+    """What the writer keeps of a staged file (its bytes are on disk, not in memory)."""
+
+    path: str
+    probes: tuple[str, ...]
+    role: str
 
 
-def write_files(folder: Path, files: list[ExportedFile], record: dict[str, Any]) -> Path:
-    """Write ``files`` and the updated manifest all-or-nothing (module docstring, steps 3–5). Returns the
-    manifest path."""
+def _foreign(folder: Path, f: ExportedFile, manifest: dict[str, Any]) -> str | None:
+    """Why ``f`` may not replace what is at its target (a folder, or a file bakery did not write or that changed
+    since), or None."""
+    target = folder / f.path
+    if target.is_dir():
+        return f"{f.path} (a folder)"
+    if not target.exists():
+        return None
+    entry = manifest["files"].get(f.path)
+    return f.path if entry is None or entry.get("sha256") != sha256_file(target) else None
+
+
+def _make_parents(folder: Path, target: Path, created: list[Path]) -> None:
+    """Create the missing folders from ``folder`` down to ``target``'s parent, recording each in ``created``."""
+    missing = []
+    probe = target.parent
+    while not probe.exists():
+        missing.append(probe)
+        probe = probe.parent
+    for m in reversed(missing):
+        m.mkdir()
+        created.append(m)
+
+
+def write_files(folder: Path, files: Iterable[ExportedFile], record: dict[str, Any]) -> tuple[Path, list[WrittenFile]]:
+    """Stage every file of ``files`` as it comes, then rename them all and write the updated manifest,
+    all-or-nothing (module docstring, steps 2–5). Returns the manifest path and the files written; when ``files``
+    is empty nothing is written (and no folder is left behind)."""
     folder = Path(folder)
     _check_writable(folder)
     manifest = _read_manifest(folder)
-    _check_foreign(folder, files, manifest)
     created: list[Path] = []
-    needed = sorted({(folder / f.path).parent for f in files} | {folder}, key=lambda p: len(p.parts))
+    written: list[WrittenFile] = []
+    seen: set[str] = {MANIFEST}
+    foreign: list[str] = []
     try:
-        for d in needed:
-            missing = []
-            probe = d
-            while not probe.exists():
-                missing.append(probe)
-                probe = probe.parent
-            for m in reversed(missing):
-                m.mkdir()
-                created.append(m)
-        for f in files:
-            manifest["files"][f.path] = {"sha256": sha256_bytes(f.data), **record, "role": f.role,
-                                         "probes": list(f.probes)}
-        manifest_bytes = (json.dumps(manifest, indent=1, sort_keys=True) + "\n").encode()
-        with ExitStack() as stack:
+        with ExitStack() as stack:  # leaving it renames every staged file; an error removes them instead
             for f in files:
+                if f.path in seen:
+                    raise InputError("export produced duplicate file names (probe names that differ only in "
+                                     "punctuation?)")
+                seen.add(f.path)
+                reason = _foreign(folder, f, manifest)
+                if reason:
+                    foreign.append(reason)
+                    continue
+                _make_parents(folder, folder / f.path, created)
                 tmp = stack.enter_context(atomic_replace(folder / f.path))
                 tmp.write_bytes(f.data)
-        # the manifest last: a crash between the renames and here leaves files the manifest does not list, which the
-        # next export refuses to overwrite (safe side)
-        with atomic_replace(folder / MANIFEST) as tmp:
-            tmp.write_bytes(manifest_bytes)
+                manifest["files"][f.path] = {"sha256": sha256_bytes(f.data), **record, "role": f.role,
+                                             "probes": list(f.probes)}
+                written.append(WrittenFile(f.path, tuple(f.probes), f.role))
+            if foreign:
+                raise InputError(f"{folder}: refusing to overwrite file(s) bakery did not write or that changed "
+                                 f"since ({', '.join(sorted(foreign)[:5])}{' …' if len(foreign) > 5 else ''}); "
+                                 f"choose another folder or remove them")
+        if written:
+            # the manifest last: a crash between the renames and here leaves files the manifest does not list,
+            # which the next export refuses to overwrite (safe side)
+            with atomic_replace(folder / MANIFEST) as tmp:
+                tmp.write_bytes((json.dumps(manifest, indent=1, sort_keys=True) + "\n").encode())
     except BaseException:
-        for f in files:
-            target = folder / f.path
-            if target.parent in created and target.exists():
-                target.unlink()
-        for d in reversed(created):
-            if d.exists() and not any(d.iterdir()):
-                d.rmdir()
+        _remove_written(folder, written, created)
         raise
-    return folder / MANIFEST
+    return folder / MANIFEST, written
+
+
+def _remove_written(folder: Path, written: list[WrittenFile], created: list[Path]) -> None:
+    """After a failed export: the files it renamed into folders it created, then those folders if empty."""
+    for w in written:
+        target = folder / w.path
+        if target.parent in created and target.exists():
+            target.unlink()
+    for d in reversed(created):
+        if d.exists() and not any(d.iterdir()):
+            d.rmdir()
 
 
 def default_layer(store_path: Path) -> Path | None:
@@ -266,12 +294,11 @@ def export_store(store_path: str | os.PathLike[str], output: str | os.PathLike[s
     output = Path(output)
     _check_writable(output)
     context = ExportContext(store=store, probes=selected, profile=prof, params=params, format_name=format)
-    files = cls().build(context)
-    if not files:
-        raise InputError(f"{store_path}: nothing to export as {format} (no selected probe of a kind it exports)")
     record = {"format": format, "profile": prof.name, "store": os.path.relpath(store_path.resolve(),
                                                                               output.resolve())}
-    manifest = write_files(output, files, record)
+    manifest, files = write_files(output, cls().build(context), record)
+    if not files:
+        raise InputError(f"{store_path}: nothing to export as {format} (no selected probe of a kind it exports)")
     result = ExportResult(format, prof.name, output, [f.path for f in files], manifest)
     layer_path = None if layer is False else (Path(layer) if layer else default_layer(store_path))
     if layer_path is not None:

@@ -24,6 +24,7 @@ Mip levels are re-prefiltered at the ``filament`` profile (lod = (M − 1)·r(2 
 from __future__ import annotations
 
 import struct
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -146,17 +147,16 @@ class FilamentExport(ExportFormat):
         levels: int | None = None
         face_size: int | None = None
 
-    def build(self, context: ExportContext) -> list[ExportedFile]:
+    def build(self, context: ExportContext) -> Iterator[ExportedFile]:
+        """One .ktx per probe, streamed."""
         import json
 
         p = context.params
-        chains, caps, record = profile_chains(context.store, context.probes, context.profile, p.levels, p.face_size)
-        files = []
-        for name, chain in chains.items():
-            radiance, source = radiance_sh(context.store, name, caps[name])
-            meta = {**context.provenance(), "probe": name, "profile": record, "irradiance_source": source}
+        chains = profile_chains(context.store, context.probes, context.profile, p.levels, p.face_size)
+        for name, chain, capture in chains:
+            radiance, source = radiance_sh(context.store, name, capture)
+            meta = {**context.provenance(), "probe": name, "profile": chains.record, "irradiance_source": source}
             cube = Ktx1Cube(p.gl_format, chain[0].shape[1], chain,
                             {"sh": sh_text(filament_sh(radiance)).encode() + b"\x00",
                              "bakery": json.dumps(meta, sort_keys=True).encode() + b"\x00"})
-            files.append(ExportedFile(f"{slug(name)}.ktx", write_ktx1(cube), (name,), ""))
-        return files
+            yield ExportedFile(f"{slug(name)}.ktx", write_ktx1(cube), (name,), "")

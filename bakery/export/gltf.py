@@ -31,6 +31,7 @@ above clamp); relative quantisation ≈ 2.2 · ½ / 255 / (c·D)^(1/2.2) per cha
 from __future__ import annotations
 
 import json
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -97,19 +98,20 @@ class GltfExport(ExportFormat):
             if self.levels is not None and self.levels < 1:
                 raise ValueError(f"levels must be >= 1 (or unset: full chain), got {self.levels}")
 
-    def build(self, context: ExportContext) -> list[ExportedFile]:
+    def build(self, context: ExportContext) -> Iterator[ExportedFile]:
+        """Per probe (streamed): its specular PNGs, then its .gltf."""
         p = context.params
-        chains, caps, record = profile_chains(context.store, context.probes, context.profile, p.levels, p.face_size)
-        files = []
-        for name, chain in chains.items():
+        chains = profile_chains(context.store, context.probes, context.profile, p.levels, p.face_size)
+        record = chains.record
+        for name, chain, capture in chains:
             base = slug(name)
-            radiance, sh_source = radiance_sh(context.store, name, caps[name])
+            radiance, sh_source = radiance_sh(context.store, name, capture)
             images, grid = [], []
             for i, level in enumerate(chain):
                 row = []
                 for f, face in enumerate(FACE_TRANSFORM(level)):
                     path = f"{base}/specular_{i}_{f}.png"
-                    files.append(ExportedFile(path, encode_png(encode_rgbd(face)), (), "image"))
+                    yield ExportedFile(path, encode_png(encode_rgbd(face)), (), "image")
                     row.append(len(images))
                     images.append({"uri": path, "mimeType": "image/png"})
                 grid.append(row)
@@ -132,6 +134,5 @@ class GltfExport(ExportFormat):
                 "extras": extras,
             }
             text = json.dumps(document, indent=1, sort_keys=True) + "\n"
-            files.append(ExportedFile(f"{base}.gltf", text.encode(), (name,), ""))
-        return files
+            yield ExportedFile(f"{base}.gltf", text.encode(), (name,), "")
 

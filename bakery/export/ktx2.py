@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import math
 import struct
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -415,17 +416,18 @@ class Ktx2Export(ExportFormat):
             if self.face_size is not None and self.face_size < 1:
                 raise ValueError(f"face_size must be >= 1, got {self.face_size}")
 
-    def build(self, context: ExportContext) -> list[ExportedFile]:
+    def build(self, context: ExportContext) -> Iterator[ExportedFile]:
+        """One file per probe, streamed (``layout = "cube"``), or one cube array holding every chain at once."""
         from bakery.export.source import profile_chains
 
         p = context.params
-        chains, _, record = profile_chains(context.store, context.probes, context.profile, p.levels, p.face_size)
+        chains = profile_chains(context.store, context.probes, context.profile, p.levels, p.face_size)
         vk = VK_FORMATS[p.vk_format][0]
         if p.layout == "array":
-            names = list(chains)
-            texture = cube_texture([chains[n] for n in names], vk, bakery_key_values(context, record, names))
-            return [ExportedFile("reflection_probes.ktx2", write_ktx2(texture), tuple(names), "")]
-        return [ExportedFile(f"{slug(name)}.ktx2",
-                             write_ktx2(cube_texture([chain], vk, bakery_key_values(context, record, [name]))),
-                             (name,), "")
-                for name, chain in chains.items()]
+            texture = cube_texture([chain for _, chain, _ in chains], vk,
+                                   bakery_key_values(context, chains.record, chains.probes))
+            yield ExportedFile("reflection_probes.ktx2", write_ktx2(texture), tuple(chains.probes), "")
+            return
+        for name, chain, _ in chains:
+            texture = cube_texture([chain], vk, bakery_key_values(context, chains.record, [name]))
+            yield ExportedFile(f"{slug(name)}.ktx2", write_ktx2(texture), (name,), "")

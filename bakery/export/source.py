@@ -13,7 +13,10 @@ The capture kept in the store
 Re-prefiltering
     :func:`prefilter_for_profile` runs bakery's own chain prefilter (:func:`bakery.reflection.splitsum.prefilter_chain`:
     SH-domain levels where the kernel is band-limited, cached sparse operators of the exact kernel for sharp levels,
-    α = 0 a copy) with the profile's α per level and standard halving sizes.
+    α = 0 a copy) with the profile's α per level and standard halving sizes. :func:`profile_chains` streams: it
+    checks the whole selection first (every probe keeps a capture, the sizes fit), then yields one probe at a time,
+    prefiltering :data:`EXPORT_CHUNK` probes per batched call (:func:`~bakery.reflection.splitsum.prefilter_batch`:
+    a probe's chain does not depend on its batch), so an export holds one chunk of captures and chains at a time.
 
 Irradiance SH
     :func:`radiance_sh` fits radiance SH f (9, 3) in bakery's basis to the store's own ``evaluate_irradiance`` of an
@@ -24,13 +27,15 @@ Irradiance SH
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from bakery.encodings import ENCODINGS
 from bakery.errors import InputError
-from bakery.reflection.splitsum import SplitSumSettings, prefilter_chain
+from bakery.reflection.splitsum import SplitSumSettings, prefilter_batch, prefilter_chain
 from bakery.sh.basis import evaluate_sh_basis, sh_bands
 from bakery.sphere.cubemap import cube_texel_directions, cube_texel_solid_angles
 from bakery.sphere.fibonacci import fibonacci_directions
@@ -53,12 +58,15 @@ class ProfileChainSettings(SplitSumSettings):
         return tuple(self.sizes)
 
 
+def _profile_settings(face_size: int, alphas: np.ndarray, sizes: tuple[int, ...]) -> ProfileChainSettings:
+    return ProfileChainSettings(face_size=face_size, n_levels=len(alphas), alphas=tuple(float(a) for a in alphas),
+                                sizes=tuple(int(s) for s in sizes))
+
+
 def prefilter_for_profile(capture: np.ndarray, alphas: np.ndarray, sizes: tuple[int, ...]) -> list[np.ndarray]:
     """Re-prefiltered chain [(6, N_i, N_i, 3) float32] of one capture (6, N, N, 3) at GGX ``alphas``."""
     capture = np.asarray(capture, dtype=np.float32)
-    settings = ProfileChainSettings(face_size=capture.shape[1], n_levels=len(alphas),
-                                    alphas=tuple(float(a) for a in alphas), sizes=tuple(int(s) for s in sizes))
-    return prefilter_chain(capture, settings)
+    return prefilter_chain(capture, _profile_settings(capture.shape[1], alphas, sizes))
 
 
 def capture_encodings() -> list[str]:
@@ -102,6 +110,13 @@ def captures(store, encoding: str, probes: list[str]) -> dict[str, np.ndarray]: 
     only where ``first_level`` is 0 or with ``keep_capture``); any other requested probe is an
     :class:`InputError` (nothing is exported: its cube maps would be black)."""
     fields = store.fields(encoding)
+    rows = _kept_capture_rows(store, encoding, probes)
+    return {p: np.asarray(fields["level0"][r], dtype=np.float32) for p, r in zip(probes, rows, strict=True)}
+
+
+def _kept_capture_rows(store, encoding: str, probes: list[str]) -> np.ndarray:  # noqa: ANN001
+    """The rows of ``probes`` in ``encoding``; an :class:`InputError` if one keeps no capture (:func:`captures`)."""
+    fields = store.fields(encoding)
     rows = store.rows(encoding, probes)
     kept = ENCODINGS[encoding].captures_kept(fields, store.encodings[encoding].settings)
     missing = [p for p, r in zip(probes, rows, strict=True) if not kept[r]]
@@ -110,7 +125,7 @@ def captures(store, encoding: str, probes: list[str]) -> dict[str, np.ndarray]: 
                          f"materials need no level sharper than first_level > 0, so level0 was not stored), e.g. "
                          f"{missing[0]}; re-bake with the encoding setting {encoding}.keep_capture = true to "
                          f"export them, or export only the others (--probes)")
-    return {p: np.asarray(fields["level0"][r], dtype=np.float32) for p, r in zip(probes, rows, strict=True)}
+    return rows
 
 
 def irradiance_encoding(store, probe: str) -> str | None:  # noqa: ANN001
@@ -171,33 +186,62 @@ def reflection_probes(store, probes: list[str], encoding: str) -> list[str]:  # 
     return [p for p in probes if p in index]
 
 
+#: Probes prefiltered per batched call while an export streams (bounded memory: one chunk of captures and chains).
+EXPORT_CHUNK = 16
+
+
+@dataclass
+class ProfileChains:
+    """The re-prefiltered chains of an export's reflection probes at a profile's α, streamed (module doc
+    "Re-prefiltering"). Iterating yields (probe, chain [(6, N_i, N_i, 3) float32], capture (6, N, N, 3) float32)
+    in ``probes`` order, computing :data:`EXPORT_CHUNK` probes at a time; ``record`` is the profile record (levels,
+    face size, α per level, source) written into each file."""
+
+    store: Any  # bakery.api.ProbeStore
+    encoding: str
+    probes: list[str]
+    rows: np.ndarray
+    face_size: int
+    alphas: np.ndarray
+    sizes: tuple[int, ...]
+    record: dict = field(default_factory=dict)
+
+    def __iter__(self) -> Iterator[tuple[str, list[np.ndarray], np.ndarray]]:
+        from bakery.sphere.cubemap import resample_cube
+
+        level0 = self.store.fields(self.encoding)["level0"]
+        settings = _profile_settings(self.face_size, self.alphas, self.sizes)
+        for start in range(0, len(self.probes), EXPORT_CHUNK):
+            rows = self.rows[start : start + EXPORT_CHUNK]
+            caps = np.asarray(level0[rows], dtype=np.float32)
+            if caps.shape[2] != self.face_size:
+                caps = np.stack([resample_cube(c, self.face_size) for c in caps]).astype(np.float32)
+            levels = prefilter_batch(caps, settings)
+            for i, probe in enumerate(self.probes[start : start + EXPORT_CHUNK]):
+                yield probe, [level[i] for level in levels], caps[i]
+
+
 def profile_chains(store, probes: list[str], profile, levels: int | None, face_size: int | None,  # noqa: ANN001
-                   ) -> tuple[dict[str, list[np.ndarray]], dict[str, np.ndarray], dict]:
-    """Re-prefiltered chains {probe: [(6, N_i, N_i, 3)]} at ``profile``'s α, the captures they came from, and the
-    profile record (levels, face size, α per level) written into each file."""
+                   ) -> ProfileChains:
+    """The reflection probes among ``probes`` with their chains at ``profile``'s α (:class:`ProfileChains`),
+    everything checked before any is prefiltered: an :class:`InputError` if none is a reflection probe with a
+    kept capture, one keeps no capture, or ``face_size`` / ``levels`` do not fit the kept capture."""
     from bakery.export.profiles import full_chain_levels, level_sizes
-    from bakery.sphere.cubemap import resample_cube
 
     encoding = require_capture_encoding(store)
     selected = reflection_probes(store, probes, encoding)
     if not selected:
         raise InputError(f"{store.path}: none of the selected probes is a reflection probe with a kept capture "
                          f"({encoding})")
-    caps = captures(store, encoding, selected)
-    n = next(iter(caps.values())).shape[1]
+    rows = _kept_capture_rows(store, encoding, selected)
+    n = int(store.fields(encoding)["level0"].shape[2])
     size = n if face_size is None else int(face_size)
     if size > n or n % size:
         raise InputError(f"face_size {size} must divide the kept capture's face size {n}")
     count = full_chain_levels(size) if levels is None else int(levels)
     if not 1 <= count <= full_chain_levels(size):
         raise InputError(f"levels must be 1..{full_chain_levels(size)} for {size}² faces, got {count}")
-    alphas = profile.alphas(count, size)
-    sizes = level_sizes(size, count)
-    chains = {}
-    for probe, cube in caps.items():
-        base = cube if size == n else resample_cube(cube, size).astype(np.float32)
-        caps[probe] = base
-        chains[probe] = prefilter_for_profile(base, alphas, sizes)
     record = {**profile.describe(count, size), "source_encoding": encoding,
               "source_precision": "float16 capture (relative rounding <= 4.9e-4; radiance above 65504 clamped)"}
-    return chains, caps, record
+    return ProfileChains(store, encoding, selected, rows, size, profile.alphas(count, size),
+                         level_sizes(size, count), record)

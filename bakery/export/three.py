@@ -27,6 +27,7 @@ import json
 import re
 import uuid
 import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -124,7 +125,8 @@ class ThreeExport(ExportFormat):
         reflection: bool = True  # KTX2 cubes for reflection probes with a kept capture
         levels: int | None = None
 
-    def build(self, context: ExportContext) -> list[ExportedFile]:
+    def build(self, context: ExportContext) -> Iterator[ExportedFile]:
+        """The irradiance files (grid atlases, light probes), then one KTX2 per reflection probe, streamed."""
         store, files = context.store, []
         irradiance = [p for p in context.probes if irradiance_encoding(store, p) is not None]
         volumes: dict[str, list[str]] = {}
@@ -174,20 +176,20 @@ class ThreeExport(ExportFormat):
             document = {"generator": "bakery export", "bakery": context.provenance(), "grids": grids}
             files.append(ExportedFile("lightprobegrids.json", (json.dumps(document, indent=1) + "\n").encode(), (),
                                       "grids"))
+        chains = None
         if context.params.reflection and stored_capture_encoding(store) is not None:
             from bakery.export.source import profile_chains, reflection_probes
 
             if reflection_probes(store, context.probes, stored_capture_encoding(store)):
-                chains, _, record = profile_chains(store, context.probes, context.profile, context.params.levels,
-                                                   None)
-                for name, chain in chains.items():
-                    texture = cube_texture([chain], VK_FORMAT_R16G16B16A16_SFLOAT,
-                                           bakery_key_values(context, record, [name]))
-                    files.append(ExportedFile(f"{slug(name)}.ktx2", write_ktx2(texture), (name,), "cube"))
-        if not files:
+                chains = profile_chains(store, context.probes, context.profile, context.params.levels, None)
+        if not files and chains is None:
             raise InputError(f"{store.path}: no selected probe has an irradiance encoding with bands <= 2 or a kept "
                              f"reflection capture; nothing to export for three.js")
-        return files
+        yield from files
+        for name, chain, _ in chains or ():
+            texture = cube_texture([chain], VK_FORMAT_R16G16B16A16_SFLOAT,
+                                   bakery_key_values(context, chains.record, [name]))
+            yield ExportedFile(f"{slug(name)}.ktx2", write_ktx2(texture), (name,), "cube")
 
     @staticmethod
     def _radiance(store, probes: list[str]) -> list[np.ndarray]:  # noqa: ANN001

@@ -51,6 +51,9 @@ Fit grid (multi-resolution splat; method notes §4 "lower mip levels for rough �
     0.73, 1) — rows of one α slab use one grid, so W is a few dense blocks (4096 × 1536, 12288 × 384):
     11 M multiply-adds per channel instead of 100 M for a dense 32² grid. Measured in docs/reflection.md against
     the plain fit (E0 by brute force over every capture texel, :func:`plain_e0_samples`).
+    Cubic (Catmull–Rom) coarse splats were measured and rejected: lower error on the 11 shared maps (max 3.9 % /
+    mean 1.7 % vs 4.7 / 2.1 %, or today's error with 0.77× the multiply-adds on grids 16, 7, 5, 4), but their
+    negative taps make E0 negative on rows that face away from a sun, and with it the luminance row weights.
 
 Weighted solve (beyond the paper; ``fit = "weighted"``, default)
     The log-space fit is a proxy for linear MSE (paper Sec. 5.3): a linear error δE ≈ E·δlog E, so a plain log fit
@@ -71,9 +74,13 @@ Fused fit (:func:`fit_shexp`; :func:`fit_shexp_stepwise` is the same solve one f
     chunks of ~2 MB (E0 chunk = W_rows·F, luminance, weights, floor, log, weighting in place, += Aᵀ_rows · chunk),
     so the (M, 3P) samples never exist and the temporaries stay in cache; columns are (channel, probe) so the
     weights broadcast over contiguous probes. Measured by :mod:`bakery.bench.shexp_fit` (batch 64, 6×128²).
-    The W·F GEMM (2.1 G multiply-adds per 64 probes, at the BLAS peak) and the splat's read of the capture
-    are what remain; W is full rank (all 1536 / 384 singular values above 1e-7 of the largest) and half zero
-    (⟨l, n⟩₊), a per-normal gather of the nonzero half measured no faster.
+    W is half zero (⟨l, n⟩₊: a row's lower hemisphere) and full rank (all 1536 / 384 singular values above 1e-7
+    of the largest; at 1e-3 still 1498 / 384, the hemisphere edge is sharp), so W·F runs over *tiles*
+    (:func:`weight_tiles`): the rows of two neighbouring normals (32 Fibonacci clusters) times the nodes where any
+    of them is non-zero, F gathered to those nodes: 0.58× the multiply-adds of the dense blocks, same products
+    (single normals: 0.5×, but GEMMs too small to gain). What remains is that GEMM (1.2 G multiply-adds per 64
+    probes) and the splat's GEMM over the capture (Ω varies per texel and is not separable — rank 5 to float32
+    — so the column splat keeps its dense per-row operator).
 
 Notation
     M design rows, T fit-grid texels, P probes, C = 3 channels, K_p = (p_band+1)², K_q = (q_band+1)² − 1.
@@ -340,6 +347,22 @@ class WeightBlock:
 
 
 @dataclass(frozen=True)
+class WeightTile:
+    """The rows of one W block whose normals share a cluster, restricted to the nodes where any of them is
+    non-zero (module doc "Fused fit": W is zero wherever ⟨l, n⟩ ≤ 0). ``rows`` (R,) ascending design rows,
+    ``nodes`` (T_k,) ascending node indices of grid ``face_size``; ``weights`` (R, T_k) = W[rows][:, nodes]
+    float32 (every omitted entry of those rows is exactly 0), ``design_t`` (K, R) = Aᵀ[:, rows] and ``pinv``
+    (K, R) = A⁺[:, rows] float32."""
+
+    face_size: int
+    rows: np.ndarray
+    nodes: np.ndarray
+    weights: np.ndarray
+    design_t: np.ndarray
+    pinv: np.ndarray
+
+
+@dataclass(frozen=True)
 class SHExpOperators:
     """Cached fixed operators of one settings: the W blocks, A (M, K), A⁺ (K, M) float32, the products
     A_mi A_mj (i ≤ j) transposed (K(K+1)/2, M) float32 for the weighted normal equations, the per-row log-albedo
@@ -360,6 +383,8 @@ class SHExpOperators:
     column_sums: tuple[np.ndarray, ...] = ()
     #: per W block, Aᵀ diag(log a) W (K, 6g²) float32: Aᵀ W log a = Σ_b (…)·Y(F_b)/mean + w_min Aᵀ log a (fused fit)
     albedo_flux_operators: tuple[np.ndarray, ...] = ()
+    #: the W blocks cut into normal-cluster tiles without their zero columns (:func:`weight_tiles`; fused fit)
+    tiles: tuple[WeightTile, ...] = ()
 
 
 #: Shared table resolution used by the albedo normalisation (same table as the encodings store).
@@ -412,6 +437,37 @@ def _design_blocks(settings: SHExpSettings, faces: tuple[int, ...]) -> tuple[Wei
     return tuple(blocks)
 
 
+#: Normals per tile of the fused fit's W·F: 2 (32 clusters of the 64-normal design; 16 clusters: 5 % slower).
+NORMALS_PER_TILE = 2
+
+
+def weight_tiles(settings: SHExpSettings, blocks: tuple[WeightBlock, ...], design_t: np.ndarray,
+                 pinv: np.ndarray) -> tuple[WeightTile, ...]:
+    """Cut every W block into tiles of the rows whose normals lie nearest the same of ⌈n_normals / 2⌉ Fibonacci
+    directions, each keeping only the nodes where one of its rows is non-zero. W is zero on the lower hemisphere
+    of a row's normal (⟨l, n⟩₊), so a tile of nearby normals drops about 40 % of the block (the union of their
+    hemispheres): W·F costs 0.58× the dense multiply-adds on the default design, with the same products."""
+    per_normal = settings.n_views
+    normals = fit_design(settings)[1][::per_normal][: settings.n_normals]  # (n_normals, 3), the slab order
+    centres = fibonacci_directions(max(1, -(-settings.n_normals // NORMALS_PER_TILE)))
+    cluster = np.argmax(normals @ centres.T, axis=1)  # (n_normals,) nearest centre
+    tiles = []
+    for block in blocks:
+        slabs = (block.stop - block.start) // (settings.n_normals * per_normal)
+        local = np.arange(block.stop - block.start).reshape(slabs, settings.n_normals, per_normal)
+        for k in np.unique(cluster):
+            rows = np.sort(local[:, cluster == k].ravel())  # rows of the block, ascending
+            nodes = np.flatnonzero((block.weights[rows] != 0).any(axis=0))
+            weights = np.ascontiguousarray(block.weights[rows][:, nodes])
+            design_rows = rows + block.start
+            tile = WeightTile(block.face_size, design_rows, nodes, weights,
+                              np.ascontiguousarray(design_t[:, design_rows]), np.ascontiguousarray(pinv[:, design_rows]))
+            for array in (tile.rows, tile.nodes, tile.weights, tile.design_t, tile.pinv):
+                array.setflags(write=False)
+            tiles.append(tile)
+    return tuple(tiles)
+
+
 @lru_cache(maxsize=8)
 def build_operators(settings: SHExpSettings, capture_face_size: int | None = None) -> SHExpOperators:
     """Build the W blocks, A, A⁺ and the pair products once per settings and capture face size (cached)."""
@@ -440,8 +496,9 @@ def build_operators(settings: SHExpSettings, capture_face_size: int | None = Non
     for array in (design, pinv, pair_products_t, log_albedo, pinv_log_albedo, design_t, albedo_design_t,
                   design_gram_upper, *gram_operators, *column_sums, *albedo_flux):
         array.setflags(write=False)
+    tiles = weight_tiles(settings, blocks, design_t, pinv)
     return SHExpOperators(blocks, design, pinv, pair_products_t, log_albedo, pinv_log_albedo, design_t,
-                          albedo_design_t, gram_operators, design_gram_upper, column_sums, albedo_flux)
+                          albedo_design_t, gram_operators, design_gram_upper, column_sums, albedo_flux, tiles)
 
 
 def design_e0_samples(cubes: np.ndarray, settings: SHExpSettings,
@@ -564,13 +621,14 @@ def fit_shexp(cubes: np.ndarray, settings: SHExpSettings,
     w = np.empty((rows, p), dtype=np.float32)
     part = np.empty((k, 3 * p), dtype=np.float32)
     rhs = np.zeros((k, 3 * p))  # float64 accumulator over the chunks
-    right = ops.design_t if weighted else ops.pinv  # Aᵀ (weighted normal equations) or A⁺ (plain log fit)
-    for block in ops.blocks:
-        f = flux[block.face_size]
-        for r0 in range(block.start, block.stop, rows):
-            r1 = min(r0 + rows, block.stop)
+    gathered = np.empty((max(t.nodes.size for t in ops.tiles), 3 * p), dtype=np.float32)
+    for tile in ops.tiles:
+        f = np.take(flux[tile.face_size], tile.nodes, axis=0, out=gathered[: tile.nodes.size])  # F at its nodes
+        right = tile.design_t if weighted else tile.pinv  # Aᵀ (weighted normal equations) or A⁺ (plain log fit)
+        for r0 in range(0, tile.rows.size, rows):
+            r1 = min(r0 + rows, tile.rows.size)
             e, ww = e0[: r1 - r0], w[: r1 - r0]
-            np.matmul(block.weights[r0 - block.start : r1 - block.start], f, out=e)  # E0 = W·F (GEMM)
+            np.matmul(tile.weights[r0:r1], f, out=e)  # E0 = W·F (GEMM over the tile's non-zero nodes)
             if weighted:  # w = Y(E0)/mean + w_min of the unfloored samples
                 np.matmul(LUMINANCE, e.reshape(-1, 3, p), out=ww)
                 ww *= inv_mean

@@ -99,3 +99,23 @@ def test_fused_fit_with_removed_texels_equals_fitting_the_blacked_out_capture():
     black[probe, texel] = 0.0
     np.testing.assert_allclose(sx.fit_shexp(cubes, SMALL, (probe, texel)),
                                sx.fit_shexp(black.reshape(cubes.shape), SMALL), rtol=1e-4, atol=1e-4)
+
+
+def test_weight_tiles_partition_the_design_and_drop_only_zeros():
+    """The normal-cluster tiles of the fused W·F cover every design row once, hold W's entries exactly, and every
+    node they leave out of a row is an exact zero of W (the lower hemisphere of its normal, ⟨l, n⟩ ≤ 0)."""
+    ops = sx.build_operators(sx.SHExpSettings(), 128)
+    rows = np.concatenate([t.rows for t in ops.tiles])
+    assert np.array_equal(np.sort(rows), np.arange(ops.design.shape[0]))
+    v, n, _ = sx.fit_design(sx.SHExpSettings())
+    for tile in ops.tiles:
+        block = next(b for b in ops.blocks if b.start <= tile.rows[0] < b.stop)
+        dense = block.weights[tile.rows - block.start]
+        assert np.array_equal(dense[:, tile.nodes], tile.weights)
+        left_out = np.setdiff1d(np.arange(dense.shape[1]), tile.nodes)
+        assert not dense[:, left_out].any()
+        nodes = cube_texel_directions(tile.face_size).reshape(-1, 3)[left_out]
+        assert (n[tile.rows] @ nodes.T).max(initial=-1.0) <= 1e-6  # only below every row's horizon
+        np.testing.assert_array_equal(tile.design_t, ops.design_t[:, tile.rows])
+    dense_macs = sum(b.weights.size for b in ops.blocks)
+    assert sum(t.weights.size for t in ops.tiles) < 0.65 * dense_macs

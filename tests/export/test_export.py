@@ -265,3 +265,71 @@ def test_reprefilter_uses_the_kept_float16_capture(stores):
     chain = prefilter_for_profile(capture, np.array([0.0, 1.0]), (32, 16))
     np.testing.assert_array_equal(chain[0], capture)  # α = 0 level: the capture itself
     assert chain[1].shape == (6, 16, 16, 3)
+
+
+# ------------------------------------------------------------------------------------------------ streaming
+def test_the_writer_stages_each_file_as_the_format_yields_it(tmp_path):
+    """write_files holds one file at a time: when the format yields file k, file k − 1 is already on disk (its
+    temporary beside the target), and nothing is renamed until the last one."""
+    from bakery.export.base import ExportedFile, write_files
+    from bakery.files import staged_path
+
+    out = tmp_path / "out"
+    seen = []
+
+    def files():
+        for k in range(3):
+            if k:
+                assert staged_path(out / f"sub/f{k - 1}.bin").is_file()  # staged, not held
+                assert not (out / f"sub/f{k - 1}.bin").exists()  # and not yet renamed
+            seen.append(k)
+            yield ExportedFile(f"sub/f{k}.bin", bytes([k]) * 1000, (f"/p{k}",), "")
+
+    manifest, written = write_files(out, files(), {"format": "test"})
+    assert seen == [0, 1, 2] and [w.path for w in written] == ["sub/f0.bin", "sub/f1.bin", "sub/f2.bin"]
+    assert (out / "sub/f2.bin").read_bytes() == bytes([2]) * 1000
+    assert set(json.loads(manifest.read_text())["files"]) == {w.path for w in written}
+    assert not [p for p in out.rglob(".*tmp*")]
+
+
+def test_a_format_failing_midway_leaves_nothing_and_keeps_existing_files(tmp_path):
+    from bakery.export.base import ExportedFile, write_files
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "keep.txt").write_text("user file")
+    before = snapshot(out)
+
+    def files():
+        yield ExportedFile("a/one.bin", b"1", ("/p",), "")
+        yield ExportedFile("two.bin", b"2", ("/q",), "")
+        raise InputError("store lacks something, found late")
+
+    with pytest.raises(InputError, match="found late"):
+        write_files(out, files(), {"format": "test"})
+    assert snapshot(out) == before and not (out / "a").exists()
+
+
+def test_streamed_chains_equal_one_probe_at_a_time_whatever_the_chunk(stores, monkeypatch):
+    """ProfileChains prefilters EXPORT_CHUNK probes per batched call; each probe's chain is bit-identical to its own
+    prefilter_for_profile, for chunks of 1, 2 and all."""
+    from bakery.export import source as src
+
+    store = bakery.open_store(stores["outdoor"])
+    encoding = require_capture_encoding(store)
+    probes = src.reflection_probes(store, list(store.probe_names), encoding)
+    assert len(probes) >= 2
+    profile = PROFILES["gltf"]
+    caps = captures(store, encoding, probes)
+    expected = None
+    for chunk in (1, 2, len(probes)):
+        monkeypatch.setattr(src, "EXPORT_CHUNK", chunk)
+        chains = src.profile_chains(store, probes, profile, None, None)
+        got = {name: (chain, cap) for name, chain, cap in chains}
+        assert list(got) == probes
+        if expected is None:
+            expected = {p: prefilter_for_profile(caps[p], chains.alphas, chains.sizes) for p in probes}
+        for p in probes:
+            np.testing.assert_array_equal(got[p][1], caps[p])
+            for level, want in zip(got[p][0], expected[p], strict=True):
+                np.testing.assert_array_equal(level, want)
