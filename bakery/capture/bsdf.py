@@ -58,8 +58,9 @@ class Bsdf:
         specular = self.f90 > 0
         diffuse = vmax(albedo) > 0
         self.any_specular = bool(specular.any())
-        #: whether some lobe is sharp enough (α < 0.03) for float32 cancellation in D's denominator to matter
-        self.sharp = self.any_specular and bool((alpha[specular] < 0.03).any())
+        #: points (indices) whose lobe is sharp enough (α < 0.03) for float32 cancellation in D's denominator to
+        #: matter; chosen per point, so a point's value does not depend on the other points of the batch
+        self.sharp = np.flatnonzero(specular & (alpha < 0.03))
         fv = self._fresnel(nv)
         spec_w = luminance(fv)
         total = spec_w + luminance(albedo * (1 - fv))
@@ -94,15 +95,17 @@ class Bsdf:
         if self.any_specular:
             a2 = e(self.a2)
             nh = (e(self.nv_raw) + nl) * inv_h
-            if self.sharp:  # 1 − (n·h)² cancels in float32 near the peak of a sharp lobe: |n × h|² instead
-                h = wo + wi
-                cx = n[1] * h[2] - n[2] * h[1]
-                cy = n[2] * h[0] - n[0] * h[2]
-                cz = n[0] * h[1] - n[1] * h[0]
-                den = (cx * cx + cy * cy + cz * cz) * (inv_h * inv_h) + nh * nh * a2
-            else:
-                den = nh * nh * (a2 - 1) + 1
-            d = (nh > 0) * a2 / (math.pi * den * den)
+            den = nh * nh * (a2 - 1) + 1
+            if self.sharp.size:  # 1 − (n·h)² cancels in float32 near the peak of a sharp lobe: |n × h|² there
+                k = self.sharp
+                nk, ik, nhk = (np.take(a, k, axis=-1) for a in (n, inv_h, nh))
+                hk = np.take(wo, k, axis=-1) + np.take(wi, k, axis=-1)
+                cx = nk[1] * hk[2] - nk[2] * hk[1]
+                cy = nk[2] * hk[0] - nk[0] * hk[2]
+                cz = nk[0] * hk[1] - nk[1] * hk[0]
+                den[..., k] = (cx * cx + cy * cy + cz * cz) * (ik * ik) + nhk * nhk * np.take(a2, k, axis=-1)
+            with np.errstate(over="ignore"):  # wi = −wo: den overflows, D = 0
+                d = (nh > 0) * a2 / (math.pi * den * den)
             vis = 0.5 / np.maximum(nlc * e(self.sqv) + e(self.nv) * np.sqrt(nlc * nlc * (1 - a2) + a2), TINY)
             value = value + f * (d * vis * nlc)
             pdf = pdf + e(self.spec_pdf_scale) * d

@@ -31,17 +31,23 @@ Noise and adaptive sampling
     ``max_samples`` rays per texel are spent.
 
 Batching and precision (issue 14)
-    A pass traces all 6·N²·S camera rays of the probe at once (up to :data:`BATCH`); each bounce shades all live
-    paths as one batch: next-event samples of every light, the dome's rest and its sun form one (3, J, M) array,
-    evaluated by the BSDF in one call, culled against the light shapes' bounding spheres and traced in one Embree
-    occlusion query; continuations are one closest-hit query. Per-ray arrays are float32 structure-of-arrays
-    (:mod:`bakery.capture.vec`); sums over rays are float64. A light's own shape is not tested as an occluder of its
-    own samples (convex shapes cannot shadow their own facing points; this also removes float32 self-shadowing).
+    :meth:`ProbeRenderer.render_many` renders several probes together: each pass of each probe is cut into chunks
+    of at most :data:`BATCH` camera rays, and chunks of different probes share one call of the path tracer (up to
+    :data:`CALL_RAYS` camera rays). Each bounce shades all live paths of the call as one batch: next-event samples
+    of every light, the dome's rest and its sun form one (3, J, M) array, evaluated by the BSDF in one call, culled
+    against the light shapes' bounding spheres and traced in one Embree occlusion query; continuations are one
+    closest-hit query. Per-ray arrays are float32 structure-of-arrays (:mod:`bakery.capture.vec`); sums over rays
+    are float64. A light's own shape is not tested as an occluder of its own samples (convex shapes cannot shadow
+    their own facing points; this also removes float32 self-shadowing).
 
-Randomness comes from ``numpy.random.default_rng(seed)`` with the seed derived from the probe's name
-(:func:`probe_seed`), drawn in a fixed order per probe (per pass, per bounce, per strategy), so captures are
-identical across runs, batch sizes and worker counts: a probe's arrays never depend on which other probes share
-its worker or batch.
+Determinism
+    Randomness comes from ``numpy.random.default_rng(seed)`` per probe, with the seed derived from the probe's name
+    (:func:`probe_seed`). A batch's random numbers are drawn probe by probe from each probe's own generator, as
+    many as it has rays, in a fixed order (per pass, chunk, bounce and strategy), and concatenated
+    (:class:`_Owners`); per-ray arithmetic is element by element (no BLAS, no reductions over the rays of a batch;
+    even the BSDF's sharp-lobe form is chosen per point), Embree answers each ray on its own, and each probe's
+    cube, SH noise and ray count are accumulated apart. So a probe's capture is bit-identical across runs, batch
+    compositions and orders, batch sizes and worker counts (``tests/capture/test_capture_batched.py``).
 """
 
 from __future__ import annotations
@@ -49,12 +55,13 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from bakery.capture.bsdf import Bsdf
-from bakery.capture.dome import DomeSampler, splat_bilinear
+from bakery.capture.dome import DomeSampler, bilinear_weights, splat_bilinear
 from bakery.capture.lights import (
     SHADOW_EPSILON,
     DistantLightModel,
@@ -79,8 +86,13 @@ from bakery.sphere.cubemap import (
 DEFAULT_BOUNCES = 64
 #: Bounces up to this one are never ended by Russian roulette (exact); later ones may be.
 RR_START = 3
-#: Rays per Python-level batch of primary rays (memory bound for large faces × samples).
+#: Camera rays per chunk of a probe's pass (memory bound for large faces × samples; fixes the order of its random
+#: numbers, so changing it changes captures).
 BATCH = 1 << 17
+#: Camera rays per call of the path tracer (chunks of several probes traced together; a memory bound, free to tune):
+#: 8 probes of face 32 at 4 rays per texel, and one chunk of :data:`BATCH` rays at large faces (whose peak memory is
+#: that of one probe's chunk, as before batching).
+CALL_RAYS = 3 << 16
 
 
 def probe_seed(name: str, base_seed: int = 0) -> int:
@@ -103,6 +115,15 @@ class CaptureStats:
         return self.rays / self.seconds if self.seconds > 0 else 0.0
 
 
+def _face_frame_columns() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The cube faces' axis, u and v vectors as float32 (3, 1, 6, 1) arrays (broadcast over (S, 6, N·N))."""
+    frames = np.asarray(_FACE_FRAMES, dtype=REAL)  # (6, 3 vectors, 3)
+    return tuple(np.ascontiguousarray(frames[:, k].T).reshape(3, 1, 6, 1) for k in range(3))
+
+
+_FACE_AXIS, _FACE_DU, _FACE_DV = _face_frame_columns()
+
+
 def _jittered_texel_directions(face_size: int, samples: int, rng: np.random.Generator) -> np.ndarray:
     """(3, samples, 6, N, N) float32 unit directions through jittered points of every texel (structure of arrays).
 
@@ -115,18 +136,12 @@ def _jittered_texel_directions(face_size: int, samples: int, rng: np.random.Gene
     jitter = rng.random((samples, 6, n, n, 2))
     strata_u = np.arange(samples, dtype=np.float64)[:, None, None, None]
     strata_v = rng.permuted(np.broadcast_to(strata_u, (samples, 6, n, n)), axis=0)
-    fu = (strata_u + jitter[..., 0]) / samples
-    fv = (strata_v + jitter[..., 1]) / samples
     idx = np.arange(n, dtype=np.float64)
-    u = ((idx[None, None, None, :] + fu) / n * 2.0 - 1.0).astype(REAL)
-    v = ((idx[None, None, :, None] + fv) / n * 2.0 - 1.0).astype(REAL)
-    d = np.empty((3,) + u.shape, dtype=REAL)
-    for f in range(6):
-        axis, du, dv = (tuple(float(x) for x in row) for row in _FACE_FRAMES[f])
-        uf, vf = u[:, f], v[:, f]
-        for c in range(3):
-            d[c, :, f] = axis[c] + uf * du[c] + vf * dv[c]
-    return d / np.sqrt(dot(d, d))
+    u = ((idx + (strata_u + jitter[..., 0]) / samples) / n * 2.0 - 1.0).astype(REAL)
+    v = ((idx[:, None] + (strata_v + jitter[..., 1]) / samples) / n * 2.0 - 1.0).astype(REAL)
+    shape = (samples, 6, n * n)
+    d = _FACE_AXIS + u.reshape(shape) * _FACE_DU + v.reshape(shape) * _FACE_DV
+    return (d / np.sqrt(dot(d, d))).reshape(3, samples, 6, n, n)
 
 
 def _take(a: np.ndarray, index: np.ndarray) -> np.ndarray:
@@ -141,12 +156,68 @@ def _add_at(a: np.ndarray, index: np.ndarray, value: np.ndarray) -> None:
         row[index] += value[c]
 
 
+class _Owners:
+    """Which probe of a renderer call each ray of a (3, M) batch belongs to, the probes' generators and their counts
+    of rays traced.
+
+    Rays are grouped by probe (``owner`` non-decreasing: compaction by sorted indices keeps that). Random numbers
+    are drawn per probe, as many as it has rays, from its own generator and concatenated, so a probe draws the same
+    numbers in the same order whatever else shares the batch."""
+
+    def __init__(self, rngs: list[np.random.Generator], owner: np.ndarray, rays: np.ndarray | None = None) -> None:
+        self.rngs = rngs
+        self.owner = owner  #: (M,) index into ``rngs``
+        self.rays = np.zeros(len(rngs), dtype=np.int64) if rays is None else rays  #: (P,) shared by every take
+
+    @classmethod
+    def single(cls, rng: np.random.Generator, m: int = 0) -> _Owners:
+        return cls([rng], np.zeros(m, dtype=np.int64))
+
+    def take(self, index: np.ndarray) -> _Owners:
+        """The owners of the rays ``index`` (sorted, to keep them grouped)."""
+        return _Owners(self.rngs, np.take(self.owner, index), self.rays)
+
+    def random(self, *lead: int, dtype: type = REAL) -> np.ndarray:
+        """Uniform numbers (*lead, M), each probe's columns from its own generator."""
+        if len(self.rngs) == 1:
+            return self.rngs[0].random(lead + (self.owner.size,), dtype=dtype)
+        edges = np.searchsorted(self.owner, np.arange(len(self.rngs) + 1))
+        return np.concatenate([rng.random(lead + (int(b - a),), dtype=dtype)
+                               for rng, a, b in zip(self.rngs, edges[:-1], edges[1:])], axis=-1)
+
+    def traced(self, index: np.ndarray | None = None) -> None:
+        """Count the rays traced: all M, or those of ``index`` (into the M, any order)."""
+        if len(self.rngs) == 1:
+            self.rays[0] += self.owner.size if index is None else index.size
+        else:
+            owner = self.owner if index is None else np.take(self.owner, index)
+            self.rays += np.bincount(owner, minlength=len(self.rngs))
+
+
+def _pack_chunks(probes: list[int], count: int) -> list[list[tuple[int, int, int]]]:
+    """Calls of the path tracer for a pass of ``count`` camera rays of each of ``probes``: lists of (probe, start,
+    stop) chunks, at most :data:`CALL_RAYS` rays and one chunk of a probe per call, each probe's chunks in order
+    (so its random numbers are drawn in the same order as when it is rendered alone)."""
+    chunks = [(p, start, min(count, start + BATCH)) for start in range(0, count, BATCH) for p in probes]
+    calls: list[list[tuple[int, int, int]]] = []
+    size = 0
+    for chunk in chunks:
+        rays = chunk[2] - chunk[1]
+        if not calls or size + rays > CALL_RAYS or any(c[0] == chunk[0] for c in calls[-1]):
+            calls.append([])
+            size = 0
+        calls[-1].append(chunk)
+        size += rays
+    return calls
+
+
 class ProbeRenderer:
     """Renders radiance cubes of probes in one scene (the Embree scene is built once and shared).
 
     The path tracer works on structure-of-arrays float32 batches (:mod:`bakery.capture.vec`): every bounce of all
-    of a pass's camera rays is one batch, its next-event samples of every light are evaluated and traced together
-    (one BSDF evaluation and one Embree occlusion query per bounce), and no Python code runs per ray.
+    camera rays of a call (:meth:`render_many`: chunks of several probes) is one batch, its next-event samples of
+    every light are evaluated and traced together (one BSDF evaluation and one Embree occlusion query per bounce),
+    and no Python code runs per ray.
     """
 
     def __init__(self, scene: CaptureScene, samples: int = 4, bounces: int = DEFAULT_BOUNCES, base_seed: int = 0,
@@ -171,6 +242,8 @@ class ProbeRenderer:
         self._primary_spread = BOUNCE_SPREAD
         self._basis: dict[int, np.ndarray] = {}  # per face size: SH basis × texel solid angle (6·N·N, 9)
         self._omega: dict[int, np.ndarray] = {}  # per face size: texel solid angles (6·N·N, 1)
+        # per face size: the sun points (3, K) float32 and their bilinear splat (indices, weights (4, K); flux (K, 3))
+        self._sun_splat: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
         # PortalLights: rects through which the dome is also sampled (a sampling guide; the dome itself is unchanged)
         self.portals = tuple(RectLightModel(dataclasses.replace(p, visible=True)) for p in scene.portals
                              if p.kind == "rect" and p.size[0] * p.size[1] > 0)
@@ -183,11 +256,13 @@ class ProbeRenderer:
 
     # ------------------------------------------------------------------------------------------------------------
     def prepare(self, face_size: int) -> None:
-        """Build the per-face-size caches (the dome's rest filtered over the cube's texels, the SH basis) ahead of
-        the first :meth:`render` at that size (they are built once per renderer either way; results do not depend
-        on when)."""
+        """Build the per-face-size caches (the dome's rest filtered over the cube's texels, the sun's splat, the SH
+        basis) ahead of the first :meth:`render` at that size (they are built once per renderer either way; results
+        do not depend on when)."""
         if not self.dome.black:
             self.dome.filtered_cube(face_size)
+            if self.dome.has_sun:
+                self._sun_points(face_size)
         self._sh_basis(face_size)
 
     def _sh_basis(self, n: int) -> np.ndarray:
@@ -199,44 +274,84 @@ class ProbeRenderer:
         return basis
 
     def render(self, position: np.ndarray, face_size: int, name: str) -> tuple[np.ndarray, CaptureStats]:
-        """Radiance cube (6, N, N, 3) float32 seen from ``position`` (bake frame, metres), and its stats."""
+        """Radiance cube (6, N, N, 3) float32 seen from ``position`` (bake frame, metres), and its stats: the one
+        probe of :meth:`render_many`."""
+        return self.render_many([position], face_size, [name])[0]
+
+    def render_many(self, positions: Sequence[np.ndarray], face_size: int, names: Sequence[str]
+                    ) -> list[tuple[np.ndarray, CaptureStats]]:
+        """Radiance cubes (6, N, N, 3) float32 seen from ``positions`` (each (3,), bake frame, metres) of the probes
+        ``names``, and each probe's stats, in order.
+
+        The probes' paths are traced and shaded together (module docstring, "Batching"): each pass of each probe is
+        cut into chunks of at most :data:`BATCH` camera rays, and chunks of different probes share a call of the
+        path tracer (up to :data:`CALL_RAYS` camera rays), so every bounce of the call is one Embree query for all
+        of them. Every probe draws from its own generator and its rays are computed element by element, so its cube
+        and stats (rays, samples, noise) are identical whatever it is rendered with; ``seconds`` is the call's time
+        split over its probes in proportion to their rays. With ``target_noise`` a probe that reached it takes no
+        further passes while the others go on. Memory: a pass holds 24 bytes per camera ray of every probe
+        (directions and radiance), the path tracer's temporaries those of one call."""
         start_time = time.perf_counter()
-        start_rays = self.tracer.rays_cast
-        rng = np.random.default_rng(probe_seed(name, self.base_seed))
+        if len(positions) != len(names):
+            raise ValueError(f"{len(positions)} positions for {len(names)} probe names")
+        count = len(names)
         n = face_size
+        texels = 6 * n * n
         self._primary_spread = math.sqrt(cube_mean_texel_solid_angle(n))
-        position = np.asarray(position, dtype=np.float64)
         filtered = None
         if not self.dome.black:
             filtered = np.ascontiguousarray(self.dome.filtered_cube(n).reshape(-1, 3).T, dtype=REAL)
         basis = self._sh_basis(n)
-        extra = self._add_distant_lights(self._add_sun(np.zeros((6, n, n, 3)), position), position)
-        extra_dc = float((extra.reshape(-1, 3) @ LUMINANCE_WEIGHTS) @ basis[:, 0])
-        total = np.zeros((3, 6 * n * n))
-        sub_sh: list[np.ndarray] = []
-        spent = 0
-        noise = 0.0
-        origin = np.asarray(position, dtype=REAL).reshape(3, 1)
-        while True:
-            directions = _jittered_texel_directions(n, self.samples, rng).reshape(3, -1)
-            count = directions.shape[1]
-            radiance = np.empty((3, count), dtype=REAL)
-            for start in range(0, count, BATCH):
-                stop = min(count, start + BATCH)
-                d = directions[:, start:stop]
-                texel = np.arange(start, stop) % (6 * n * n)
-                radiance[:, start:stop] = self._camera(np.broadcast_to(origin, d.shape), d, rng, n, filtered, texel)
-            per_sample = radiance.reshape(3, self.samples, 6 * n * n)
-            total += per_sample.sum(axis=1, dtype=np.float64)
-            spent += self.samples
-            lum = luminance(per_sample.astype(np.float64))
-            sub_sh.extend(list(lum @ basis))
-            noise = _relative_sh_noise(np.asarray(sub_sh), extra_dc)
-            if self.target_noise <= 0 or noise <= self.target_noise or spent + self.samples > self.max_samples:
-                break
-        cube = (total / spent).T.reshape(6, n, n, 3) + extra
-        stats = CaptureStats(self.tracer.rays_cast - start_rays, time.perf_counter() - start_time, spent, noise)
-        return cube.astype(np.float32), stats
+        rngs = [np.random.default_rng(probe_seed(name, self.base_seed)) for name in names]
+        rays = np.zeros(count, dtype=np.int64)
+        origins = [np.asarray(p, dtype=np.float64).reshape(3) for p in positions]
+        extras = []
+        for p, origin in enumerate(origins):
+            owners = _Owners.single(rngs[p])
+            extras.append(self._add_distant_lights(self._add_sun(np.zeros((6, n, n, 3)), origin, owners), origin,
+                                                   owners))
+            rays[p] += owners.rays[0]
+        extra_dc = [float((e.reshape(-1, 3) @ LUMINANCE_WEIGHTS) @ basis[:, 0]) for e in extras]
+        totals = [np.zeros((3, texels)) for _ in range(count)]
+        sub_sh: list[list[np.ndarray]] = [[] for _ in range(count)]
+        spent = [0] * count
+        noise = [0.0] * count
+        active = list(range(count))
+        while active:
+            radiance = self._trace_pass(active, origins, rngs, rays, n, filtered)
+            for p in active:
+                per_sample = radiance[p].reshape(3, self.samples, texels)
+                totals[p] += per_sample.sum(axis=1, dtype=np.float64)
+                spent[p] += self.samples
+                lum = luminance(per_sample.astype(np.float64))
+                sub_sh[p].extend(list(lum @ basis))
+                noise[p] = _relative_sh_noise(np.asarray(sub_sh[p]), extra_dc[p])
+            active = [p for p in active if self.target_noise > 0 and noise[p] > self.target_noise
+                      and spent[p] + self.samples <= self.max_samples]
+        seconds = time.perf_counter() - start_time
+        share = rays / max(int(rays.sum()), 1)
+        return [(((totals[p] / spent[p]).T.reshape(6, n, n, 3) + extras[p]).astype(np.float32),
+                 CaptureStats(int(rays[p]), seconds * float(share[p]), spent[p], noise[p])) for p in range(count)]
+
+    def _trace_pass(self, probes: list[int], origins: list[np.ndarray], rngs: list[np.random.Generator],
+                    rays: np.ndarray, n: int, filtered: np.ndarray | None) -> dict[int, np.ndarray]:
+        """One pass (``samples`` rays per texel) of each of ``probes`` (indices into ``origins``, ``rngs`` and the
+        ray counters ``rays``, which it adds to): radiance (3, S·6·N·N) float32 per probe, sample-major."""
+        texels = 6 * n * n
+        directions = {p: _jittered_texel_directions(n, self.samples, rngs[p]).reshape(3, -1) for p in probes}
+        radiance = {p: np.empty(d.shape, dtype=REAL) for p, d in directions.items()}
+        for call in _pack_chunks(probes, texels * self.samples):
+            sizes = [stop - start for _, start, stop in call]
+            owners = _Owners([rngs[p] for p, _, _ in call], np.repeat(np.arange(len(call)), sizes))
+            d = np.concatenate([directions[p][:, start:stop] for p, start, stop in call], axis=1)
+            o = np.repeat(np.asarray([origins[p] for p, _, _ in call], dtype=REAL).T, sizes, axis=1)
+            texel = np.concatenate([np.arange(start, stop) % texels for _, start, stop in call])
+            result = self._camera(o, d, owners, n, filtered, texel)
+            offsets = np.cumsum([0] + sizes)
+            for k, (p, start, stop) in enumerate(call):
+                radiance[p][:, start:stop] = result[:, offsets[k]:offsets[k + 1]]
+                rays[p] += owners.rays[k]
+        return radiance
 
     def trace_camera_rays(self, origins: np.ndarray, directions: np.ndarray, rng: np.random.Generator,
                           face_size: int, filtered: np.ndarray | None = None,
@@ -246,15 +361,17 @@ class ProbeRenderer:
         N, 3)) when ``filtered`` is given — the sun is then left out, as are distant lights smaller than a texel
         (:meth:`render` splats them) — else the whole dome point-sampled."""
         soa = None if filtered is None else np.ascontiguousarray(np.reshape(filtered, (-1, 3)).T, dtype=REAL)
-        result = self._camera(np.ascontiguousarray(np.asarray(origins).T, dtype=REAL),
-                              np.ascontiguousarray(np.asarray(directions).T, dtype=REAL), rng, face_size, soa, texel)
+        d = np.ascontiguousarray(np.asarray(directions).T, dtype=REAL)
+        result = self._camera(np.ascontiguousarray(np.asarray(origins).T, dtype=REAL), d,
+                              _Owners.single(rng, d.shape[1]), face_size, soa, texel)
         return np.ascontiguousarray(result.T, dtype=np.float64)
 
-    def _camera(self, origins: np.ndarray, directions: np.ndarray, rng: np.random.Generator, face_size: int,
+    def _camera(self, origins: np.ndarray, directions: np.ndarray, owners: _Owners, face_size: int,
                 filtered: np.ndarray | None, texel: np.ndarray | None) -> np.ndarray:
-        """:meth:`trace_camera_rays` on (3, M) float32 rays; ``filtered`` is the (3, 6·N·N) filtered dome."""
+        """:meth:`trace_camera_rays` on (3, M) float32 rays of the probes ``owners``; ``filtered`` is the (3, 6·N·N)
+        filtered dome."""
         m = origins.shape[1]
-        prim, t, bu, bv = self._intersect(origins, directions)
+        prim, t, bu, bv = self._intersect(origins, directions, owners)
         result = np.zeros((3, m), dtype=REAL)
         sees_light = np.zeros(m, dtype=bool)
         if self.lights.surfaces:
@@ -279,15 +396,16 @@ class ProbeRenderer:
         hit = np.flatnonzero((prim >= 0) & ~sees_light)
         if hit.size:
             result[:, hit] = self._shade(_take(origins, hit), _take(directions, hit), np.take(prim, hit),
-                                         np.take(t, hit), np.take(bu, hit), np.take(bv, hit), rng)
+                                         np.take(t, hit), np.take(bu, hit), np.take(bv, hit), owners.take(hit))
         return result
 
     # ------------------------------------------------------------------------------------------------------------
-    def _intersect(self, origins: np.ndarray, directions: np.ndarray
+    def _intersect(self, origins: np.ndarray, directions: np.ndarray, owners: _Owners
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Closest hit (prim, t, u, v) of rays (3, M) that is not cut out (opacity below the material's
-        opacityThreshold)."""
+        opacityThreshold); the rays are counted for their probes (``owners``)."""
         prim, t, bu, bv = self.tracer.intersect_uv(origins, directions, soa=True)
+        owners.traced()
         if not self.surfaces.cutout:
             return prim, t, bu, bv
         for _ in range(32):
@@ -302,19 +420,21 @@ class ProbeRenderer:
             hits = _take(origins, j) + t[j] * dj
             off = self.tracer.offset_soa(hits)
             p2, t2, u2, v2 = self.tracer.intersect_uv(hits + off * dj, dj, soa=True)
+            owners.traced(j)
             prim[j], bu[j], bv[j] = p2, u2, v2
             t[j] = np.where(p2 >= 0, t2 + t[j] + off, FAR)
         return prim, t, bu, bv
 
-    def _visible(self, points: np.ndarray, wi: np.ndarray, dist: np.ndarray, skip: np.ndarray | None = None
-                 ) -> np.ndarray:
+    def _visible(self, points: np.ndarray, wi: np.ndarray, dist: np.ndarray, owners: _Owners,
+                 skip: np.ndarray | None = None) -> np.ndarray:
         """Unoccluded segments (3, M) (by triangles and by light shapes other than ``skip``): bool (M,)."""
         short = np.where(dist < FAR, dist * (1.0 - SHADOW_EPSILON), FAR).astype(points.dtype, copy=False)
         if self.surfaces.cutout:
-            _prim, t, _u, _v = self._intersect(points, wi)
+            _prim, t, _u, _v = self._intersect(points, wi, owners)
             blocked = t < short
         else:
             blocked = self.tracer.occluded(points, wi, short, soa=True)
+            owners.traced()
         if self.lights.surfaces:
             rest = np.flatnonzero(~blocked)
             if rest.size:
@@ -323,8 +443,9 @@ class ProbeRenderer:
         return ~blocked
 
     def _shade(self, origins: np.ndarray, directions: np.ndarray, prim: np.ndarray, t: np.ndarray, bu: np.ndarray,
-               bv: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """Outgoing radiance (3, M) at the first hits of rays (3, M): path tracing with MIS (module docstring)."""
+               bv: np.ndarray, owners: _Owners) -> np.ndarray:
+        """Outgoing radiance (3, M) at the first hits of rays (3, M) of the probes ``owners``: path tracing with MIS
+        (module docstring)."""
         m = prim.shape[0]
         out = np.zeros((3, m), dtype=REAL)
         throughput = None  # ones
@@ -337,15 +458,15 @@ class ProbeRenderer:
             hits = origins + t * directions
             albedo, f0, roughness, emission = self.surfaces.params_soa(
                 prim, bu, bv, t, self._primary_spread if depth == 0 else BOUNCE_SPREAD)
-            n = np.stack([np.take(normals[c], prim) for c in range(3)])
+            n = np.take(normals, prim, axis=1)
             n *= 1 - 2 * (dot(n, directions) > 0).astype(REAL)  # face the incoming ray
             points = hits + self.tracer.offset_soa(hits) * n
             bsdf = Bsdf(n, -directions, albedo, f0, roughness)
-            out_add = self._direct(points, bsdf, rng)
+            out_add = self._direct(points, bsdf, owners)
             if emission is not None:
                 out_add += emission
             # BSDF continuation: also the BSDF half of the MIS estimate of lights and dome at this vertex
-            u = rng.random((3, k), dtype=REAL)
+            u = owners.random(3)
             wi, weight, pdf_b = bsdf.sample(u[0], u[1], u[2])
             alive = (pdf_b > 0) & (vmax(weight) > 0)
             prim2 = np.full(k, -1, dtype=np.int32)
@@ -355,7 +476,7 @@ class ProbeRenderer:
             ai = np.flatnonzero(alive)
             if ai.size:
                 pa, wa = _take(points, ai), _take(wi, ai)
-                p2, tt, uu, vv = self._intersect(pa, wa)
+                p2, tt, uu, vv = self._intersect(pa, wa, owners.take(ai))
                 prim2[ai], t2[ai], bu2[ai], bv2[ai] = p2, tt, uu, vv
                 found, on_light = self._emitted_along(pa, wa, tt, p2 < 0, pdf_b[ai])
                 if found is not None:
@@ -372,10 +493,11 @@ class ProbeRenderer:
             keep = alive & (prim2 >= 0)
             if depth + 1 > RR_START:
                 q = np.minimum(0.95, vmax(throughput))
-                keep &= rng.random(k, dtype=REAL) < q
+                keep &= owners.random() < q
                 throughput = throughput / np.maximum(q, TINY)
             ki = np.flatnonzero(keep)
             ray_index = ki if ray_index is None else ray_index[ki]
+            owners = owners.take(ki)
             throughput = _take(throughput, ki)
             origins, directions = _take(points, ki), _take(wi, ki)
             prim, t, bu, bv = prim2[ki], t2[ki], bu2[ki], bv2[ki]
@@ -423,7 +545,7 @@ class ProbeRenderer:
         _add_at(result, ei, found)
         return result, on_light
 
-    def _direct(self, points: np.ndarray, bsdf: Bsdf, rng: np.random.Generator) -> np.ndarray:
+    def _direct(self, points: np.ndarray, bsdf: Bsdf, owners: _Owners) -> np.ndarray:
         """Next-event estimates (3, M) of every light, the dome's rest and its sun (MIS-weighted, shadowed).
 
         All strategies' samples (J per point) are evaluated as one (3, J, M) batch and their shadow rays traced in
@@ -431,14 +553,14 @@ class ProbeRenderer:
         m = points.shape[1]
         wis, dists, radiances, pdfs, can_hit, shapes = [], [], [], [], [], []
         for j, model in enumerate(self.lights.models):
-            u = rng.random((2, m), dtype=REAL)
+            u = owners.random(2)
             wi, dist, radiance, pdf = model.sample_soa(points, u[0], u[1])
             wis.append(wi), dists.append(dist), radiances.append(radiance), pdfs.append(pdf)
             can_hit.append(self._light_can_hit[j]), shapes.append(self._light_shape[j])
         if not self.dome.black:
             far = np.full(m, FAR, dtype=REAL)
-            u0 = rng.random(m)  # the texel choice in float64 (the CDF's resolution)
-            u = rng.random((3, m), dtype=REAL)
+            u0 = owners.random(dtype=np.float64)  # the texel choice in float64 (the CDF's resolution)
+            u = owners.random(3)
             if self.portals:
                 wi, _radiance, _pdf = self.dome.sample_rest_soa(u0, u[0], u[1])
                 through = np.flatnonzero(u[2] < 0.5)
@@ -447,7 +569,7 @@ class ProbeRenderer:
                     for j, portal in enumerate(self.portals):
                         sel = through[which == j]
                         if sel.size:
-                            up = rng.random((2, sel.size), dtype=REAL)
+                            up = owners.take(sel).random(2)
                             wi[:, sel] = portal.sample_soa(_take(points, sel), up[0], up[1])[0]
                 radiance, pdf = self.dome.rest_lookup_soa(wi)
                 pdf = self._dome_pdf(points, wi, pdf)
@@ -456,8 +578,8 @@ class ProbeRenderer:
             wis.append(wi), dists.append(far), radiances.append(radiance), pdfs.append(pdf)
             can_hit.append(True), shapes.append(-1)
             if self.dome.has_sun:
-                u0 = rng.random(m)
-                u = rng.random((2, m), dtype=REAL)
+                u0 = owners.random(dtype=np.float64)
+                u = owners.random(2)
                 wi, radiance, pdf = self.dome.sample_sun_soa(u0, u[0], u[1])
                 wis.append(wi), dists.append(far), radiances.append(radiance), pdfs.append(pdf)
                 can_hit.append(True), shapes.append(-1)
@@ -485,13 +607,17 @@ class ProbeRenderer:
             return np.zeros((3, m), dtype=REAL)
         sp, sw, sd = _take(points, idx % m), _take(wi.reshape(3, -1), idx), short.reshape(-1)[idx]
         if self.surfaces.cutout:
-            visible = self._intersect(sp, sw)[1] >= sd
+            visible = self._intersect(sp, sw, owners.take(idx % m))[1] >= sd
         else:
             visible = ~self.tracer.occluded(sp, sw, sd, soa=True)
+            owners.traced(idx % m)
         scale = np.zeros(count * m, dtype=REAL)
         scale[idx[visible]] = 1
-        scale = scale.reshape(count, m) * weight * inv
-        return (value * radiance * scale).sum(axis=1)
+        terms = value * radiance * (scale.reshape(count, m) * weight * inv)
+        total = terms[:, 0]
+        for j in range(1, count):  # in strategy order, element by element (a reduction's order may depend on M)
+            total = total + terms[:, j]
+        return total
 
     def _dome_pdf(self, points: np.ndarray, wi: np.ndarray, pdf: np.ndarray) -> np.ndarray:
         """Solid-angle pdf (M,) of the dome-rest next-event strategy from the dome's own ``pdf``: with portals the
@@ -515,37 +641,57 @@ class ProbeRenderer:
         disc = 2.0 * np.pi * (1.0 - np.cos(alpha))
         return disc < cube_mean_texel_solid_angle(face_size)
 
-    def _visible_from(self, position: np.ndarray, directions: np.ndarray) -> np.ndarray:
-        """Whether the probe at ``position`` sees the dome along directions (K, 3): bool (K,)."""
-        d = np.ascontiguousarray(np.asarray(directions, dtype=np.float64).T, dtype=REAL)
+    def _visible_from(self, position: np.ndarray, directions: np.ndarray, probe: _Owners) -> np.ndarray:
+        """Whether the probe at ``position`` sees the dome along directions (K, 3) (or (3, K) float32): bool (K,).
+        ``probe``: the probe's (single) owner, counting the rays."""
+        d = directions if directions.dtype == REAL else np.ascontiguousarray(directions.T, dtype=REAL)
         o = np.broadcast_to(np.asarray(position, dtype=REAL).reshape(3, 1), d.shape)
-        return self._visible(o, d, np.full(d.shape[1], FAR, dtype=REAL))
+        owners = _Owners(probe.rngs, np.zeros(d.shape[1], dtype=np.int64), probe.rays)
+        return self._visible(o, d, np.full(d.shape[1], FAR, dtype=REAL), owners)
 
-    def _add_sun(self, cube: np.ndarray, position: np.ndarray) -> np.ndarray:
+    def _add_sun(self, cube: np.ndarray, position: np.ndarray, probe: _Owners) -> np.ndarray:
         """Splat the dome's sun points that the probe sees (bilinear, flux-exact)."""
         if self.dome.black or not self.dome.has_sun:
             return cube
-        directions, flux = self.dome.sun_points()
-        seen = self._visible_from(position, directions)
+        n = cube.shape[1]
+        directions, index, weight, flux = self._sun_points(n)
+        seen = self._visible_from(position, directions, probe)
         if not seen.any():
             return cube
-        return self._splat(cube, directions[seen], flux[seen])
+        # splat_bilinear of the seen points: the same sums, in the same order (corner by corner, point by point)
+        index, weight, flux = index[:, seen].reshape(-1), weight[:, seen], flux[seen]
+        flux_cube = np.stack([np.bincount(index, (weight * flux[:, c]).reshape(-1), 6 * n * n) for c in range(3)],
+                             axis=1)
+        return cube + (flux_cube / self._texel_omega(n)).reshape(cube.shape)
+
+    def _sun_points(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The dome's sun points (3, K) float32, their bilinear splat into an N cube (texel indices and weights (4,
+        K), :func:`~bakery.capture.dome.bilinear_weights`) and their flux (K, 3)."""
+        if n not in self._sun_splat:
+            directions, flux = self.dome.sun_points()
+            index, weight = bilinear_weights(directions, n)
+            self._sun_splat[n] = (np.ascontiguousarray(directions.T, dtype=REAL), index, weight, flux)
+        return self._sun_splat[n]
 
     def _splat(self, cube: np.ndarray, directions: np.ndarray, flux: np.ndarray) -> np.ndarray:
         n = cube.shape[1]
         flux_cube = np.zeros((6 * n * n, 3))
         splat_bilinear(flux_cube, directions, flux)
+        return cube + (flux_cube / self._texel_omega(n)).reshape(cube.shape)
+
+    def _texel_omega(self, n: int) -> np.ndarray:
+        """Texel solid angles (6·N·N, 1) of an N cube."""
         if n not in self._omega:
             self._omega[n] = cube_texel_solid_angles(n).reshape(-1, 1)
-        return cube + (flux_cube / self._omega[n]).reshape(cube.shape)
+        return self._omega[n]
 
-    def _add_distant_lights(self, cube: np.ndarray, position: np.ndarray) -> np.ndarray:
+    def _add_distant_lights(self, cube: np.ndarray, position: np.ndarray, probe: _Owners) -> np.ndarray:
         n = cube.shape[1]
         for light in self.distant:
             if not self._splat_distant(light.light, n):
                 continue
             d = light.direction[None, :]
-            if not self._visible_from(position, d)[0]:
+            if not self._visible_from(position, d, probe)[0]:
                 continue
             cube = self._splat(cube, d, light.illuminance[None, :])
         return cube

@@ -1,8 +1,9 @@
 """Worker side: capture and encode one batch (in a worker process, or in-process for ``--jobs 1``).
 
-    run_batch(BatchTask) → BatchOutcome:   Source.capture per probe  →  ProbeBatch  →  encode_batch
+    run_batch(BatchTask) → BatchOutcome:   Source.capture_many (a capture or an error per probe)  →  ProbeBatch
+                                           →  encode_batch
 
-A probe whose capture raises is reported in ``failures`` and left out; the others are encoded. Warnings raised
+A probe whose capture fails is reported in ``failures`` and left out; the others are encoded. Warnings raised
 while capturing and encoding travel back in the outcome (the parent re-emits them). Nothing here imports ``pxr``.
 
 Worker processes die with the bake's parent (:func:`watch_parent`): the parent-death signal where the parent is the
@@ -35,7 +36,7 @@ from bakery.pipeline.encode import (
 from bakery.pipeline.plan import BatchTask
 from bakery.pipeline.settings import BakeSettings, build_encodings
 from bakery.probe import ProbeBatch
-from bakery.sources.base import source_class
+from bakery.sources.base import capture_each, source_class
 
 #: Environment variable ``host:pid`` naming the process a worker must die with (set for LocalCluster workers).
 PARENT_ENVIRONMENT = "BAKERY_PARENT"
@@ -103,9 +104,15 @@ def run_batch(task: BatchTask) -> BatchOutcome:
     stats: dict[str, float] = {}
     with warnings.catch_warnings(record=True) as recorded:
         warnings.simplefilter("always", BakeryWarning)
-        for probe_task in task.probes:
+        specs = [probe_task.capture for probe_task in task.probes]
+        try:
+            results = source.capture_many(task.source, specs, settings.face_size)
+        except Exception:  # noqa: BLE001 - a source's grouping failed: capture the probes one by one
+            results = capture_each(source, task.source, specs, settings.face_size)
+        for probe_task, capture in zip(task.probes, results, strict=True):
             try:
-                capture = source.capture(task.source, probe_task.capture, settings.face_size)
+                if isinstance(capture, Exception):
+                    raise capture
                 if not np.all(np.isfinite(capture.cube)):
                     raise BakeryError(f"{probe_task.probe.name}: capture produced non-finite radiance")
             except Exception as error:  # noqa: BLE001 - one failing probe must not lose the batch

@@ -6,6 +6,8 @@ provides to the one bake path (:func:`bakery.pipeline.run.bake`).
              rebake(previous, reused)      → reused probes that must be baked again anyway (e.g. a light changed)
              prepare(work_dir)             → SourceHandle: a small picklable handle to a snapshot workers read
     worker   capture(handle, spec, N)      → Capture (runs in worker processes; never imports ``pxr``)
+             capture_many(handle, specs, N) → a Capture or the exception per probe (default: ``capture`` each;
+                                              sources that render probes faster together override it)
     parent   after_write(merged, request)  → extra outputs after the store (e.g. the USD layer), summary entries
 
 A new source is one module that subclasses :class:`Source`, declares ``kind`` and is listed in
@@ -15,6 +17,7 @@ A new source is one module that subclasses :class:`Source`, declares ``kind`` an
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
@@ -115,9 +118,29 @@ class Source(ABC):
     def capture(cls, handle: SourceHandle, spec: Any, face_size: int) -> Capture:
         """Worker: the capture of one probe (``spec`` from its :class:`PlannedProbe`) on the bake grid."""
 
+    @classmethod
+    def capture_many(cls, handle: SourceHandle, specs: Sequence[Any], face_size: int) -> list[Capture | Exception]:
+        """Worker: the captures of several probes, in ``specs`` order, each the :class:`Capture` :meth:`capture`
+        gives or the exception its capture raised (one failing probe does not lose the others). The default
+        captures them one by one (:func:`capture_each`); a source may capture several together, with the same
+        results."""
+        return capture_each(cls, handle, specs, face_size)
+
     def after_write(self, merged: EncodedBatch, contents: StoreContents, request: BakeRequest) -> dict[str, Any]:
         """Parent, after the store is written: further outputs; returns entries for the bake summary."""
         return {}
+
+
+def capture_each(source: type[Source], handle: SourceHandle, specs: Sequence[Any], face_size: int
+                 ) -> list[Capture | Exception]:
+    """:meth:`Source.capture` of every spec, one by one: its capture, or the exception it raised."""
+    results: list[Capture | Exception] = []
+    for spec in specs:
+        try:
+            results.append(source.capture(handle, spec, face_size))
+        except Exception as error:  # noqa: BLE001 - reported for this probe by the caller
+            results.append(error)
+    return results
 
 
 #: kind → Source class; filled by :func:`register_source` from the modules :mod:`bakery.sources` imports.

@@ -12,9 +12,11 @@ Parent (the only place that touches ``pxr``, through :mod:`bakery.usd`)
 
 Workers
     :meth:`UsdSceneSource.capture` memory-maps the snapshot (cached per process), builds the Embree scene once and
-    renders (or loads the captured image of) one probe. Seeds come from the probe's name
-    (:func:`bakery.capture.probe_seed`), so captures do not depend on batching or the number of workers. Workers
-    never import ``pxr`` and never re-read the stage.
+    renders (or loads the captured image of) one probe; :meth:`UsdSceneSource.capture_many` renders a worker
+    batch's probes in groups of up to :data:`GROUP_PROBES` traced together (one Embree query per bounce for the
+    group). Seeds come from the probe's name (:func:`bakery.capture.probe_seed`) and each probe draws from its own
+    generator, so captures do not depend on grouping, batching or the number of workers. Workers never import
+    ``pxr`` and never re-read the stage.
 
 After the store
     :meth:`after_write` writes the baked-results layer (:func:`bakery.usd.layer.write_bake_layer`) with an
@@ -25,10 +27,11 @@ from __future__ import annotations
 
 import json
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -36,9 +39,24 @@ from bakery.encodings import ENCODINGS
 from bakery.errors import SceneError, SceneWarning
 from bakery.pipeline.settings import CaptureSettings
 from bakery.probe import Probe
-from bakery.sources.base import Capture, PlannedProbe, Source, SourceHandle, SourcePlan, register_source
+from bakery.sources.base import (
+    Capture,
+    PlannedProbe,
+    Source,
+    SourceHandle,
+    SourcePlan,
+    capture_each,
+    register_source,
+)
+
+if TYPE_CHECKING:  # pragma: no cover
+    from bakery.capture import CaptureStats, ProbeRenderer, ProbeSpec
 
 SCENE_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
+#: Largest number of probes rendered together by :meth:`UsdSceneSource.capture_many` (one renderer call)
+GROUP_PROBES = 8
+#: Largest number of camera rays of one pass of such a group (a pass holds 24 bytes per camera ray of every probe)
+GROUP_CAMERA_RAYS = 1 << 21
 
 
 def default_layer_path(output: Path) -> Path:
@@ -217,27 +235,88 @@ class UsdSceneSource(Source):
     # -- worker ---------------------------------------------------------------------------------------------------
     @classmethod
     def capture(cls, handle: SourceHandle, spec: SceneProbeCapture, face_size: int) -> Capture:
-        from bakery.capture import load_captured_cube
-        from bakery.sphere.cubemap import resample_cube
-
-        scene, renderer = _renderer(handle.location, handle.digest, spec.settings)
-        probe = scene.probes[spec.index]
-        if probe.name != spec.name:
-            raise SceneError(f"{spec.name}: the scene snapshot does not hold this probe (got {probe.name})")
-        n = probe.resolution or face_size
-        diagnostics: dict[str, np.ndarray] = {}
+        probe, renderer = _probe(handle, spec)
         if probe.image:
-            cube = load_captured_cube(probe.image, np.asarray(probe.rotation), n)
-            stats = {"capture_loaded": 1.0}
-        else:
-            cube, render_stats = renderer.render(np.asarray(probe.position), n, probe.name)
-            stats = {"capture_rays": float(render_stats.rays), "capture_seconds": float(render_stats.seconds),
-                     "capture_rendered": 1.0}
-            diagnostics = {"capture/sh_noise": np.asarray(render_stats.sh_noise, dtype=np.float32),
-                           "capture/samples": np.asarray(render_stats.samples, dtype=np.float32)}
-        if cube.shape[1] != face_size:
-            cube = resample_cube(cube, face_size)
-        return Capture(np.asarray(cube, dtype=np.float32), stats=stats, diagnostics=diagnostics)
+            return _loaded(probe, face_size)
+        n = probe.resolution or face_size
+        return _rendered(*renderer.render(np.asarray(probe.position), n, probe.name), face_size)
+
+    @classmethod
+    def capture_many(cls, handle: SourceHandle, specs: Sequence[SceneProbeCapture], face_size: int
+                     ) -> list[Capture | Exception]:
+        """:meth:`capture` of every spec, the rendered probes in groups of one renderer call
+        (:meth:`bakery.capture.ProbeRenderer.render_many`, :func:`render_groups`). Captures are those of
+        :meth:`capture` (seeds per probe name); ``capture_seconds`` is the group's time split in proportion to
+        rays. If a group's render raises, its probes are rendered one by one, so the error is that probe's."""
+        results: list[Capture | Exception | None] = [None] * len(specs)
+        pending: dict[tuple[CaptureSettings, int], list[int]] = {}
+        for i, spec in enumerate(specs):
+            try:
+                probe = _probe(handle, spec)[0]
+                if probe.image:
+                    results[i] = _loaded(probe, face_size)
+                else:
+                    pending.setdefault((spec.settings, probe.resolution or face_size), []).append(i)
+            except Exception as error:  # noqa: BLE001 - reported for this probe by the caller
+                results[i] = error
+        for (settings, n), members in pending.items():
+            for group in render_groups(members, 6 * n * n * settings.samples):
+                try:
+                    probes, renderer = zip(*(_probe(handle, specs[i]) for i in group))
+                    rendered = renderer[0].render_many([np.asarray(p.position) for p in probes], n,
+                                                       [p.name for p in probes])
+                    for i, (cube, stats) in zip(group, rendered):
+                        results[i] = _rendered(cube, stats, face_size)
+                except Exception:  # noqa: BLE001 - find the probe that fails: one by one
+                    for i, result in zip(group, capture_each(cls, handle, [specs[i] for i in group], face_size)):
+                        results[i] = result
+        return results
+
+
+def render_groups(members: list[int], camera_rays: int) -> list[list[int]]:
+    """``members`` in groups of at most :data:`GROUP_PROBES` probes and :data:`GROUP_CAMERA_RAYS` camera rays per
+    pass (``camera_rays`` each; a larger probe is a group of its own), as few groups as that allows, of nearly equal
+    sizes (a small last group would amortise less)."""
+    size = max(1, min(GROUP_PROBES, GROUP_CAMERA_RAYS // max(camera_rays, 1)))
+    count = -(-len(members) // size)
+    return [members[len(members) * k // count:len(members) * (k + 1) // count] for k in range(count)]
+
+
+def _probe(handle: SourceHandle, spec: SceneProbeCapture) -> tuple[ProbeSpec, ProbeRenderer]:
+    """The snapshot's probe of ``spec`` and the process's renderer of its settings."""
+    scene, renderer = _renderer(handle.location, handle.digest, spec.settings)
+    probe = scene.probes[spec.index]
+    if probe.name != spec.name:
+        raise SceneError(f"{spec.name}: the scene snapshot does not hold this probe (got {probe.name})")
+    return probe, renderer
+
+
+def _loaded(probe: ProbeSpec, face_size: int) -> Capture:
+    """The capture of a probe with a captured image, on the bake grid."""
+    from bakery.capture import load_captured_cube
+
+    cube = load_captured_cube(probe.image, np.asarray(probe.rotation), probe.resolution or face_size)
+    return _on_grid(cube, face_size, {"capture_loaded": 1.0}, {})
+
+
+def _rendered(cube: np.ndarray, render_stats: CaptureStats, face_size: int) -> Capture:
+    """The capture of a rendered probe (its cube (6, n, n, 3) at its own resolution n): stats and per-probe
+    diagnostics (achieved SH noise, rays per texel)."""
+    stats = {"capture_rays": float(render_stats.rays), "capture_seconds": float(render_stats.seconds),
+             "capture_rendered": 1.0}
+    diagnostics = {"capture/sh_noise": np.asarray(render_stats.sh_noise, dtype=np.float32),
+                   "capture/samples": np.asarray(render_stats.samples, dtype=np.float32)}
+    return _on_grid(cube, face_size, stats, diagnostics)
+
+
+def _on_grid(cube: np.ndarray, face_size: int, stats: dict[str, float], diagnostics: dict[str, np.ndarray]
+             ) -> Capture:
+    """A :class:`Capture` of a cube (6, n, n, 3), resampled (flux-preserving) to the bake grid's face size."""
+    from bakery.sphere.cubemap import resample_cube
+
+    if cube.shape[1] != face_size:
+        cube = resample_cube(cube, face_size)
+    return Capture(np.asarray(cube, dtype=np.float32), stats=stats, diagnostics=diagnostics)
 
 
 register_source(UsdSceneSource)
