@@ -23,6 +23,7 @@ import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from bakery.allocator import tune_allocator
 from bakery.errors import BakeryError, BakeryWarning
@@ -94,7 +95,14 @@ class BatchOutcome:
 
 
 def run_batch(task: BatchTask) -> BatchOutcome:
-    """Capture every probe of ``task`` and encode them together (module docstring)."""
+    """Capture every probe of ``task`` and encode them together (module docstring), with one BLAS/OpenMP thread
+    whatever the executor: a BLAS kernel may round differently with another thread count (measured: the SH-exp
+    fit's tile GEMMs, 1e-6), so the in-process executor must compute exactly what a worker process does."""
+    with threadpool_limits(limits=1):
+        return _run_batch(task)
+
+
+def _run_batch(task: BatchTask) -> BatchOutcome:
     start = time.perf_counter()
     watch_parent()  # LocalCluster workers: die with the bake (pool workers are set up by their initializer)
     tune_allocator()
