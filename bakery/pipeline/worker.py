@@ -12,6 +12,7 @@ process that spawned us, and a watchdog thread that exits when the parent's pid 
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import signal
 import socket
@@ -136,8 +137,11 @@ def _run_batch(task: BatchTask) -> BatchOutcome:
     if not probes:
         return BatchOutcome(task.key, None, failures, time.perf_counter() - start)
     references = [c.reference for c in captures]
-    batch = ProbeBatch(np.stack([c.cube for c in captures]),
-                       references if all(r is not None for r in references) else None)
+    cubes = np.stack([c.cube for c in captures])
+    # from here on the batch holds the only copy of each cube (a worker's peak memory is in the encoding)
+    captures = [dataclasses.replace(c, cube=cubes[i]) for i, c in enumerate(captures)]
+    del results
+    batch = ProbeBatch(cubes, references if all(r is not None for r in references) else None)
     # One encoding set and one set of per-probe overrides per batch (plan.make_batches).
     overrides = task.probes[0].probe.settings.get("encoding_settings", {})
     encodings = build_encodings(task.probes[0].encodings, settings, overrides)
