@@ -47,7 +47,9 @@ def merge_batches(batches: list[EncodedBatch], order: list[str] | None = None) -
         final_rows = np.concatenate([permutation[b.rows[name] + off] for b, off in parts])
         sort = np.argsort(final_rows, kind="stable")
         rows[name] = final_rows[sort]
-        encoded[name] = {f: np.concatenate([b.encoded[name][f] for b, _ in parts])[sort]
+        destination = np.empty_like(sort)
+        destination[sort] = np.arange(sort.size)  # concatenated row -> merged row
+        encoded[name] = {f: _scatter([b.encoded[name][f] for b, _ in parts], destination)
                          for f in parts[0][0].encoded[name]}
     diagnostics = _merge_per_probe([b.diagnostics for b in batches], [len(b.probes) for b in batches], permutation)
     transient = _merge_per_probe([b.transient for b in batches], [len(b.probes) for b in batches], permutation)
@@ -69,11 +71,19 @@ def _merge_per_probe(parts_of: list[dict[str, np.ndarray]], counts: list[int],
         parts = [np.asarray(part[key]) if key in part
                  else np.full((count, *np.shape(template)[1:]), np.nan, dtype=np.float32)
                  for part, count in zip(parts_of, counts)]
-        values = np.concatenate([np.asarray(p, dtype=np.result_type(*parts)) for p in parts])
-        out = np.empty_like(values)
-        out[permutation] = values
-        merged[key] = out
+        merged[key] = _scatter(parts, permutation)
     return merged
+
+
+def _scatter(parts: list[np.ndarray], destination: np.ndarray) -> np.ndarray:
+    """``out[destination] = np.concatenate(parts)`` without the concatenated copy: each part is written straight to
+    its rows (the parent's peak memory at merge is the batches plus one merged copy, not two)."""
+    out = np.empty((destination.size, *np.shape(parts[0])[1:]), dtype=np.result_type(*parts))
+    start = 0
+    for part in parts:
+        out[destination[start : start + len(part)]] = part
+        start += len(part)
+    return out
 
 
 def extract_probes(contents, names: list[str]) -> EncodedBatch:  # noqa: ANN001 - StoreContents

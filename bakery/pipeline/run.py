@@ -285,9 +285,10 @@ def finalize_and_write(request: BakeRequest, source: Source, plan: Plan, batches
 
     Returns (merged, contents, encodings, skipped, extra outputs). :func:`bake` calls it after its executor;
     ``bakery merge`` calls it on the results of shard stores, so a merged farm bake is the same bytes as one
-    process's."""
+    process's. ``batches`` is emptied once merged: from there on the merged copy is all the parent holds of them
+    (its peak memory is the merge, not the merge plus the batches)."""
     settings = request.settings
-    batches = refuse_non_finite(batches, failures)
+    given, batches = batches, refuse_non_finite(batches, failures)
     if failures and not batches:
         first = next(iter(failures.values()))
         raise InputError(f"no probe could be baked; nothing was written. First failure: {first}"
@@ -295,6 +296,8 @@ def finalize_and_write(request: BakeRequest, source: Source, plan: Plan, batches
     # No probe at all (a scene without probes, or none with an applicable encoding): an empty, valid store.
     merged = (merge_batches(batches, [n for n in plan.order if n not in failures]) if batches
               else EncodedBatch([], {}, {}, {}))
+    given.clear()
+    batches.clear()
     _reemit(merged)
     # Warnings about this machine rather than the results (a rebuilt operator cache) are shown, not stored: the
     # store must not depend on the state of the machine that baked it.
@@ -545,6 +548,7 @@ def _bake_locked(request: BakeRequest, executor: Executor, progress: Callable[[i
         failures.update(outcome.failures)
         if outcome.result is not None:
             batches.append(outcome.result)
+    del outcomes  # the batches are all that is kept of them (finalize_and_write drops them once merged)
     batches = refuse_non_finite(batches, failures)
     if plan.reused and previous is not None:
         batches.append(extract_probes(previous, plan.reused))

@@ -19,6 +19,7 @@ Integrity (1.2.0; ``schemas/store-v1.md``, "Integrity")
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import os
@@ -35,7 +36,6 @@ from bakery.files import (
     os_error_message,
     sha256_array,
     sha256_bytes,
-    sha256_digest,
     with_filename,
 )
 
@@ -137,10 +137,14 @@ def probe_checksums(names: list[str], kinds: list[str], positions: np.ndarray, h
     count = len(names)
     positions = _le(np.asarray(positions, dtype=np.float64).reshape(-1, 3))
     bake_ids = _le(np.asarray(bake_ids, dtype=np.int32).reshape(-1))
-    parts: list[list[bytes]] = []
+    # one running digest per probe, fed in the order below (no copy of the rows' bytes is kept: the store's size)
+    digests = []
     for i in range(count):
-        parts.append([b"probe\0", names[i].encode(), b"\0", kinds[i].encode(), b"\0", positions[i].tobytes(),
-                      hashes[i].encode(), b"\0", bake_ids[i].tobytes()])
+        digest = hashlib.sha256()
+        for part in (b"probe\0", names[i].encode(), b"\0", kinds[i].encode(), b"\0", positions[i].tobytes(),
+                     hashes[i].encode(), b"\0", bake_ids[i].tobytes()):
+            digest.update(part)
+        digests.append(digest)
     for name in sorted(encodings):
         fields = encodings[name]["fields"]
         index = np.asarray(fields.get("probe_index", np.zeros(0, dtype=np.int32))).reshape(-1)
@@ -149,18 +153,22 @@ def probe_checksums(names: list[str], kinds: list[str], positions: np.ndarray, h
         for row, probe in enumerate(index.tolist()):
             if not 0 <= probe < count:
                 continue
-            chunk = [b"encoding\0", name.encode(), b"\0"]
+            digest = digests[probe]
+            for part in (b"encoding\0", name.encode(), b"\0"):
+                digest.update(part)
             for key in keys:
                 array = arrays.get(key)
                 if array is None or row >= len(array):
-                    chunk += [key.encode(), b"\0<missing>"]
+                    digest.update(key.encode())
+                    digest.update(b"\0<missing>")
                     continue
                 value = array[row]
-                chunk += [key.encode(), b"\0", value.dtype.str.encode(), repr(value.shape).encode(), value.tobytes()]
-            parts[probe] += chunk
+                for part in (key.encode(), b"\0", value.dtype.str.encode(), repr(value.shape).encode()):
+                    digest.update(part)
+                digest.update(np.ascontiguousarray(value).data)  # the row's bytes, not copied
     out = np.zeros((count, 32), dtype=np.uint8)
-    for i, chunk in enumerate(parts):
-        out[i] = np.frombuffer(sha256_digest(*chunk), dtype=np.uint8)
+    for i, digest in enumerate(digests):
+        out[i] = np.frombuffer(digest.digest(), dtype=np.uint8)
     return out
 
 
