@@ -453,6 +453,12 @@ def sha256_array(array: np.ndarray) -> str:
     return digest.hexdigest()
 
 
+def sha256_running() -> Any:
+    """A running SHA-256 (``update(bytes-like)`` as data comes, ``digest()`` at the end): digests of data too large
+    to concatenate first."""
+    return hashlib.sha256()
+
+
 def sha256_digest(*chunks: bytes) -> bytes:
     """Raw 32-byte sha256 of the concatenated chunks."""
     digest = hashlib.sha256()

@@ -19,7 +19,6 @@ Integrity (1.2.0; ``schemas/store-v1.md``, "Integrity")
 
 from __future__ import annotations
 
-import hashlib
 import io
 import json
 import os
@@ -36,6 +35,7 @@ from bakery.files import (
     os_error_message,
     sha256_array,
     sha256_bytes,
+    sha256_running,
     with_filename,
 )
 
@@ -140,7 +140,7 @@ def probe_checksums(names: list[str], kinds: list[str], positions: np.ndarray, h
     # one running digest per probe, fed in the order below (no copy of the rows' bytes is kept: the store's size)
     digests = []
     for i in range(count):
-        digest = hashlib.sha256()
+        digest = sha256_running()
         for part in (b"probe\0", names[i].encode(), b"\0", kinds[i].encode(), b"\0", positions[i].tobytes(),
                      hashes[i].encode(), b"\0", bake_ids[i].tobytes()):
             digest.update(part)
