@@ -3,9 +3,10 @@
 An export format is one module of ``bakery/export/`` with an :class:`ExportFormat` subclass (``name``,
 ``description``, ``default_profile``, a frozen dataclass ``Params`` of typed options — the same
 :class:`~bakery.encodings.base.EncodingParams` machinery as the encodings: wrong types, unknown keys and
-out-of-range values are exit 3 — and ``build(context) -> [ExportedFile]``), registered with :func:`register_format`
-at the bottom of the module and imported in ``bakery/export/__init__.py``. The CLI (``bakery export``), the recipe
-key ``exports`` and ``tests/export/test_export_conformance.py`` pick formats up from :data:`EXPORT_FORMATS`.
+out-of-range values are exit 3 — and ``build(context)``, a generator of :class:`ExportedFile`), registered with
+:func:`register_format` at the bottom of the module and imported in ``bakery/export/__init__.py``. The CLI
+(``bakery export``), the recipe key ``exports`` and ``tests/export/test_export.py``'s conformance suite pick formats
+up from :data:`EXPORT_FORMATS`.
 
 :func:`export_store` is the only writer:
 
