@@ -202,8 +202,8 @@ def _foreign(folder: Path, f: ExportedFile, manifest: dict[str, Any]) -> str | N
     return f.path if entry is None or entry.get("sha256") != sha256_file(target) else None
 
 
-def _make_parents(folder: Path, target: Path, created: list[Path]) -> None:
-    """Create the missing folders from ``folder`` down to ``target``'s parent, recording each in ``created``."""
+def _make_parents(target: Path, created: list[Path]) -> None:
+    """Create the missing folders down to ``target``'s parent, recording each in ``created`` (outermost first)."""
     missing = []
     probe = target.parent
     while not probe.exists():
@@ -236,7 +236,7 @@ def write_files(folder: Path, files: Iterable[ExportedFile], record: dict[str, A
                 if reason:
                     foreign.append(reason)
                     continue
-                _make_parents(folder, folder / f.path, created)
+                _make_parents(folder / f.path, created)
                 tmp = stack.enter_context(atomic_replace(folder / f.path))
                 tmp.write_bytes(f.data)
                 manifest["files"][f.path] = {"sha256": sha256_bytes(f.data), **record, "role": f.role,

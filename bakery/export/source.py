@@ -34,8 +34,13 @@ from typing import Any
 import numpy as np
 
 from bakery.encodings import ENCODINGS
+from bakery.encodings.splitsum import PREFILTER_PROBES, probe_chunks
 from bakery.errors import InputError
-from bakery.reflection.splitsum import SplitSumSettings, prefilter_batch, prefilter_chain
+from bakery.reflection.splitsum import (
+    SplitSumSettings,
+    prefilter_batch,
+    prefilter_chain,
+)
 from bakery.sh.basis import evaluate_sh_basis, sh_bands
 from bakery.sphere.cubemap import cube_texel_directions, cube_texel_solid_angles
 from bakery.sphere.fibonacci import fibonacci_directions
@@ -186,8 +191,9 @@ def reflection_probes(store, probes: list[str], encoding: str) -> list[str]:  # 
     return [p for p in probes if p in index]
 
 
-#: Probes prefiltered per batched call while an export streams (bounded memory: one chunk of captures and chains).
-EXPORT_CHUNK = 16
+#: Probes prefiltered per batched call while an export streams (bounded memory: one chunk of captures and chains;
+#: the same bound as a bake's chains).
+EXPORT_CHUNK = PREFILTER_PROBES
 
 
 @dataclass
@@ -211,13 +217,12 @@ class ProfileChains:
 
         level0 = self.store.fields(self.encoding)["level0"]
         settings = _profile_settings(self.face_size, self.alphas, self.sizes)
-        for start in range(0, len(self.probes), EXPORT_CHUNK):
-            rows = self.rows[start : start + EXPORT_CHUNK]
-            caps = np.asarray(level0[rows], dtype=np.float32)
+        for part in probe_chunks(len(self.probes), EXPORT_CHUNK):
+            caps = np.asarray(level0[self.rows[part]], dtype=np.float32)
             if caps.shape[2] != self.face_size:
                 caps = np.stack([resample_cube(c, self.face_size) for c in caps]).astype(np.float32)
             levels = prefilter_batch(caps, settings)
-            for i, probe in enumerate(self.probes[start : start + EXPORT_CHUNK]):
+            for i, probe in enumerate(self.probes[part]):
                 yield probe, [level[i] for level in levels], caps[i]
 
 
