@@ -17,7 +17,8 @@ Protocol
     fit their own copy of the batch ``repeats`` times, starting each round together at a barrier; ms per probe =
     the median round's wall-clock span (first start to last finish) / (processes · batch_size): the machine's fit
     throughput as a bake sees it.
-    The operators are built (or loaded from the operator cache) before timing and reported separately.
+    The operators are built (or loaded from the operator cache, memory-mapped as in a bake, so the workers share
+    one copy of W) before timing and reported separately.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bakery import operator_cache
 from bakery.reflection.shexp import (
     SHExpSettings,
     build_operators,
@@ -84,6 +86,7 @@ def _bake_worker(args: tuple[np.ndarray, SHExpSettings, int, object]) -> list[tu
     """One bake-like worker: build the operators, then ``repeats`` rounds of fitting its batch, each started at the
     shared barrier; (start, end) monotonic seconds per round."""
     batch, settings, repeats, barrier = args
+    operator_cache.install()  # as in a bake (bakery.encodings installs it): W from the shared on-disk cache
     fit_shexp(batch, settings)  # operators and allocator warm
     rounds = []
     for _ in range(repeats):
@@ -121,6 +124,7 @@ def run_shexp_fit_bench(env_dir: Path | None = None, batch_size: int = 64, face_
     "rest"}, "bake_configuration": {"processes", "ms_per_probe", "min_ms_per_probe"} or None}."""
     if repeats < 5:
         raise ValueError(f"repeats must be >= 5, got {repeats}")
+    operator_cache.install()  # the operators a bake uses: built once, then memory-mapped from the on-disk cache
     if env_dir is not None:
         cubes, names = environment_captures(env_dir, face_size)
     else:

@@ -114,7 +114,7 @@ class SHExp(Encoding):
 
     name = "shexp"
     kind = "reflection"
-    version = "1.2.0"  # 1.2.0: per-probe fitted α range (evaluation clamps α into it); 1.1.0: splatted fit grid
+    version = "1.2.1"  # 1.2.1: the splat multiplies Ω·L per chunk of faces (same sums, float32 rounding); 1.2.0: per-probe fitted α range (evaluation clamps α into it); 1.1.0: splatted fit grid
     description = ("SH exponentials PQ = exp(<vMF(1/a).Y(r), p>) exp(<vMF(1/a).Y(h_r), q>); E = PQ (F0 A + B) with "
                    "the DFG table (albedo-normalised) or PQ (F0 + (1-F0) tau) (paper)")
     accepts_alpha_range = True
@@ -187,7 +187,7 @@ class SHExpLights(SHExp):
                 raise ValueError(f"light_radius_deg must be in (0, 90), got {self.light_radius_deg}")
 
     name = "shexp_lights"
-    version = "1.0.0"
+    version = "1.0.1"  # 1.0.1: the SH-exp splat of 1.2.1
     description = ("SH exponentials (albedo-normalised) of the capture minus its brightest texel clusters, plus "
                    "the clusters as directional lights (direction, RGB flux) evaluated with the same GGX BRDF")
 

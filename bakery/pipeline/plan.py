@@ -5,7 +5,7 @@ Content hash (incremental bakes)
     A probe's hash covers everything its result depends on: the probe's identity, kinds, position and per-probe
     settings; its source kind, its typed capture spec and the content hashes of what the capture reads (e.g. the
     image bytes, or the hash of the scene parts that can affect it); the bake settings and the encodings selected for
-    it; and bakery's version (the code). Equal hash ⇒ the stored result is reused without re-baking.
+    it with their versions; and bakery's version (the code). Equal hash ⇒ the stored result is reused without re-baking.
 
 Batches
     Probes with the same encodings and the same per-probe encoding overrides are batched together in plan order, at
@@ -82,8 +82,9 @@ def encodings_for(probe: Probe, settings: BakeSettings) -> tuple[str, ...]:
 def probe_content_hash(source_kind: str, planned: PlannedProbe, encodings: tuple[str, ...], settings_hash: str) -> str:
     """The content hash of the module docstring."""
     probe = planned.probe
+    versions = sorted((name, get_encoding(name).version) for name in encodings)  # a new encoding version re-bakes
     return stable_hash(probe.name, probe.kinds, probe.position, probe.settings, source_kind, planned.capture,
-                       planned.inputs, sorted(encodings), settings_hash)
+                       planned.inputs, versions, settings_hash)
 
 
 def make_batches(tasks: list[ProbeTask], batch_size: int, settings_json: str) -> list[BatchTask]:

@@ -44,9 +44,9 @@ Fit grid (multi-resolution splat; method notes §4 "lower mip levels for rough �
         E0 ≈ Σ_c w(l_c) F_c,   F_c = Σ_t b_ct Ω_t L_t                                                 (splat)
     F is the capture's flux *splatted* bilinearly onto the coarse nodes: exact total flux, and a sun between
     nodes keeps its centroid (a box filter would move it to a texel centre: measured 4–9 % fit error vs the
-    plain fit on ``park``/``sunrise`` at 32², 1 % with the splat). The splat is separable per face (a batched GEMM
-    per capture row along columns with Ω folded in, then one GEMM along rows; coarser grids are splatted from the
-    finest grid's flux). The node grid follows the lobe width (∝ α): ``fit_face_size`` for α < 2·0.2, halved per
+    plain fit on ``park``/``sunrise`` at 32², 1 % with the splat). The splat is separable per face once Ω is applied
+    (Ω·L for a few faces at a time, in cache; a GEMM along rows per face, then one along columns; coarser grids
+    are splatted from the finest grid's flux). The node grid follows the lobe width (∝ α): ``fit_face_size`` for α < 2·0.2, halved per
     doubling of α beyond 0.2, never below ``min_fit_face_size`` (default design: 16, 8, 8, 8 for α = 0.2, 0.47,
     0.73, 1) — rows of one α slab use one grid, so W is a few dense blocks (4096 × 1536, 12288 × 384):
     11 M multiply-adds per channel instead of 100 M for a dense 32² grid. Measured in docs/reflection.md against
@@ -79,8 +79,9 @@ Fused fit (:func:`fit_shexp`; :func:`fit_shexp_stepwise` is the same solve one f
     (:func:`weight_tiles`): the rows of two neighbouring normals (32 Fibonacci clusters) times the nodes where any
     of them is non-zero, F gathered to those nodes: 0.58× the multiply-adds of the dense blocks, same products
     (single normals: 0.5×, but GEMMs too small to gain). What remains is that GEMM (1.2 G multiply-adds per 64
-    probes) and the splat's GEMM over the capture (Ω varies per texel and is not separable — rank 5 to float32
-    — so the column splat keeps its dense per-row operator).
+    probes) and the splat: Ω varies per texel and is not separable (rank 5 to float32), so Ω·L is formed once —
+    a pass over the capture, memory-bound — before the row splat's GEMM (16 multiply-adds per texel and channel;
+    a 3-tap periodic form saves little: the GEMM runs at the BLAS peak on data in cache).
 
 Notation
     M design rows, T fit-grid texels, P probes, C = 3 channels, K_p = (p_band+1)², K_q = (q_band+1)² − 1.
@@ -259,15 +260,12 @@ def splat_matrix(face_size: int, grid_size: int) -> np.ndarray:
 
 
 @lru_cache(maxsize=4)
-def _column_splat(face_size: int, grid_size: int) -> np.ndarray:
-    """Per capture row i: the solid angles of row i times the column splat, kron(diag(Ω_i·) Bᵀ, I₃)
-    (N, 3N, 3g) float32 — Ω folded into the GEMM, channels stay interleaved."""
-    omega = cube_texel_solid_angles(face_size)[0]  # (N, N), the same on every face
-    columns = splat_matrix(face_size, grid_size).T.astype(np.float64)  # (N, g)
-    eye = np.eye(3)
-    ops = np.stack([np.kron(omega[i][:, None] * columns, eye) for i in range(face_size)]).astype(np.float32)
-    ops.setflags(write=False)
-    return ops
+def _solid_angle_rows(face_size: int) -> np.ndarray:
+    """The texel solid angles of one face with every entry repeated per channel, Ω_ij (N, 3N) float32: multiplies
+    a face's interleaved RGB rows in place of a broadcast."""
+    omega = np.repeat(cube_texel_solid_angles(face_size)[0], 3, axis=1).astype(np.float32)  # the same on every face
+    omega.setflags(write=False)
+    return omega
 
 
 @lru_cache(maxsize=8)
@@ -283,9 +281,9 @@ def splat_flux(cubes: np.ndarray, grids: tuple[int, ...],
     """Captures (P, 6, N, N, 3) → flux splatted onto each node grid g: {g: (6·g², 3P) float32}, rows
     (face, row, column), columns (probe, channel) (module doc "Fit grid").
 
-    The finest grid comes from the capture in two GEMM passes (Ω and the column splat per capture row, one
-    batched matmul; then the row splat); coarser grids are splatted from the finest grid's flux (flux stays
-    exact; the coarse grids serve the wide lobes). ``removed`` = (probe index (R,), flat texel index (R,) into
+    The finest grid comes from the capture in two GEMM passes: Ω·L per chunk of faces (in cache) and the row
+    splat of each face, then the column splat of every row at once; coarser grids are splatted from the finest
+    grid's flux (flux stays exact; the coarse grids serve the wide lobes). ``removed`` = (probe index (R,), flat texel index (R,) into
     6·N·N): texels treated as black (their splatted flux is subtracted — the capture is not copied)."""
     return _splat_flux(cubes, grids, removed, channel_major=False)
 
@@ -297,26 +295,37 @@ def _splat_flux(cubes: np.ndarray, grids: tuple[int, ...], removed: tuple[np.nda
     p, n = cubes.shape[0], cubes.shape[2]
     grids = tuple(sorted(set(grids), reverse=True))
     finest = grids[0]
-    by_rows = cubes.reshape(p * 6, n, 3 * n).transpose(1, 0, 2)  # (N rows, 6P, 3N) view
-    by_columns = np.matmul(by_rows, _column_splat(n, finest)).reshape(n, -1)  # (N, 6P·3g): Σ_j Ω_ij B_bj L_ij
-    nodes = (splat_matrix(n, finest) @ by_columns).reshape(finest, p * 6, finest * 3)  # Σ_i B_ai (…)
+    faces = cubes.reshape(p * 6, n, 3 * n)  # (6P, N rows, 3N) view
+    omega, rows_splat = _solid_angle_rows(n), splat_matrix(n, finest)
+    by_rows = np.empty((p * 6, finest, 3 * n), dtype=np.float32)  # Σ_i B_ai Ω_ij L_ij per face
+    chunk = max(1, _SPLAT_CHUNK_FLOATS // (3 * n * n))
+    flux = np.empty((min(chunk, p * 6), n, 3 * n), dtype=np.float32)
+    for q0 in range(0, p * 6, chunk):  # Ω·L stays in cache for the row GEMM
+        q1 = min(q0 + chunk, p * 6)
+        np.multiply(faces[q0:q1], omega, out=flux[: q1 - q0])
+        np.matmul(rows_splat, flux[: q1 - q0], out=by_rows[q0:q1])
+    nodes = (by_rows.reshape(-1, 3 * n) @ _node_splat(n, finest)).reshape(p * 6, finest, 3 * finest)  # Σ_j B_bj (…)
     if removed is not None and len(removed[0]):
         nodes -= _removed_flux(cubes, removed, finest)
     out = {}
     for g in grids:
-        if g != finest:  # from the finest grid's flux: (g_f, 6P, 3g_f) → (g, 6P, 3g)
-            coarse = (nodes.reshape(-1, 3 * finest) @ _node_splat(finest, g)).reshape(finest, -1)
-            grid = (splat_matrix(finest, g) @ coarse).reshape(g, p * 6, 3 * g)
+        if g != finest:  # from the finest grid's flux: (6P, g_f, 3g_f) → (6P, g, 3g)
+            coarse = (nodes.reshape(-1, 3 * finest) @ _node_splat(finest, g)).reshape(p * 6, finest, 3 * g)
+            grid = np.matmul(splat_matrix(finest, g), coarse)
         else:
             grid = nodes
-        order = (2, 0, 3, 4, 1) if channel_major else (2, 0, 3, 1, 4)  # → (face, row, column, …)
-        out[g] = np.ascontiguousarray(grid.reshape(g, p, 6, g, 3).transpose(order)).reshape(6 * g * g, 3 * p)
+        order = (1, 2, 3, 4, 0) if channel_major else (1, 2, 3, 0, 4)  # → (face, row, column, …)
+        out[g] = np.ascontiguousarray(grid.reshape(p, 6, g, g, 3).transpose(order)).reshape(6 * g * g, 3 * p)
     return out
+
+
+#: Floats of Ω·L per chunk of faces in :func:`splat_flux` (256 k: 1 MB, in cache for the row GEMM).
+_SPLAT_CHUNK_FLOATS = 1 << 18
 
 
 def _removed_flux(cubes: np.ndarray, removed: tuple[np.ndarray, np.ndarray], grid_size: int) -> np.ndarray:
     """The splatted flux of the ``removed`` texels on grid g, laid out like :func:`splat_flux`'s intermediate
-    (g, 6P, 3g): each texel's Ω·L lands on its 2 × 2 nodes with the bilinear splat weights (scatter-add)."""
+    (6P, g, 3g): each texel's Ω·L lands on its 2 × 2 nodes with the bilinear splat weights (scatter-add)."""
     p, n = cubes.shape[0], cubes.shape[2]
     probe, texel = (np.asarray(x, dtype=np.int64) for x in removed)
     face, row, col = texel // (n * n), (texel // n) % n, texel % n
@@ -329,10 +338,10 @@ def _removed_flux(cubes: np.ndarray, removed: tuple[np.ndarray, np.ndarray], gri
     q = probe * 6 + face
     for a, wa in ((r0, wr0), (r1, wr1)):
         for b, wb in ((c0, wc0), (c1, wc1)):
-            base = ((a * (p * 6) + q) * grid_size + b) * 3
+            base = ((q * grid_size + a) * grid_size + b) * 3
             for c in range(3):
                 out += np.bincount(base + c, weights=wa * wb * flux[:, c], minlength=out.size)
-    return out.reshape(grid_size, p * 6, 3 * grid_size).astype(np.float32)
+    return out.reshape(p * 6, grid_size, 3 * grid_size).astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -451,20 +460,32 @@ def weight_tiles(settings: SHExpSettings, blocks: tuple[WeightBlock, ...], desig
     normals = fit_design(settings)[1][::per_normal][: settings.n_normals]  # (n_normals, 3), the slab order
     centres = fibonacci_directions(max(1, -(-settings.n_normals // NORMALS_PER_TILE)))
     cluster = np.argmax(normals @ centres.T, axis=1)  # (n_normals,) nearest centre
-    tiles = []
+    layout = []  # (block, design rows, nodes) per tile
     for block in blocks:
         slabs = (block.stop - block.start) // (settings.n_normals * per_normal)
         local = np.arange(block.stop - block.start).reshape(slabs, settings.n_normals, per_normal)
         for k in np.unique(cluster):
             rows = np.sort(local[:, cluster == k].ravel())  # rows of the block, ascending
-            nodes = np.flatnonzero((block.weights[rows] != 0).any(axis=0))
-            weights = np.ascontiguousarray(block.weights[rows][:, nodes])
-            design_rows = rows + block.start
-            tile = WeightTile(block.face_size, design_rows, nodes, weights,
-                              np.ascontiguousarray(design_t[:, design_rows]), np.ascontiguousarray(pinv[:, design_rows]))
-            for array in (tile.rows, tile.nodes, tile.weights, tile.design_t, tile.pinv):
-                array.setflags(write=False)
-            tiles.append(tile)
+            layout.append((block, rows, np.flatnonzero((block.weights[rows] != 0).any(axis=0))))
+    # every tile's W in one cached array: the workers of a bake map the same pages (one copy in memory and cache)
+    key = "shexp-W-v2-tiles-v1-" + repr((settings.n_normals, settings.n_views, settings.n_alphas, settings.alpha_min,
+                                      settings.alpha_max, settings.alpha_spacing,
+                                      tuple(b.face_size for b in blocks), NORMALS_PER_TILE))
+    sizes = [rows.size * nodes.size for _, rows, nodes in layout]
+    flat = OperatorCache.load(key)
+    if flat is None or flat.shape != (sum(sizes),):
+        flat = OperatorCache.save(key, np.concatenate([b.weights[rows][:, nodes].ravel() for b, rows, nodes in layout]))
+    flat = np.asarray(flat)
+    tiles, offset = [], 0
+    for (block, rows, nodes), size in zip(layout, sizes, strict=True):
+        weights = flat[offset : offset + size].reshape(rows.size, nodes.size)
+        offset += size
+        design_rows = rows + block.start
+        tile = WeightTile(block.face_size, design_rows, nodes, weights,
+                          np.ascontiguousarray(design_t[:, design_rows]), np.ascontiguousarray(pinv[:, design_rows]))
+        for array in (tile.rows, tile.nodes, tile.weights, tile.design_t, tile.pinv):
+            array.setflags(write=False)
+        tiles.append(tile)
     return tuple(tiles)
 
 
@@ -623,7 +644,8 @@ def fit_shexp(cubes: np.ndarray, settings: SHExpSettings,
     rhs = np.zeros((k, 3 * p))  # float64 accumulator over the chunks
     gathered = np.empty((max(t.nodes.size for t in ops.tiles), 3 * p), dtype=np.float32)
     for tile in ops.tiles:
-        f = np.take(flux[tile.face_size], tile.nodes, axis=0, out=gathered[: tile.nodes.size])  # F at its nodes
+        # F at its nodes (mode 'clip': the indices are in range, and 'raise' would buffer the output)
+        f = np.take(flux[tile.face_size], tile.nodes, axis=0, out=gathered[: tile.nodes.size], mode="clip")
         right = tile.design_t if weighted else tile.pinv  # Aᵀ (weighted normal equations) or A⁺ (plain log fit)
         for r0 in range(0, tile.rows.size, rows):
             r1 = min(r0 + rows, tile.rows.size)

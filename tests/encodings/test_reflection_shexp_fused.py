@@ -119,3 +119,26 @@ def test_weight_tiles_partition_the_design_and_drop_only_zeros():
         np.testing.assert_array_equal(tile.design_t, ops.design_t[:, tile.rows])
     dense_macs = sum(b.weights.size for b in ops.blocks)
     assert sum(t.weights.size for t in ops.tiles) < 0.65 * dense_macs
+
+
+def test_weight_tiles_are_shared_through_the_operator_cache(tmp_path, monkeypatch):
+    """A bake's workers map one copy of the tiles' W from the on-disk operator cache: the first build writes it,
+    the next loads the same entries, and a different tile layout is its own entry."""
+    from bakery import operator_cache
+    from bakery.reflection.tables import OperatorCache
+
+    ops = sx.build_operators(SMALL, FACE)
+    monkeypatch.setenv("BAKERY_CACHE_DIR", str(tmp_path))  # an empty cache from here on
+    monkeypatch.setattr(OperatorCache, "load", staticmethod(operator_cache.load))
+    monkeypatch.setattr(OperatorCache, "save", staticmethod(operator_cache.save))
+    first = sx.weight_tiles(SMALL, ops.blocks, ops.design_t, ops.pinv)
+    files = sorted(tmp_path.glob("*.npy"))
+    assert len(files) == 1
+    again = sx.weight_tiles(SMALL, ops.blocks, ops.design_t, ops.pinv)
+    assert sorted(tmp_path.glob("*.npy")) == files
+    for a, b, reference in zip(first, again, ops.tiles, strict=True):
+        assert np.array_equal(a.weights, b.weights) and np.array_equal(a.weights, reference.weights)
+        assert np.array_equal(a.nodes, reference.nodes) and np.array_equal(a.rows, reference.rows)
+    monkeypatch.setattr(sx, "NORMALS_PER_TILE", 3)
+    other = sx.weight_tiles(SMALL, ops.blocks, ops.design_t, ops.pinv)
+    assert len(list(tmp_path.glob("*.npy"))) == 2 and len(other) != len(first)

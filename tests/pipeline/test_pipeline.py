@@ -97,6 +97,21 @@ def test_incremental_rebake_counts(tmp_path, environments):
     assert diff["changed"] == {} and diff["unchanged"] == 6
 
 
+def test_a_new_encoding_version_changes_the_probe_hash(monkeypatch):
+    """A stored result is reused only by the code that would compute it: the probe's content hash covers the
+    versions of its encodings, so a numerical change of one encoding (a version bump) re-bakes its probes."""
+    from bakery.encodings import get_encoding
+    from bakery.pipeline.plan import probe_content_hash
+    from bakery.probe import Probe
+    from bakery.sources.base import PlannedProbe
+
+    planned = PlannedProbe(Probe("/environment/a", ("irradiance",)), capture=("image", 16), inputs=("abc",))
+    before = probe_content_hash("image", planned, ("sh2", "zh3"), "settings")
+    assert probe_content_hash("image", planned, ("zh3", "sh2"), "settings") == before  # order-free
+    monkeypatch.setattr(get_encoding("zh3"), "version", get_encoding("zh3").version + "-changed")
+    assert probe_content_hash("image", planned, ("sh2", "zh3"), "settings") != before
+
+
 def test_diff_reports_changed_probes(tmp_path, environments):
     r = recipe(tmp_path, 6)
     a, b = tmp_path / "a.h5", tmp_path / "b.h5"
