@@ -53,7 +53,7 @@ import numpy as np
 from bakery.encodings.base import FieldSpec
 from bakery.encodings.registry import register
 from bakery.encodings.shexp import SHExpLights
-from bakery.encodings.splitsum import DEFAULT_FACE_SIZE, FLOAT16_MAX, _cubes_at, probe_chunks
+from bakery.encodings.splitsum import DEFAULT_FACE_SIZE, FLOAT16_MAX, _cubes_at, probe_chunks, store_float16
 from bakery.errors import ClampWarning
 from bakery.probe import ProbeBatch
 from bakery.reflection import hybrid as hy
@@ -107,7 +107,7 @@ class SHExpHybrid(SHExpLights):
 
     name = "shexp_hybrid"
     kind = "reflection"
-    version = "1.0.1"  # 1.0.1: the SH-exp splat of shexp 1.2.1
+    version = "1.0.1"  # 1.0.1: the SH-exp splat of shexp 1.2.1, the chain's SH projection of splitsum 1.0.1
     description = ("hybrid: bandwidth split-sum chain (float16 cube levels, sharp alpha) blended in log alpha with SH "
                    "exponentials + directional lights (rough alpha); E0 and the Fresnel tail E1 cross over separately")
     accepts_alpha_range = True
@@ -198,11 +198,9 @@ class SHExpHybrid(SHExpLights):
         for part in probe_chunks(batch.count):  # bounded memory; each probe's levels do not depend on its batch
             for k, level in enumerate(prefilter_bandwidth_batch(cubes[part], self.chain, first)):
                 if level is not None:
-                    clamped += int(np.count_nonzero(level > FLOAT16_MAX))
-                    levels[k][part] = np.minimum(level, FLOAT16_MAX).astype(np.float16)
+                    clamped += store_float16(level, levels[k][part])
         if p.keep_capture and first > 0:  # level 0 is α = 0 at the chain's face: the capture itself
-            clamped += int(np.count_nonzero(cubes > FLOAT16_MAX))
-            levels[0][:] = np.minimum(cubes, FLOAT16_MAX).astype(np.float16)
+            clamped += store_float16(cubes, levels[0])
         if clamped:
             warnings.warn(f"{self.name}: {clamped} prefiltered values above float16's maximum {FLOAT16_MAX:g} were "
                           f"clamped to it", ClampWarning, stacklevel=2)

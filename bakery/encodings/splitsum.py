@@ -45,6 +45,14 @@ from bakery.sphere.cubemap import resample_cube
 #: Largest finite float16; prefiltered radiance above it is clamped (and counted) before storage.
 FLOAT16_MAX = 65504.0
 
+def store_float16(values: np.ndarray, out: np.ndarray) -> int:
+    """Write float32 ``values`` into the float16 array ``out`` (same shape) clamped to :data:`FLOAT16_MAX`, without
+    a full-size temporary; returns how many values were clamped."""
+    values = np.asarray(values)
+    np.minimum(values, np.float32(FLOAT16_MAX), out=out, casting="same_kind")
+    return int(np.count_nonzero(values > FLOAT16_MAX))
+
+
 #: Level-0 face size of an instance built without one (``face_size`` unset outside a bake).
 DEFAULT_FACE_SIZE = 64
 
@@ -86,7 +94,7 @@ class SplitSum(Encoding):
 
     name = "splitsum"
     kind = "reflection"
-    version = "1.0.0"
+    version = "1.0.1"  # 1.0.1: SH-domain levels projected through the cube's reflection symmetry (float32 rounding)
     description = "split-sum GGX prefiltered cube-map chain (v = n), float16 RGB, + DFG scale/bias table"
     follows_bake_face_size = True
 
@@ -121,8 +129,7 @@ class SplitSum(Encoding):
         clamped = 0
         for part in probe_chunks(batch.count):  # bounded memory; each probe's chain is the same whatever its batch
             for level, out in zip(prefilter_batch(cubes[part], self.chain), levels, strict=True):
-                clamped += int(np.count_nonzero(np.asarray(level) > FLOAT16_MAX))
-                out[part] = np.minimum(np.asarray(level), FLOAT16_MAX).astype(np.float16)
+                clamped += store_float16(level, out[part])
         if clamped:
             warnings.warn(f"{self.name}: {clamped} prefiltered values above float16's maximum {FLOAT16_MAX:g} were "
                           f"clamped to it", ClampWarning, stacklevel=2)

@@ -57,6 +57,7 @@ from scipy.special import eval_legendre, roots_legendre
 from bakery.brdf.ggx import ggx_distribution
 from bakery.brdf.sampling import sample_ggx_ndf, to_world
 from bakery.sh.basis import evaluate_sh_basis, sh_bands
+from bakery.sh.projection import CubeSHProjector
 from bakery.sphere.cubemap import (
     cube_mean_texel_solid_angle,
     cube_texel_directions,
@@ -156,8 +157,17 @@ SH_PROJECTION_FACE = 128
 def _project_sh(cube: np.ndarray, max_band: int) -> np.ndarray:
     """Radiance SH (K, C) of a cube, from its mip of face ≤ SH_PROJECTION_FACE (one GEMM)."""
     small = resample_cube(cube, min(cube.shape[1], SH_PROJECTION_FACE))
+    if small.shape[1] % 2 == 0:  # the same sums through the cube's reflection symmetry: 1/8 the basis and work
+        return _cached_cube_projector(small.shape[1], max_band).project(small)
     weighted = _cached_weighted_basis(small.shape[1], max_band)
     return weighted.T @ small.reshape(-1, small.shape[-1]).astype(np.float32)
+
+
+@lru_cache(maxsize=16)
+def _cached_cube_projector(face_size: int, max_band: int) -> CubeSHProjector:
+    """The reflection-symmetric projector of an even face size (:class:`bakery.sh.projection.CubeSHProjector`)."""
+    return CubeSHProjector(cube_texel_directions(face_size).reshape(-1, 3),
+                           cube_texel_solid_angles(face_size).reshape(-1), max_band)
 
 
 def _prefilter_sh(cube: np.ndarray, alpha: float, out_size: int, max_band: int,
@@ -174,8 +184,9 @@ def _prefilter_sh(cube: np.ndarray, alpha: float, out_size: int, max_band: int,
 
 @lru_cache(maxsize=16)
 def _cached_weighted_basis(face_size: int, max_band: int) -> np.ndarray:
-    """Y_lm(c_i) Ω_i (texels, K) float32, built in chunks of texels (the float64 basis of a whole 128² cube at band
-    25 alone would be 0.5 GB; the chunks keep the peak at the float32 result)."""
+    """Y_lm(c_i) Ω_i (texels, K) float32 for odd face sizes (even ones: :func:`_cached_cube_projector`), built in
+    chunks of texels (the float64 basis of a whole 128² cube at band 25 alone would be 0.5 GB; the chunks keep
+    the peak at the float32 result)."""
     directions = cube_texel_directions(face_size).reshape(-1, 3)
     omega = cube_texel_solid_angles(face_size).reshape(-1, 1)
     b = np.empty((directions.shape[0], (max_band + 1) ** 2), dtype=np.float32)

@@ -140,3 +140,48 @@ def test_positive_function_coefficient_bounds(seed, lights):
     assert np.all(np.abs(ratios[:3]) <= sqrt(3) * (1 + 1e-9))
     assert np.all(ratios[5] <= sqrt(5) * (1 + 1e-9)) and np.all(ratios[5] >= -sqrt(5) / 2 * (1 + 1e-9))
     assert np.all(np.abs(ratios[[3, 4, 6, 7]]) <= sqrt(15) / 2 * (1 + 1e-9))
+
+
+# --------------------------------------------------------------------------- reflection-symmetric cube projection
+
+
+def test_sh_reflection_parity_holds_everywhere():
+    """Y_lm(R_s ω) = χ_lm(s) Y_lm(ω) at random directions, for every axis reflection; and the closed form of the
+    z flip, (−1)^(l+m) for the real SH of this basis (P_l^|m|(−z) = (−1)^(l+|m|) P_l^|m|(z))."""
+    from bakery.sh.projection import AXIS_REFLECTIONS, sh_reflection_parity
+
+    band = 12
+    parity = sh_reflection_parity(band)
+    rng = np.random.default_rng(3)
+    omega = rng.normal(size=(50, 3))
+    omega /= np.linalg.norm(omega, axis=1, keepdims=True)
+    at = evaluate_sh_basis(omega, band)
+    for s, reflection in enumerate(AXIS_REFLECTIONS):
+        np.testing.assert_allclose(evaluate_sh_basis(omega * reflection, band), at * parity[s], atol=1e-10)
+    l = np.array([l for l in range(band + 1) for _ in range(2 * l + 1)])  # noqa: E741
+    m = np.array([m for l in range(band + 1) for m in range(-l, l + 1)])
+    np.testing.assert_array_equal(parity[4], (-1.0) ** (l + np.abs(m)))
+
+
+@given(half=st.integers(1, 12), band=st.integers(0, 14), channels=st.integers(1, 4), seed=st.integers(0, 2**31))
+def test_cube_projection_through_reflections_equals_the_direct_sum(half, band, channels, seed):
+    """The folded projection is the brute-force sum Σ_t Y(ω_t) Ω_t L_t over every texel (float64), to float32."""
+    from bakery.sh.projection import CubeSHProjector
+    from bakery.sphere.cubemap import cube_texel_solid_angles
+
+    n = 2 * half
+    directions = cube_texel_directions(n).reshape(-1, 3)
+    omega = cube_texel_solid_angles(n).reshape(-1)
+    cube = np.random.default_rng(seed).gamma(0.5, size=(6, n, n, channels)).astype(np.float32)
+    direct = (evaluate_sh_basis(directions, band) * omega[:, None]).T @ cube.reshape(-1, channels).astype(np.float64)
+    folded = CubeSHProjector(directions, omega, band).project(cube)
+    assert folded.dtype == np.float32 and folded.shape == direct.shape
+    np.testing.assert_allclose(folded, direct, rtol=0, atol=2e-6 * np.abs(direct).max() + 1e-12)
+
+
+def test_cube_projection_through_reflections_needs_an_even_face():
+    from bakery.sh.projection import CubeSHProjector
+    from bakery.sphere.cubemap import cube_texel_solid_angles
+
+    with pytest.raises(ValueError, match="even face size"):
+        CubeSHProjector(cube_texel_directions(5).reshape(-1, 3), cube_texel_solid_angles(5).reshape(-1), 4)
