@@ -13,4 +13,5 @@ def test_bench_reports_both_formulations_pieces_and_the_bake_configuration():
     assert set(result["fused_breakdown_ms_per_probe"]) == {"splat", "W_times_F_tiles", "W_times_F_dense", "rest"}
     bake = result["bake_configuration"]
     assert bake["processes"] == 2 and bake["ms_per_probe"] >= bake["min_ms_per_probe"] > 0
+    assert bake["cpu_ms_per_probe_per_worker"] > 0
     assert "bake configuration, 2 single-threaded processes" in lines[0]
