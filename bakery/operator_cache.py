@@ -18,11 +18,19 @@ match (a damaged disk, a poisoned cache: valid header, altered values) is remove
 :class:`OperatorCacheWarning` and the operator is rebuilt — a cached operator is never used unverified. Temporary
 files of killed writers are removed on the next save. Delete the folder to clear it; set ``BAKERY_CACHE_DIR=off``
 to keep operators in memory only.
+
+Size: the folder is kept under ``$BAKERY_CACHE_MAX_MB`` (default 4096; ``0`` = no limit). Every save that takes
+it over removes the least recently used cache files (a verified load marks its file used) until it fits, never
+the file just written, and only files this module names (``<32 hex>.<64 hex>.npy``, and the ``<32 hex>.npy`` of
+earlier versions, which are never read) — a folder shared with other files loses none of them. Settings,
+formulation versions and bakery versions that are no longer used would otherwise accumulate forever. A worker
+that has a removed file mapped keeps reading it (POSIX unlink semantics); the next process rebuilds it.
 """
 
 from __future__ import annotations
 
 import os
+import re
 import warnings
 from pathlib import Path
 
@@ -44,6 +52,54 @@ def cache_directory() -> Path | None:
     return Path(configured) if configured else Path.home() / ".cache" / "bakery" / "operators"
 
 
+#: Default size limit of the cache folder in MB (``BAKERY_CACHE_MAX_MB``; module doc "Size").
+DEFAULT_MAX_MB = 4096
+#: The files this module writes (and those of earlier versions, named without the content hash).
+_CACHE_FILE = re.compile(r"^[0-9a-f]{32}(\.[0-9a-f]{64})?\.npy$")
+
+
+def cache_limit_bytes() -> int | None:
+    """The folder's size limit in bytes, or None for no limit (``BAKERY_CACHE_MAX_MB=0``)."""
+    configured = os.environ.get("BAKERY_CACHE_MAX_MB", "").strip()
+    try:
+        megabytes = float(configured) if configured else float(DEFAULT_MAX_MB)
+    except ValueError:
+        megabytes = float(DEFAULT_MAX_MB)  # a malformed limit must not break a bake: the default applies
+    return None if megabytes <= 0 else int(megabytes * 2**20)
+
+
+def prune(directory: Path, keep: Path | None = None) -> list[Path]:
+    """Remove the least recently used cache files of ``directory`` (not ``keep``) until the cache files fit the
+    limit (module doc "Size"); returns the removed paths. Files removed meanwhile by another process are skipped."""
+    limit = cache_limit_bytes()
+    if limit is None:
+        return []
+    entries = []
+    for path in directory.iterdir():
+        if _CACHE_FILE.match(path.name):
+            try:
+                stat = path.stat()
+            except OSError:
+                continue
+            entries.append((stat.st_mtime_ns, path.name, stat.st_size, path))
+    total = sum(size for _, _, size, _ in entries)
+    removed = []
+    for _, _, size, path in sorted(entries):  # oldest use first (name breaks ties: deterministic)
+        if total <= limit:
+            break
+        if keep is not None and path == keep:
+            continue
+        try:
+            path.unlink()
+        except FileNotFoundError:
+            pass
+        except OSError:
+            continue
+        total -= size
+        removed.append(path)
+    return removed
+
+
 def _key_digest(key: str) -> str:
     return sha256_bytes(f"{key}|{bakery.__version__}".encode())[:32]
 
@@ -61,9 +117,15 @@ def _verified(path: Path) -> np.ndarray | None:
     try:
         array = np.load(path, mmap_mode="r")
         actual = sha256_array(array)
+    except FileNotFoundError:
+        return None  # pruned by another process since it was listed: not damage, just absent
     except (OSError, ValueError, EOFError):
         actual = None
     if actual == expected:
+        try:
+            os.utime(path)  # used now: the last to be pruned (module doc "Size")
+        except OSError:
+            pass  # a read-only cache is still a cache
         return array
     warnings.warn(f"operator cache file {path} does not match its SHA-256 checksum (damaged or altered); "
                   "rebuilding the operator", OperatorCacheWarning, stacklevel=3)
@@ -103,6 +165,7 @@ def save(key: str, array: np.ndarray) -> np.ndarray:
         _remove_stale_temporaries(directory)
         with atomic_replace(path) as tmp, open(tmp, "wb") as handle:
             np.save(handle, array)
+        prune(directory, keep=path)
         return np.load(path, mmap_mode="r")
     except OSError:
         return array  # a read-only home or full disk only costs the rebuild next time
