@@ -285,8 +285,9 @@ def finalize_and_write(request: BakeRequest, source: Source, plan: Plan, batches
 
     Returns (merged, contents, encodings, skipped, extra outputs). :func:`bake` calls it after its executor;
     ``bakery merge`` calls it on the results of shard stores, so a merged farm bake is the same bytes as one
-    process's. ``batches`` is emptied once merged: from there on the merged copy is all the parent holds of them
-    (its peak memory is the merge, not the merge plus the batches)."""
+    process's. ``batches`` is emptied once merged, and each batch's fields are released as they are merged: from
+    there on the merged copy is all the parent holds of them (its peak memory is the merged fields plus the one
+    being merged, not the merge plus the batches)."""
     settings = request.settings
     given, batches = batches, refuse_non_finite(batches, failures)
     if failures and not batches:
@@ -294,7 +295,7 @@ def finalize_and_write(request: BakeRequest, source: Source, plan: Plan, batches
         raise InputError(f"no probe could be baked; nothing was written. First failure: {first}"
                          if len(failures) > 1 else first)
     # No probe at all (a scene without probes, or none with an applicable encoding): an empty, valid store.
-    merged = (merge_batches(batches, [n for n in plan.order if n not in failures]) if batches
+    merged = (merge_batches(batches, [n for n in plan.order if n not in failures], release_inputs=True) if batches
               else EncodedBatch([], {}, {}, {}))
     given.clear()
     batches.clear()

@@ -371,7 +371,7 @@ def bake_shard(request: BakeRequest, spec: ShardSpec, executor: Any = None,
                 if part.probes:
                     parts.append(part)
         order = [n for n in wanted if n not in failures]
-        merged = merge_batches(parts, order) if parts else EncodedBatch([], {}, {}, {})
+        merged = merge_batches(parts, order, release_inputs=True) if parts else EncodedBatch([], {}, {}, {})
         write_shard(request, source.kind, plan, identity, probe_range, len(work), merged, failures, spec)
         journal.remove()
         timings = with_rates(merged.timings)
