@@ -114,7 +114,9 @@ class SHExp(Encoding):
 
     name = "shexp"
     kind = "reflection"
-    version = "1.2.1"  # 1.2.1: the splat multiplies Ω·L per chunk of faces (same sums, float32 rounding); 1.2.0: per-probe fitted α range (evaluation clamps α into it); 1.1.0: splatted fit grid
+    # 1.2.1: the splat multiplies Ω·L per chunk of faces (same sums, float32 rounding); 1.2.0: per-probe fitted
+    # α range (evaluation clamps α into it); 1.1.0: splatted fit grid
+    version = "1.2.1"
     description = ("SH exponentials PQ = exp(<vMF(1/a).Y(r), p>) exp(<vMF(1/a).Y(h_r), q>); E = PQ (F0 A + B) with "
                    "the DFG table (albedo-normalised) or PQ (F0 + (1-F0) tau) (paper)")
     accepts_alpha_range = True

@@ -44,10 +44,10 @@ Fit grid (multi-resolution splat; method notes §4 "lower mip levels for rough �
         E0 ≈ Σ_c w(l_c) F_c,   F_c = Σ_t b_ct Ω_t L_t                                                 (splat)
     F is the capture's flux *splatted* bilinearly onto the coarse nodes: exact total flux, and a sun between
     nodes keeps its centroid (a box filter would move it to a texel centre: measured 4–9 % fit error vs the
-    plain fit on ``park``/``sunrise`` at 32², 1 % with the splat). The splat is separable per face once Ω is applied
-    (Ω·L for a few faces at a time, in cache; a GEMM along rows per face, then one along columns; coarser grids
-    are splatted from the finest grid's flux). The node grid follows the lobe width (∝ α): ``fit_face_size`` for α < 2·0.2, halved per
-    doubling of α beyond 0.2, never below ``min_fit_face_size`` (default design: 16, 8, 8, 8 for α = 0.2, 0.47,
+    plain fit on ``park``/``sunrise`` at 32², 1 % with the splat). The splat is separable per face once Ω is
+    applied (Ω·L for a few faces at a time, in cache; a GEMM along rows per face, then one along columns; coarser
+    grids are splatted from the finest grid's flux). The node grid follows the lobe width (∝ α):
+    ``fit_face_size`` for α < 2·0.2, halved per doubling of α beyond 0.2, never below ``min_fit_face_size`` (default design: 16, 8, 8, 8 for α = 0.2, 0.47,
     0.73, 1) — rows of one α slab use one grid, so W is a few dense blocks (4096 × 1536, 12288 × 384):
     11 M multiply-adds per channel instead of 100 M for a dense 32² grid. Measured in docs/reflection.md against
     the plain fit (E0 by brute force over every capture texel, :func:`plain_e0_samples`).
@@ -283,8 +283,8 @@ def splat_flux(cubes: np.ndarray, grids: tuple[int, ...],
 
     The finest grid comes from the capture in two GEMM passes: Ω·L per chunk of faces (in cache) and the row
     splat of each face, then the column splat of every row at once; coarser grids are splatted from the finest
-    grid's flux (flux stays exact; the coarse grids serve the wide lobes). ``removed`` = (probe index (R,), flat texel index (R,) into
-    6·N·N): texels treated as black (their splatted flux is subtracted — the capture is not copied)."""
+    grid's flux (flux stays exact; the coarse grids serve the wide lobes). ``removed`` = (probe index (R,), flat
+    texel index (R,) into 6·N·N): texels treated as black (their splatted flux is subtracted — the capture is not copied)."""
     return _splat_flux(cubes, grids, removed, channel_major=False)
 
 

@@ -123,9 +123,9 @@ class CubeSHProjector:
 
 def _texel_index(directions: np.ndarray, queries: np.ndarray) -> np.ndarray:
     """Index into ``directions`` (T, 3) of each query direction (..., 3) that is one of them (to 1e-6): a lookup of
-    the coordinates rounded to 2⁻²⁰ (texel centres of any cube up to 4096² are far apart at that scale)."""
+    the coordinates rounded to 2⁻¹⁹ (texel centres of any cube up to 4096² are far apart at that scale)."""
     def code(d: np.ndarray) -> np.ndarray:
-        q = np.round(np.asarray(d) * 2**20).astype(np.int64) + 2**20  # each in [0, 2²¹]
+        q = np.round(np.asarray(d) * 2**19).astype(np.int64) + 2**19  # each in [0, 2²⁰]: 21 bits
         return (q[..., 0] << 42) | (q[..., 1] << 21) | q[..., 2]
 
     keys = code(directions)
