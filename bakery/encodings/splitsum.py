@@ -45,6 +45,7 @@ from bakery.sphere.cubemap import resample_cube
 #: Largest finite float16; prefiltered radiance above it is clamped (and counted) before storage.
 FLOAT16_MAX = 65504.0
 
+
 def store_float16(values: np.ndarray, out: np.ndarray) -> int:
     """Write float32 ``values`` into the float16 array ``out`` (same shape) clamped to :data:`FLOAT16_MAX`, without
     a full-size temporary; returns how many values were clamped."""

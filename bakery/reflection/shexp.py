@@ -492,35 +492,61 @@ def weight_tiles(settings: SHExpSettings, blocks: tuple[WeightBlock, ...], desig
 
 @lru_cache(maxsize=8)
 def build_operators(settings: SHExpSettings, capture_face_size: int | None = None) -> SHExpOperators:
-    """Build the W blocks, A, A⁺ and the pair products once per settings and capture face size (cached)."""
+    """Build the W blocks, A, A⁺ and the pair products once per settings and capture face size (cached in memory,
+    and on disk through :class:`OperatorCache` — a bake's workers load them instead of each spending ≈ 1 s)."""
+    faces = slab_face_sizes(settings, capture_face_size)
+    blocks = _design_blocks(settings, faces)
+    names = [*_DERIVED_OPERATORS, *(f"{kind}{b}" for kind in _PER_BLOCK_OPERATORS for b in range(len(blocks)))]
+    key = "shexp-W-v2-derived-v1-" + repr((settings, faces))
+    derived = {name: OperatorCache.load(f"{key}-{name}") for name in names}
+    if any(array is None for array in derived.values()):
+        derived = {name: OperatorCache.save(f"{key}-{name}", array)
+                   for name, array in _derived_operators(settings, blocks).items()}
+    derived = {name: np.asarray(array) for name, array in derived.items()}
+    for array in derived.values():
+        array.setflags(write=False)
+    per_block = {kind: tuple(derived[f"{kind}{b}"] for b in range(len(blocks))) for kind in _PER_BLOCK_OPERATORS}
+    tiles = weight_tiles(settings, blocks, derived["design_t"], derived["pinv"])
+    return SHExpOperators(blocks, derived["design"], derived["pinv"], derived["pair_products_t"],
+                          derived["log_albedo"], derived["pinv_log_albedo"], derived["design_t"],
+                          derived["albedo_design_t"], per_block["gram"], derived["design_gram_upper"],
+                          per_block["column_sums"], per_block["albedo_flux"], tiles)
+
+
+#: The environment-independent arrays :func:`_derived_operators` builds once per settings (besides W), and those it
+#: builds per W block (names suffixed with the block's index).
+_DERIVED_OPERATORS = ("design", "pinv", "pair_products_t", "log_albedo", "pinv_log_albedo", "design_t",
+                      "albedo_design_t", "design_gram_upper")
+_PER_BLOCK_OPERATORS = ("gram", "column_sums", "albedo_flux")
+
+
+def _derived_operators(settings: SHExpSettings, blocks: tuple[WeightBlock, ...]) -> dict[str, np.ndarray]:
+    """A (M, K), A⁺ (K, M) float32, the pair products, the log albedo and, per W block, the fused fit's fixed
+    operators (:class:`SHExpOperators`)."""
     v, n, a = fit_design(settings)
-    blocks = _design_blocks(settings, slab_face_sizes(settings, capture_face_size))
     design = design_matrix(v, n, a, settings)
     pinv = np.linalg.pinv(design).astype(np.float32)  # A⁺ of [SHExp] Eq. 14
     i, j = np.triu_indices(design.shape[1])
-    pair_products_t = np.ascontiguousarray((design[:, i] * design[:, j]).T, dtype=np.float32)  # G = Aᵀ diag(w) A
+    products = design[:, i] * design[:, j]  # (M, K(K+1)/2) float64: A_mi A_mj, i ≤ j
+    pair_products_t = np.ascontiguousarray(products.T, dtype=np.float32)  # G = Aᵀ diag(w) A
     if settings.albedo_normalized:
         log_albedo = np.log(np.maximum(design_albedo(v, n, a), 1e-6)).astype(np.float32)
     else:
         log_albedo = np.zeros(v.shape[0], np.float32)
-    pinv_log_albedo = (pinv @ log_albedo).astype(np.float32)
     design_t = np.ascontiguousarray(design.T, dtype=np.float32)  # Aᵀ (K, M)
     albedo_design_t = np.ascontiguousarray(design.T * log_albedo[None, :], dtype=np.float32)  # Aᵀ diag(log a)
+    out = {"design": design, "pinv": pinv, "pair_products_t": pair_products_t, "log_albedo": log_albedo,
+           "pinv_log_albedo": (pinv @ log_albedo).astype(np.float32), "design_t": design_t,
+           "albedo_design_t": albedo_design_t, "design_gram_upper": products.sum(axis=0)}  # AᵀA, i ≤ j
     # The luminance weights are linear in the flux (w = Y(W·F)/mean + w_min), so the batch Gram is
     # Σ_blocks [(A ⊙ A)ᵀ_rows · W_block] · Y(F_block) / mean + w_min · AᵀA: fixed (K(K+1)/2, 6g²) operators.
-    products = design[:, i] * design[:, j]  # (M, K(K+1)/2) float64
-    gram_operators = tuple((products[b.start : b.stop].T @ b.weights.astype(np.float64)).astype(np.float32)
-                           for b in blocks)
-    design_gram_upper = products.sum(axis=0)  # AᵀA, i ≤ j
-    column_sums = tuple(b.weights.astype(np.float64).sum(axis=0).astype(np.float32) for b in blocks)
-    albedo_flux = tuple((albedo_design_t[:, b.start : b.stop].astype(np.float64) @ b.weights).astype(np.float32)
-                        for b in blocks)
-    for array in (design, pinv, pair_products_t, log_albedo, pinv_log_albedo, design_t, albedo_design_t,
-                  design_gram_upper, *gram_operators, *column_sums, *albedo_flux):
-        array.setflags(write=False)
-    tiles = weight_tiles(settings, blocks, design_t, pinv)
-    return SHExpOperators(blocks, design, pinv, pair_products_t, log_albedo, pinv_log_albedo, design_t,
-                          albedo_design_t, gram_operators, design_gram_upper, column_sums, albedo_flux, tiles)
+    for b, block in enumerate(blocks):
+        weights = block.weights.astype(np.float64)
+        out[f"gram{b}"] = (products[block.start : block.stop].T @ weights).astype(np.float32)
+        out[f"column_sums{b}"] = weights.sum(axis=0).astype(np.float32)
+        out[f"albedo_flux{b}"] = (albedo_design_t[:, block.start : block.stop].astype(np.float64)
+                                  @ block.weights).astype(np.float32)
+    return out
 
 
 def design_e0_samples(cubes: np.ndarray, settings: SHExpSettings,
