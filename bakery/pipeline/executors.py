@@ -18,6 +18,7 @@ only the parent (even with SIGKILL) leaves no worker running. A scheduler that c
 
 from __future__ import annotations
 
+import importlib
 import multiprocessing
 import os
 import socket
@@ -78,8 +79,14 @@ def _single_threaded_children() -> Iterator[None]:
                 os.environ[key] = value
 
 
-def _worker_init(parent: int | None = None) -> None:
+def _worker_init(parent: int | None = None, modules: tuple[str, ...] = ()) -> None:
     watch_parent(parent, death_signal=True)
+    for module in modules:  # e.g. the source's (USD, Embree): imported before the first batch arrives
+        importlib.import_module(module)
+
+
+def _started() -> None:
+    """A task that only makes a pool start its workers."""
 
 
 def parent_token() -> str:
@@ -111,9 +118,18 @@ class ProcessExecutor:
         self.retries = retries
         self._pool: ProcessPoolExecutor | None = None
 
-    def _new_pool(self) -> ProcessPoolExecutor:
+    def _new_pool(self, modules: tuple[str, ...] = ()) -> ProcessPoolExecutor:
         return ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=_worker_init, initargs=(os.getpid(),))
+                                   initializer=_worker_init, initargs=(os.getpid(), modules))
+
+    def start(self, modules: tuple[str, ...] = ()) -> None:
+        """Start the workers now — spawning one and importing bakery take ≈ 1 s — so that they start while the
+        parent reads and plans the bake; ``modules`` are imported in each worker as it starts. The first
+        :meth:`run` uses this pool."""
+        if self._pool is None:
+            self._pool = self._new_pool(modules)
+            with _single_threaded_children():  # a spawn pool starts all its workers at the first submit
+                self._pool.submit(_started)
 
     def run(self, tasks: Iterable[BatchTask]) -> Iterator[BatchOutcome]:
         try:
@@ -124,7 +140,7 @@ class ProcessExecutor:
     def _run(self, pending: list[BatchTask]) -> Iterator[BatchOutcome]:
         attempts = {t.key: 0 for t in pending}
         while pending:
-            self._pool = self._new_pool()
+            self._pool = self._pool or self._new_pool()  # the pool :meth:`start` started, else a new one
             with _single_threaded_children():  # a spawn pool starts all its workers at the first submit
                 futures: dict[Future, BatchTask] = {self._pool.submit(run_batch, t): t for t in pending}
             pending = []

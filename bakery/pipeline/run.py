@@ -37,6 +37,7 @@ import threading
 import time
 import warnings
 from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -533,6 +534,9 @@ def with_rates(timings: dict[str, float]) -> dict[str, float]:
 
 def _bake_locked(request: BakeRequest, executor: Executor, progress: Callable[[int, int], None] | None,
                  source: Source, start: float) -> BakeSummary:
+    start_workers = getattr(executor, "start", None)
+    if start_workers is not None:  # the workers start (spawn, imports) while the parent reads and plans
+        start_workers((type(source).__module__,))
     previous = load_previous(request.output) if request.resume else None
     source, plan = plan_bake(request, source, previous)
     settings = request.settings
@@ -588,18 +592,24 @@ def commit_outputs(request: BakeRequest, source: Source, merged: EncodedBatch,
     staged_store = staged_path(output)
     staged_layer = staged_path(layer, layer.suffix) if layer is not None else None
     try:
-        write_store_file(staged_store, contents)
         pairs = [(staged_store, output)]
         if layer is not None:
-            try:
-                extra = source.after_write(merged, contents, replace(request, layer=staged_layer))
-            except Exception as error:
-                if _is_usd_error(error) or isinstance(error, bakery.errors.SceneError):
-                    raise OutputError(f"{layer}: USD could not write the layer: {_usd_reason(error, layer)}") from None
-                raise
+            # The store (HDF5) and the layer (USD) are written side by side: separate files, each by one thread.
+            with ThreadPoolExecutor(1, thread_name_prefix="bakery-store") as store_writer:
+                store_written = store_writer.submit(write_store_file, staged_store, contents)
+                try:
+                    extra = source.after_write(merged, contents, replace(request, layer=staged_layer))
+                except Exception as error:
+                    store_written.exception()  # the store's thread is done before its file is removed
+                    if _is_usd_error(error) or isinstance(error, bakery.errors.SceneError):
+                        raise OutputError(f"{layer}: USD could not write the layer: {_usd_reason(error, layer)}") \
+                            from None
+                    raise
+                store_written.result()
             extra["layer"] = str(layer)
             pairs.append((staged_layer, layer))
         else:
+            write_store_file(staged_store, contents)
             extra = source.after_write(merged, contents, request)
         commit_staged(pairs, commit_record_path(output))
         return extra
