@@ -128,8 +128,9 @@ class ProcessExecutor:
         :meth:`run` uses this pool."""
         if self._pool is None:
             self._pool = self._new_pool(modules)
-            with _single_threaded_children():  # a spawn pool starts all its workers at the first submit
-                self._pool.submit(_started)
+            with _single_threaded_children():  # a spawn pool starts a worker per submit while none is idle
+                for _ in range(self.workers):
+                    self._pool.submit(_started)
 
     def run(self, tasks: Iterable[BatchTask]) -> Iterator[BatchOutcome]:
         try:
@@ -141,7 +142,7 @@ class ProcessExecutor:
         attempts = {t.key: 0 for t in pending}
         while pending:
             self._pool = self._pool or self._new_pool()  # the pool :meth:`start` started, else a new one
-            with _single_threaded_children():  # a spawn pool starts all its workers at the first submit
+            with _single_threaded_children():  # a spawn pool starts its workers as the tasks are submitted
                 futures: dict[Future, BatchTask] = {self._pool.submit(run_batch, t): t for t in pending}
             pending = []
             broken = False

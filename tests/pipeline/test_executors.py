@@ -47,6 +47,33 @@ def test_longest_first_order_does_not_change_the_store(tmp_path, monkeypatch):
     assert (tmp_path / "serial.h5").read_bytes() == (tmp_path / "pool.h5").read_bytes()
 
 
+
+def _imported(module: str) -> bool:
+    import sys
+
+    return module in sys.modules
+
+
+def test_started_workers_import_the_modules_they_are_given_and_run_with_one_blas_thread():
+    """``start`` spawns the pool early (while the parent plans) with the source's module imported in every worker;
+    the tasks then run in that pool, single-threaded as any worker; ``close`` ends it."""
+    executor = ProcessExecutor(2)
+    executor.start(("bakery.sources.usd_scene",))
+    pool = executor._pool
+    try:
+        assert pool is not None
+        assert all(pool.submit(_imported, "bakery.sources.usd_scene").result(timeout=120) for _ in range(4))
+        seen = pool.submit(_environment_of_worker).result(timeout=120)
+        assert seen["OPENBLAS_NUM_THREADS"] == "1" and seen["OMP_NUM_THREADS"] == "1"
+        processes = list(pool._processes.values())
+        assert len(processes) == 2
+    finally:
+        executor.close()
+    assert executor._pool is None
+    for process in processes:
+        process.join(timeout=30)
+        assert not process.is_alive()
+
 def test_merge_releases_each_batch_field_once_merged_with_the_same_result():
     """``release_inputs`` frees the batches' fields as they are merged (the parent's peak), and the merge is the same
     arrays, in the requested order, as without it (closed form: each probe's row is its own values)."""
