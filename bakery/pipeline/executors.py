@@ -82,7 +82,10 @@ def _single_threaded_children() -> Iterator[None]:
 def _worker_init(parent: int | None = None, modules: tuple[str, ...] = ()) -> None:
     watch_parent(parent, death_signal=True)
     for module in modules:  # e.g. the source's (USD, Embree): imported before the first batch arrives
-        importlib.import_module(module)
+        try:
+            importlib.import_module(module)
+        except Exception:  # noqa: BLE001 - a warm-up only: a batch that needs the module reports its own error
+            pass
 
 
 def _started() -> None:

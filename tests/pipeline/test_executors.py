@@ -102,3 +102,12 @@ def test_merge_releases_each_batch_field_once_merged_with_the_same_result():
         np.testing.assert_array_equal(released.encoded["sh2"][field], kept.encoded["sh2"][field])
     np.testing.assert_array_equal(released.encoded["sh2"]["coefficients"][:, 0], [0.0, 1.0, 2.0, 3.0])
     assert [p.name for p in released.probes] == order
+
+
+def test_a_module_that_cannot_be_imported_does_not_break_a_started_pool():
+    executor = ProcessExecutor(1)
+    executor.start(("bakery.no_such_module",))
+    try:
+        assert executor._pool.submit(_imported, "bakery.pipeline.worker").result(timeout=120)
+    finally:
+        executor.close()
