@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from bakery.sh.basis import evaluate_sh_basis
+from bakery.sphere.cubemap import direction_to_cube_texel
 
 
 class SHProjector:
@@ -89,7 +90,12 @@ class CubeSHProjector:
         representatives = np.flatnonzero((directions > 0).all(axis=1))
         if representatives.size * 8 != directions.shape[0]:
             raise ValueError("the reflection-symmetric projection needs a cube with an even face size")
-        self.orbits = _texel_index(directions, directions[representatives][None] * AXIS_REFLECTIONS[:, None, :])
+        reflected = directions[representatives][None] * AXIS_REFLECTIONS[:, None, :]  # (8, T/8, 3)
+        n = int(round(np.sqrt(directions.shape[0] / 6)))
+        face, row, col = direction_to_cube_texel(reflected, n)
+        self.orbits = (face * n + row) * n + col  # (8, T/8) flat [face, row, column] index
+        if not np.allclose(directions[self.orbits], reflected, atol=1e-9):
+            raise ValueError("directions must be the texel centres of a cube (cube_texel_directions), in its order")
         # equal up to the rounding of their closed form (≤ 1e-9 relative, far below float32's)
         if not np.allclose(solid_angles[self.orbits], solid_angles[representatives][None], rtol=1e-9, atol=0):
             raise ValueError("texel solid angles are not reflection-symmetric")
@@ -120,17 +126,3 @@ class CubeSHProjector:
                 out[idx] = basis.T @ folded[k]
         return out
 
-
-def _texel_index(directions: np.ndarray, queries: np.ndarray) -> np.ndarray:
-    """Index into ``directions`` (T, 3) of each query direction (..., 3) that is one of them (to 1e-6): a lookup of
-    the coordinates rounded to 2⁻¹⁹ (texel centres of any cube up to 4096² are far apart at that scale)."""
-    def code(d: np.ndarray) -> np.ndarray:
-        q = np.round(np.asarray(d) * 2**19).astype(np.int64) + 2**19  # each in [0, 2²⁰]: 21 bits
-        return (q[..., 0] << 42) | (q[..., 1] << 21) | q[..., 2]
-
-    keys = code(directions)
-    order = np.argsort(keys)
-    found = order[np.clip(np.searchsorted(keys, code(queries), sorter=order), 0, keys.size - 1)]
-    if not np.allclose(directions[found], queries, atol=1e-6):
-        raise ValueError("a reflected texel centre is not a texel centre of the cube")
-    return found
