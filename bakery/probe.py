@@ -6,6 +6,7 @@ A probe's capture is a cube map on the bake grid (:mod:`bakery.sphere.cubemap`, 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -38,7 +39,11 @@ class Probe:
 
         if not self.kinds or any(k not in PROBE_KINDS for k in self.kinds):
             raise ConfigError(f"{self.name}: probe kinds must be a non-empty subset of {PROBE_KINDS}, got {self.kinds}")
-        if len(self.position) != 3 or not np.all(np.isfinite(np.asarray(self.position, dtype=np.float64))):
+        try:
+            finite = len(self.position) == 3 and all(math.isfinite(float(x)) for x in self.position)
+        except (TypeError, ValueError):
+            finite = False
+        if not finite:
             raise ConfigError(f"{self.name}: probe position must be three finite numbers, got {self.position}")
 
 

@@ -70,7 +70,14 @@ _TAGS = ("__list__", "__dict__", "__ndarray__", "__float__")
 # Tagged JSON values
 def _encode(value: Any) -> Any:
     """A JSON-able form of ``value`` that :func:`_decode` turns back into an equal value of the same type."""
-    if value is None or isinstance(value, (bool, str)):
+    kind = type(value)  # exact built-in types first (a scene has thousands of probes): same result, fewer checks
+    if kind is str or kind is int or kind is bool or value is None:
+        return value
+    if kind is float:
+        return value if math.isfinite(value) else {"__float__": repr(value)}
+    if kind is tuple:
+        return [_encode(v) for v in value]
+    if isinstance(value, (bool, str)):
         return value
     if isinstance(value, np.generic):
         return _encode(value.item())
@@ -115,8 +122,14 @@ def _decode(value: Any) -> Any:
     return value
 
 
+_FIELD_NAMES: dict[type, tuple[str, ...]] = {}
+
+
 def _fields(obj: Any, skip: tuple[str, ...] = ()) -> dict[str, Any]:
-    return {f.name: _encode(getattr(obj, f.name)) for f in dataclasses.fields(obj) if f.name not in skip}
+    names = _FIELD_NAMES.get(type(obj))
+    if names is None:
+        names = _FIELD_NAMES[type(obj)] = tuple(f.name for f in dataclasses.fields(obj))
+    return {name: _encode(getattr(obj, name)) for name in names if name not in skip}
 
 
 def _build(cls: type, record: dict[str, Any], **extra: Any) -> Any:

@@ -17,6 +17,8 @@ layout is unchanged; the range used is recorded per probe in ``diagnostics/fit_a
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 STEP = 0.1
@@ -28,20 +30,45 @@ def influence_radius(influence: dict) -> float:
     return float(influence.get("radius_m", 0.0))
 
 
+@dataclass(frozen=True)
+class TriangleBounds:
+    """Bounding spheres of a scene's triangles, computed once for every probe's roughness query.
+
+    Attributes:
+        centres: (T, 3) float64 triangle centroids (bake frame, metres).
+        spans: (T,) float64 largest centroid-to-vertex distance of each triangle.
+        mesh: (T,) int index of the triangle's mesh.
+        roughness: (M,) float64 perceptual roughness of each mesh's material.
+    """
+
+    centres: np.ndarray
+    spans: np.ndarray
+    mesh: np.ndarray
+    roughness: np.ndarray
+
+    @classmethod
+    def of(cls, meshes) -> TriangleBounds:  # noqa: ANN001 - capture dataclasses
+        centres, spans, owner = [], [], []
+        for index, mesh in enumerate(meshes):
+            triangles = np.asarray(mesh.triangles, dtype=np.float64).reshape(-1, 3, 3)
+            mid = triangles.mean(axis=1)
+            centres.append(mid)
+            spans.append(np.linalg.norm(triangles - mid[:, None, :], axis=2).max(axis=1, initial=0.0))
+            owner.append(np.full(len(mid), index, dtype=np.int64))
+        roughness = np.array([float(mesh.material.roughness) for mesh in meshes], dtype=np.float64)
+        if not centres:
+            return cls(np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=np.int64), roughness)
+        return cls(np.concatenate(centres), np.concatenate(spans), np.concatenate(owner), roughness)
+
+
 def visible_roughness(position, influence: dict, meshes) -> list[float]:  # noqa: ANN001 - capture dataclasses
-    """Perceptual roughness of every material with a triangle inside the influence bound of a probe at ``position``."""
+    """Perceptual roughness of every material (in mesh order) with a triangle inside the influence bound of a probe
+    at ``position``. ``meshes``: the scene's meshes or their :class:`TriangleBounds` (once for many probes)."""
+    bounds = meshes if isinstance(meshes, TriangleBounds) else TriangleBounds.of(meshes)
     radius = influence_radius(influence)
     p = np.asarray(position, dtype=np.float64)
-    found = []
-    for mesh in meshes:
-        triangles = np.asarray(mesh.triangles, dtype=np.float64)
-        if triangles.size == 0:
-            continue
-        centres = triangles.mean(axis=1)
-        spans = np.linalg.norm(triangles - centres[:, None, :], axis=2).max(axis=1)
-        if np.any(np.linalg.norm(centres - p, axis=1) <= radius + spans):
-            found.append(float(mesh.material.roughness))
-    return found
+    inside = np.linalg.norm(bounds.centres - p, axis=1) <= radius + bounds.spans
+    return [float(bounds.roughness[m]) for m in np.unique(bounds.mesh[inside]).tolist()]
 
 
 def fit_alpha_range(roughness: list[float]) -> tuple[float, float] | None:

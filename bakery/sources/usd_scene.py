@@ -105,7 +105,7 @@ class UsdSceneSource(Source):
     # -- parent ---------------------------------------------------------------------------------------------------
     def plan(self, settings, previous) -> SourcePlan:  # noqa: ANN001, ARG002
         from bakery.pipeline.dependencies import environment_hash, light_table
-        from bakery.pipeline.roughness import fit_alpha_range, visible_roughness
+        from bakery.pipeline.roughness import TriangleBounds, fit_alpha_range, visible_roughness
         from bakery.usd.scene import read_scene
 
         reading = read_scene(self.path, time=self.capture_settings.time,
@@ -124,13 +124,15 @@ class UsdSceneSource(Source):
         roughness_notes: list[dict[str, str]] = []
         from bakery.files import sha256_file
 
+        bounds = None  # the triangles' bounding spheres, once for every reflection probe's roughness range
         for index, spec in enumerate(reading.scene.probes):
             probe_settings: dict[str, Any] = {"encodings": list(spec.encodings)} if spec.encodings else {}
             if spec.influence:
                 probe_settings["influence"] = spec.influence
             if spec.kind == "reflection" and ranged:
-                alpha_range = fit_alpha_range(visible_roughness(spec.position, spec.influence or {},
-                                                                reading.scene.meshes))
+                if bounds is None:
+                    bounds = TriangleBounds.of(reading.scene.meshes)
+                alpha_range = fit_alpha_range(visible_roughness(spec.position, spec.influence or {}, bounds))
                 if alpha_range is not None:
                     fit_range = {"alpha_min": alpha_range[0], "alpha_max": alpha_range[1]}
                     probe_settings["encoding_settings"] = {name: dict(fit_range) for name in ranged}
