@@ -106,8 +106,8 @@ def _encode(value: Any) -> Any:
 
 
 def _decode(value: Any) -> Any:
-    if isinstance(value, list):
-        return tuple(_decode(v) for v in value)
+    if isinstance(value, list):  # JSON scalars are their own decoding: no call for them (thousands of probes)
+        return tuple([_decode(v) if type(v) is list or type(v) is dict else v for v in value])
     if isinstance(value, dict):
         if "__list__" in value:
             return [_decode(v) for v in value["__list__"]]
@@ -133,8 +133,10 @@ def _fields(obj: Any, skip: tuple[str, ...] = ()) -> dict[str, Any]:
 
 
 def _build(cls: type, record: dict[str, Any], **extra: Any) -> Any:
-    names = {f.name for f in dataclasses.fields(cls)}
-    values = {k: _decode(v) for k, v in record.items() if k in names}
+    names = _FIELD_NAMES.get(cls)
+    if names is None:
+        names = _FIELD_NAMES[cls] = tuple(f.name for f in dataclasses.fields(cls))
+    values = {k: _decode(v) if type(v) is list or type(v) is dict else v for k, v in record.items() if k in names}
     values.update(extra)
     return cls(**values)
 
