@@ -36,9 +36,11 @@ scene, e.g. a session or shot layer with ``subLayers = [@scene.bake.usda@, @scen
 from __future__ import annotations
 
 import json
+import math
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -67,7 +69,7 @@ class BakedPrim:
         """(fields small enough for the layer, ``<encoding>:<field>`` names of the others)."""
         small, large = {}, []
         for name, array in self.fields.items():
-            per_probe = int(np.prod(np.shape(array)[1:], dtype=np.int64))
+            per_probe = math.prod(np.shape(array)[1:])
             if per_probe > MAX_VALUES_PER_PROBE:
                 large.append(name.split(":", 2)[2])
             else:
@@ -103,6 +105,12 @@ def usd_type_for(dtype: str | np.dtype, shape: tuple[int, ...]) -> Sdf.ValueType
     if kind.kind in "iu":
         return Sdf.ValueTypeNames.IntArray
     raise SceneError(f"cannot write a {kind} array as a USD attribute")
+
+
+@lru_cache(maxsize=256)
+def _shape_array(shape: tuple[int, ...]) -> Vt.IntArray:
+    """A field's per-probe shape as the ``customData["shape"]`` value (one per shape: thousands of prims share it)."""
+    return Vt.IntArray(list(shape))
 
 
 def _usd_value(array: np.ndarray) -> tuple[Sdf.ValueTypeName, object, np.ndarray]:
@@ -262,7 +270,7 @@ def write_bake_layer(
             type_name, value, data = _usd_value(small[name])
             attr = Sdf.AttributeSpec(spec, name, type_name, Sdf.VariabilityVarying)
             attr.default = value
-            attr.customData = {"shape": Vt.IntArray(list(data.shape[1:])), "probeCount": baked.probe_count}
+            attr.customData = {"shape": _shape_array(data.shape[1:]), "probeCount": baked.probe_count}
             written[name] = data
         for encoding in baked.encodings:
             if encoding_settings is None or encoding not in encoding_settings:
