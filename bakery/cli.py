@@ -425,10 +425,12 @@ def bench_splitsum(environments: tuple[Path, ...], output: Path, face_size: int,
 @click.option("--recipe", default="console", show_default=True)
 @click.option("--face-size", type=int, default=16, show_default=True)
 @click.option("--jobs", "jobs", default="1,2", show_default=True, help="Worker counts to run, comma-separated.")
+@click.option("--repeats", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Bake each worker count this many times, alternating; report the median of each.")
 @click.option("--production", is_flag=True,
               help="Issue 14's production scene: 10,000 irradiance probes at 32², 1,000 reflection probes at 128² "
                    "(console recipe), 2 workers, KTX2 export; overrides the other options.")
-def bench_scale(output: Path, volume: str, reflection: int, recipe: str, face_size: int, jobs: str,
+def bench_scale(output: Path, volume: str, reflection: int, recipe: str, face_size: int, jobs: str, repeats: int,
                 production: bool) -> None:
     """Wall time, per-stage timings, peak memory and store size of a generated large scene."""
     from bakery.bench.scale import PRODUCTION, run_scale_bench
@@ -437,10 +439,11 @@ def bench_scale(output: Path, volume: str, reflection: int, recipe: str, face_si
         return _Progress(console.is_terminal)
 
     if production:
-        result = run_scale_bench(output, **PRODUCTION, progress_bar=progress_bar)
+        result = run_scale_bench(output, **PRODUCTION, progress_bar=progress_bar, repeats=repeats)
     else:
         result = run_scale_bench(output, tuple(int(v) for v in volume.split(",")), reflection, recipe, face_size,
-                                 jobs=tuple(int(j) for j in jobs.split(",")), progress_bar=progress_bar)
+                                 jobs=tuple(int(j) for j in jobs.split(",")), progress_bar=progress_bar,
+                                 repeats=repeats)
     out.print_json(json.dumps(result))
 
 

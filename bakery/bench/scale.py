@@ -178,25 +178,37 @@ def _stages(timings: dict[str, float]) -> dict[str, float]:
             "merge_finalize_write": timings.get("parent/merge_finalize_write", 0.0)}
 
 
+def _median_run(trials: list[dict[str, Any]]) -> dict[str, Any]:
+    """The trial of median wall time (the lower middle of an even count), with every trial's wall seconds."""
+    ordered = sorted(trials, key=lambda t: t["wall_seconds"])
+    return {**ordered[(len(ordered) - 1) // 2], "wall_seconds_runs": [t["wall_seconds"] for t in trials]}
+
+
 def run_scale_bench(out_dir: Path, volume_counts=(25, 16, 25), reflection: int = 1000, recipe: str = "console",
                     face_size: int = 16, jobs: tuple[int, ...] = (1, 2), reflection_resolution: int = 0,
                     encoding_settings: dict[str, dict] | None = None, exports: tuple[str, ...] = (),
-                    progress_bar: ProgressBar | None = None) -> dict:
+                    progress_bar: ProgressBar | None = None, repeats: int = 1) -> dict:
     """Bake the generated scene with each worker count (then export the last store in each of ``exports``);
     returns and writes ``scale.json``.
 
     Per run: wall seconds, peak memory of the parent, of the largest worker and of all workers together, store size,
     probes/s, capture rays/s, the parent's stages and the summed worker seconds per step (``capture_seconds``,
-    ``encode/<encoding>``, ``diagnostics/…``; summed over workers, so they exceed the wall time with 2 workers)."""
+    ``encode/<encoding>``, ``diagnostics/…``; summed over workers, so they exceed the wall time with 2 workers).
+
+    With ``repeats`` > 1 the worker counts alternate (1, 2, 1, 2, …: the shared machine's drift falls on both) and each
+    count reports its median-wall trial, with every trial's wall time in ``wall_seconds_runs``; ``speedup_1_to_2``
+    is then the ratio of the median walls, ``speedup_1_to_2_runs`` the ratio within each repetition."""
     out_dir.mkdir(parents=True, exist_ok=True)
     scene = generate_scene(out_dir / "scene", volume_counts, reflection, reflection_resolution)
     if encoding_settings is None and reflection_resolution:
         encoding_settings = reflection_at_capture_size(recipe, reflection_resolution)
-    runs = {}
+    trials: dict[int, list[dict[str, Any]]] = {n: [] for n in jobs}
     store = out_dir / "hall.h5"
-    for n in jobs:
-        store = out_dir / f"hall-j{n}.h5"
-        runs[n] = _measured_bake(scene, store, recipe, face_size, n, encoding_settings, progress_bar)
+    for _ in range(max(1, repeats)):
+        for n in jobs:
+            store = out_dir / f"hall-j{n}.h5"
+            trials[n].append(_measured_bake(scene, store, recipe, face_size, n, encoding_settings, progress_bar))
+    runs = {n: _median_run(t) for n, t in trials.items()}
     exported = {}
     if exports:
         from bakery.export import export_store
@@ -217,6 +229,7 @@ def run_scale_bench(out_dir: Path, volume_counts=(25, 16, 25), reflection: int =
         result["total_seconds"] = runs[jobs[-1]]["wall_seconds"] + sum(e["seconds"] for e in exported.values())
     if 1 in runs and 2 in runs:
         result["speedup_1_to_2"] = runs[1]["wall_seconds"] / runs[2]["wall_seconds"]
+        result["speedup_1_to_2_runs"] = [a["wall_seconds"] / b["wall_seconds"] for a, b in zip(trials[1], trials[2])]
     (out_dir / "scale.json").write_text(json.dumps(result, indent=2))
     return result
 
