@@ -146,19 +146,16 @@ def _update_by_rows(digests: list[Any], index: np.ndarray, header: bytes, keys: 
     rows = len(index)
     if rows == 0:
         return
-    prefixes = [np.frombuffer(header, dtype=np.uint8)]
-    row_bytes = len(header)
-    for key in keys:
-        prefix = _field_prefix(key, arrays[key])
-        row_bytes += len(prefix) + arrays[key][:1].nbytes
-    block = max(1, _CHECKSUM_BLOCK_BYTES // max(1, row_bytes))
+    prefixes = {key: np.frombuffer(_field_prefix(key, arrays[key]), dtype=np.uint8) for key in keys}
+    row_bytes = len(header) + sum(prefixes[key].size + arrays[key][:1].nbytes for key in keys)
+    block = max(1, _CHECKSUM_BLOCK_BYTES // row_bytes)
+    header_bytes = np.frombuffer(header, dtype=np.uint8)
     probes = index.tolist()
     for start in range(0, rows, block):
         stop = min(rows, start + block)
-        columns = [np.broadcast_to(prefixes[0], (stop - start, len(header)))]
+        columns = [np.broadcast_to(header_bytes, (stop - start, header_bytes.size))]
         for key in keys:
-            prefix = np.frombuffer(_field_prefix(key, arrays[key]), dtype=np.uint8)
-            columns.append(np.broadcast_to(prefix, (stop - start, prefix.size)))
+            columns.append(np.broadcast_to(prefixes[key], (stop - start, prefixes[key].size)))
             columns.append(arrays[key][start:stop].reshape(stop - start, -1).view(np.uint8))
         matrix = np.concatenate(columns, axis=1)
         for row in range(start, stop):

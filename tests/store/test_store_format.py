@@ -101,6 +101,36 @@ def test_every_fixed_size_dataset_has_fletcher32_and_checksums_verify(tmp_path):
     assert read.integrity.verified and read.integrity.ok
 
 
+@given(count=st.integers(1, 12), seed=st.integers(0, 2**16))
+def test_per_probe_checksums_are_the_specs_sha256(tmp_path_factory, count, seed):
+    """``/checksums/probe`` against schemas/store-v1.md "Integrity", built here byte by byte from the spec: two
+    encodings, one covering a permuted subset of the probes, fields of several dtypes and row shapes."""
+    from bakery.files import sha256_digest
+
+    rng = np.random.default_rng(seed)
+    written = contents(rng, count, "float32")
+    rows = rng.permutation(count)[: max(1, count // 2)].astype(np.int32)
+    written.encodings["d"] = {"attributes": {"kind": "reflection", "encoding_version": "1.0.0"},
+                              "fields": {"probe_index": rows, "scalar": rng.normal(size=len(rows)),
+                                         "codes": rng.integers(0, 256, size=(len(rows), 2, 2)).astype(np.uint8)}}
+    path = tmp_path_factory.mktemp("cs") / "s.h5"
+    write_store(path, written)
+    with h5py.File(path, "r") as f:
+        stored = f["checksums/probe"][()]
+    for i in range(count):
+        parts = [b"probe\0", written.probe_names[i].encode(), b"\0", written.probe_kinds[i].encode(), b"\0",
+                 np.asarray(written.probe_positions[i], dtype="<f8").tobytes(), written.probe_hashes[i].encode(),
+                 b"\0", np.asarray(written.probe_bake_ids[i], dtype="<i4").tobytes()]
+        for name in sorted(written.encodings):
+            fields = written.encodings[name]["fields"]
+            for r in np.flatnonzero(np.asarray(fields["probe_index"]) == i):
+                parts += [b"encoding\0", name.encode(), b"\0"]
+                for key in sorted(k for k in fields if k != "probe_index"):
+                    row = np.asarray(fields[key])[r]
+                    parts += [key.encode(), b"\0", row.dtype.str.encode(), repr(row.shape).encode(), row.tobytes()]
+        assert sha256_digest(*parts) == stored[i].tobytes(), i
+
+
 @pytest.mark.parametrize("row", [0, 3])
 def test_a_changed_value_names_the_dataset_and_the_probe(tmp_path, row):
     path = tmp_path / "s.h5"
