@@ -3,7 +3,9 @@
 - :class:`SerialExecutor` — in-process (``--jobs 1``); the reference for determinism.
 - :class:`ProcessExecutor` — a spawn-context process pool of N workers (default: the number of cores). A worker
   that dies (killed, out of memory) breaks the pool; the pool is rebuilt and unfinished tasks are resubmitted, each
-  at most ``retries`` times, after which the task is reported as failed.
+  at most ``retries`` times, after which the task is reported as failed. A pool that broke before it was given the
+  tasks (a worker killed while the pool that :meth:`~ProcessExecutor.start` spawned during planning waits) is
+  rebuilt without counting an attempt, at most ``retries`` times.
 - :class:`DaskExecutor` — Dask distributed: an existing scheduler (``tcp://host:port``) or a ``LocalCluster``.
   Dask retries tasks whose worker died (``retries``).
 
@@ -131,9 +133,13 @@ class ProcessExecutor:
         :meth:`run` uses this pool."""
         if self._pool is None:
             self._pool = self._new_pool(modules)
-            with _single_threaded_children():  # a spawn pool starts a worker per submit while none is idle
-                for _ in range(self.workers):
-                    self._pool.submit(_started)
+            try:
+                with _single_threaded_children():  # a spawn pool starts a worker per submit while none is idle
+                    for _ in range(self.workers):
+                        self._pool.submit(_started)
+            except BrokenProcessPool:  # a worker died at once: :meth:`run` starts a new pool
+                self._pool.shutdown(wait=True, cancel_futures=True)
+                self._pool = None
 
     def run(self, tasks: Iterable[BatchTask]) -> Iterator[BatchOutcome]:
         try:
@@ -143,10 +149,21 @@ class ProcessExecutor:
 
     def _run(self, pending: list[BatchTask]) -> Iterator[BatchOutcome]:
         attempts = {t.key: 0 for t in pending}
+        restarts = 0  # pools found broken before they were given the batches (a worker killed while starting)
         while pending:
             self._pool = self._pool or self._new_pool()  # the pool :meth:`start` started, else a new one
-            with _single_threaded_children():  # a spawn pool starts its workers as the tasks are submitted
-                futures: dict[Future, BatchTask] = {self._pool.submit(run_batch, t): t for t in pending}
+            try:
+                with _single_threaded_children():  # a spawn pool starts its workers as the tasks are submitted
+                    futures: dict[Future, BatchTask] = {self._pool.submit(run_batch, t): t for t in pending}
+            except BrokenProcessPool:  # no batch ran in it: a new pool, the batches not counted as attempted
+                self._pool.shutdown(wait=True, cancel_futures=True)
+                self._pool = None
+                restarts += 1
+                if restarts > self.retries:
+                    for task in pending:
+                        yield _failed(task, f"the worker processes died {restarts} times before this batch started")
+                    return
+                continue
             pending = []
             broken = False
             while futures:

@@ -111,3 +111,35 @@ def test_a_module_that_cannot_be_imported_does_not_break_a_started_pool():
         assert executor._pool.submit(_imported, "bakery.pipeline.worker").result(timeout=120)
     finally:
         executor.close()
+
+
+def test_a_pool_broken_before_the_batches_are_given_is_rebuilt(tmp_path, monkeypatch):
+    """A worker of the pool that :meth:`start` spawned during planning is killed before any batch is submitted (the
+    pool is broken at submit time): the bake rebuilds the pool and writes the serial bake's bytes."""
+    import signal
+    import time
+
+    import bakery
+    from usd_scenes import header, material, plane_mesh, probe, write
+
+    text = (header() + material("Grey", diffuse=(0.5, 0.5, 0.5)) + plane_mesh("Floor", 5.0, "/Grey")
+            + "".join(probe(f"I{i}", (0.5 * i, 1.0, 0.0)) for i in range(3)))
+    scene = write(tmp_path / "s.usda", text)
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "1700000000")
+    kw = dict(encodings=("sh3",), face_size=4, samples=1, bounces=0, resume=False, batch_size=1)
+    bakery.bake(scene, tmp_path / "serial.h5", jobs=1, layer=tmp_path / "serial.bake.usda", **kw)
+    executor = ProcessExecutor(2)
+    try:
+        executor.start(("bakery.sources.usd_scene",))
+        pool = executor._pool
+        assert pool.submit(_imported, "bakery.sources.usd_scene").result(timeout=120)
+        os.kill(next(iter(pool._processes.values())).pid, signal.SIGKILL)
+        deadline = time.monotonic() + 60
+        while not pool._broken and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert pool._broken
+        summary = bakery.bake(scene, tmp_path / "pool.h5", executor=executor, layer=tmp_path / "pool.bake.usda", **kw)
+    finally:
+        executor.close()
+    assert not summary.failed
+    assert (tmp_path / "serial.h5").read_bytes() == (tmp_path / "pool.h5").read_bytes()
