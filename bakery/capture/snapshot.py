@@ -125,17 +125,20 @@ def _decode(value: Any) -> Any:
 _FIELD_NAMES: dict[type, tuple[str, ...]] = {}
 
 
-def _fields(obj: Any, skip: tuple[str, ...] = ()) -> dict[str, Any]:
-    names = _FIELD_NAMES.get(type(obj))
-    if names is None:
-        names = _FIELD_NAMES[type(obj)] = tuple(f.name for f in dataclasses.fields(obj))
-    return {name: _encode(getattr(obj, name)) for name in names if name not in skip}
-
-
-def _build(cls: type, record: dict[str, Any], **extra: Any) -> Any:
+def _field_names(cls: type) -> tuple[str, ...]:
+    """A dataclass's field names, once per class (a scene has thousands of probes)."""
     names = _FIELD_NAMES.get(cls)
     if names is None:
         names = _FIELD_NAMES[cls] = tuple(f.name for f in dataclasses.fields(cls))
+    return names
+
+
+def _fields(obj: Any, skip: tuple[str, ...] = ()) -> dict[str, Any]:
+    return {name: _encode(getattr(obj, name)) for name in _field_names(type(obj)) if name not in skip}
+
+
+def _build(cls: type, record: dict[str, Any], **extra: Any) -> Any:
+    names = _field_names(cls)
     values = {k: _decode(v) if type(v) is list or type(v) is dict else v for k, v in record.items() if k in names}
     values.update(extra)
     return cls(**values)

@@ -138,8 +138,7 @@ class ProcessExecutor:
                     for _ in range(self.workers):
                         self._pool.submit(_started)
             except BrokenProcessPool:  # a worker died at once: :meth:`run` starts a new pool
-                self._pool.shutdown(wait=True, cancel_futures=True)
-                self._pool = None
+                self._drop_pool()
 
     def run(self, tasks: Iterable[BatchTask]) -> Iterator[BatchOutcome]:
         try:
@@ -156,8 +155,7 @@ class ProcessExecutor:
                 with _single_threaded_children():  # a spawn pool starts its workers as the tasks are submitted
                     futures: dict[Future, BatchTask] = {self._pool.submit(run_batch, t): t for t in pending}
             except BrokenProcessPool:  # no batch ran in it: a new pool, the batches not counted as attempted
-                self._pool.shutdown(wait=True, cancel_futures=True)
-                self._pool = None
+                self._drop_pool()
                 restarts += 1
                 if restarts > self.retries:
                     for task in pending:
@@ -189,8 +187,12 @@ class ProcessExecutor:
                         else:
                             pending.append(task)
                     futures = {}
-            self._pool.shutdown(wait=True, cancel_futures=True)
-            self._pool = None
+            self._drop_pool()
+
+    def _drop_pool(self) -> None:
+        """Shut down the current pool (done, or broken) and forget it: the next :meth:`run` starts a new one."""
+        pool, self._pool = self._pool, None
+        pool.shutdown(wait=True, cancel_futures=True)
 
     def close(self) -> None:
         """Stop a pool that is still running: terminate its workers (a running batch would otherwise finish first),
