@@ -18,8 +18,8 @@ What is read (``docs/capture.md``)
     Probes (bakery schema types); every UsdLux light through its class in :mod:`bakery.capture.lights`
     (Sphere, Disk, Rect with texture, Cylinder, Distant; ShapingAPI; color temperature; ``inputs:*`` attributes,
     else the legacy un-namespaced ones), Dome/DomeLight_1, GeometryLight (emission on its meshes), PortalLight (a
-    dome sampling guide); meshes (fan-triangulated, catmullClark refined ``subdivision`` levels), Sphere and Cube
-    gprims (tessellated), point instancers and native instances (instance proxies), with payloads loaded;
+    dome sampling guide); meshes (fan-triangulated, catmullClark refined ``subdivision`` levels), Sphere, Cube,
+    Cylinder(_1), Cone, Capsule(_1) and Plane gprims (tessellated, :mod:`bakery.usd.gprims`), point instancers and native instances (instance proxies), with payloads loaded;
     texture coordinates for textured materials; UsdPreviewSurface and MaterialX materials
     (:mod:`bakery.usd.materials`, :mod:`bakery.usd.mtlx`). Invisible prims and ``guide``/``proxy`` purposes are
     skipped. Composition errors (unparsable sublayers, missing references and payloads) are errors. The stage is
@@ -36,9 +36,10 @@ import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
 
 from bakery.capture.lights import LIGHT_MODELS, Placement
-from bakery.capture.scene import CaptureScene, Dome, Light, Mesh, ProbeSpec
+from bakery.capture.scene import CaptureScene, Dome, Light, Material, Mesh, ProbeSpec
 from bakery.environment.io import is_8bit_image, read_environment
 from bakery.errors import ImageError, SceneError
+from bakery.usd import gprims
 from bakery.usd.assets import local_asset_path
 from bakery.usd.color import WORKING_SPACE, ColorSpaceError, to_working_space
 from bakery.usd.materials import MaterialReader, srgb_to_linear
@@ -116,6 +117,11 @@ class _Frame:
         if pre is not None:
             m3 = pre @ m3
         return (m3 @ self.axes).T
+
+
+def _emits(material: Material) -> bool:
+    """Whether a surface emits: a positive emissive colour or a textured one (GeometryLights are folded in)."""
+    return max(material.emission) > 0 or any(m["input"] == "emissiveColor" for m in material.maps)
 
 
 def blackbody_rgb(kelvin: float) -> np.ndarray:
@@ -213,7 +219,7 @@ class SceneReader:
                     iterator.PruneChildren()
                 elif prim.IsA(UsdGeom.Mesh):
                     self._read_mesh(prim)
-                elif prim.IsA(UsdGeom.Sphere) or prim.IsA(UsdGeom.Cube):
+                elif is_surface_gprim(prim):
                     self._read_gprim(prim)
                 elif prim.IsA(UsdGeom.Gprim):
                     self.issue("warning", prim, f"{type_name} gprims are not supported by the capture; skipped")
@@ -226,8 +232,9 @@ class SceneReader:
         if not self.probes:
             self.issue("error", "/", "the scene has no probes (BakeryIrradianceProbe, BakeryReflectionProbe or "
                        "BakeryIrradianceProbeVolume prims)")
-        if not self.meshes and not self.lights and not self.domes:
-            self.issue("warning", "/", "the scene has no geometry and no lights: every probe will be black")
+        if not self.lights and not self.domes and not any(_emits(mesh.material) for mesh in self.meshes):
+            self.issue("warning", "/", "nothing in the scene emits light (no UsdLux light, no dome light, no emissive "
+                       "material): every probe will be black")
         if len(self.domes) > 1:
             self.issue("warning", self.domes[1].name, f"{len(self.domes)} dome lights; only {self.domes[0].name} "
                        "is used")
@@ -588,7 +595,7 @@ class SceneReader:
         return indices[corners], corners, face_of_tri
 
     def _mesh_geometry(self, prim: Usd.Prim) -> tuple[np.ndarray, tuple | None]:
-        """Local-space triangles (T, 3, 3) of a Mesh, Sphere or Cube prim, and for meshes the triangulation
+        """Local-space triangles (T, 3, 3) of a Mesh or implicit-surface prim, and for meshes the triangulation
         (point indices, face-vertex positions, face indices) for primvar interpolation."""
         if prim.IsA(UsdGeom.Mesh):
             mesh = UsdGeom.Mesh(prim)
@@ -610,9 +617,35 @@ class SceneReader:
                               "(only catmullClark can be refined)"))
             tris, corners, faces = self._triangulate(prim, points, counts, indices)
             return points[tris], (tris, corners, faces, counts.size)
+        return self._implicit_surface(prim), None
+
+    def _implicit_surface(self, prim: Usd.Prim) -> np.ndarray:
+        """Local triangles of a Sphere, Cube, Cylinder(_1), Cone, Capsule(_1) or Plane (:mod:`bakery.usd.gprims`)."""
+        def value(name: str) -> object:
+            return prim.GetAttribute(name).Get(self.time)
+
+        def length(name: str) -> float:
+            number = float(value(name))
+            if not np.isfinite(number) or number < 0:
+                raise SceneError(f"{name} = {number} is negative or not finite")
+            return number
+
         if prim.IsA(UsdGeom.Sphere):
-            return _uv_sphere(float(UsdGeom.Sphere(prim).GetRadiusAttr().Get(self.time))), None
-        return _cube(float(UsdGeom.Cube(prim).GetSizeAttr().Get(self.time))), None
+            return gprims.uv_sphere(length("radius"))
+        if prim.IsA(UsdGeom.Cube):
+            return gprims.cube(length("size"))
+        axis = str(value("axis"))
+        if prim.IsA(UsdGeom.Plane):
+            return gprims.plane(length("width"), length("length"), axis)
+        if prim.IsA(UsdGeom.Cone):
+            return gprims.cone(length("radius"), length("height"), axis)
+        if prim.IsA(UsdGeom.Cylinder) or prim.IsA(UsdGeom.Capsule):
+            radii = (length("radius"),) * 2
+        else:  # Cylinder_1, Capsule_1
+            radii = (length("radiusBottom"), length("radiusTop"))
+        if prim.IsA(UsdGeom.Cylinder) or prim.IsA(UsdGeom.Cylinder_1):
+            return gprims.cylinder(*radii, length("height"), axis)
+        return gprims.capsule(*radii, length("height"), axis)
 
     def _mesh_triangles(self, prim: Usd.Prim) -> np.ndarray:
         return self._mesh_geometry(prim)[0]
@@ -687,7 +720,7 @@ class SceneReader:
             parent_inv = np.linalg.inv(self.world(proto.GetParent()))
             chosen = np.flatnonzero(proto_indices == p_index)
             for sub in Usd.PrimRange(proto, Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)):
-                if not (sub.IsA(UsdGeom.Mesh) or sub.IsA(UsdGeom.Sphere) or sub.IsA(UsdGeom.Cube)):
+                if not (sub.IsA(UsdGeom.Mesh) or is_surface_gprim(sub)):
                     continue
                 local, topology = self._mesh_geometry(sub)
                 to_proto = self.world(sub) @ parent_inv  # mesh → prototype-parent space (row vectors)
@@ -754,21 +787,14 @@ def catmull_clark(points: np.ndarray, counts: np.ndarray, indices: np.ndarray, l
     return points, counts, indices
 
 
-def _uv_sphere(radius: float, rings: int = 12, segments: int = 24) -> np.ndarray:
-    theta = np.linspace(0.0, np.pi, rings + 1)
-    phi = np.linspace(0.0, 2.0 * np.pi, segments + 1)
-    t, p = np.meshgrid(theta, phi, indexing="ij")
-    v = radius * np.stack([np.sin(t) * np.cos(p), np.cos(t), np.sin(t) * np.sin(p)], axis=-1)
-    a, b, c, d = v[:-1, :-1], v[1:, :-1], v[1:, 1:], v[:-1, 1:]
-    return np.concatenate([np.stack([a, b, c], -2).reshape(-1, 3, 3), np.stack([a, c, d], -2).reshape(-1, 3, 3)])
+#: The implicit surfaces the capture tessellates (:mod:`bakery.usd.gprims`).
+IMPLICIT_SURFACES = (UsdGeom.Sphere, UsdGeom.Cube, UsdGeom.Cylinder, UsdGeom.Cylinder_1, UsdGeom.Cone,
+                     UsdGeom.Capsule, UsdGeom.Capsule_1, UsdGeom.Plane)
 
 
-def _cube(size: float) -> np.ndarray:
-    h = 0.5 * size
-    corners = np.array([[x, y, z] for x in (-h, h) for y in (-h, h) for z in (-h, h)])
-    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
-    tris = [(q[0], q[1], q[2]) for q in quads] + [(q[0], q[2], q[3]) for q in quads]
-    return corners[np.array(tris)]
+def is_surface_gprim(prim: Usd.Prim) -> bool:
+    """Whether ``prim`` is one of :data:`IMPLICIT_SURFACES`."""
+    return any(prim.IsA(kind) for kind in IMPLICIT_SURFACES)
 
 
 def read_scene(path: str | Path, load_textures: bool = True, time: float | None = None,

@@ -13,7 +13,9 @@ import bakery
 from bakery.errors import CHECK_FAILED_EXIT_CODE, SceneError
 from bakery.usd.check import check_exit_code, check_scene
 
-CLEAN = header() + material("M", diffuse=(0.5, 0.5, 0.5)) + box_mesh("Box", 1.0, "/M") + probe("P", (0, 3, 0))
+CLEAN = (header() + material("M", diffuse=(0.5, 0.5, 0.5)) + box_mesh("Box", 1.0, "/M") + probe("P", (0, 3, 0))
+         + 'def SphereLight "Lamp"\n{\n    float inputs:radius = 0.1\n    double3 xformOp:translate = (0, 5, 0)\n'
+         '    uniform token[] xformOpOrder = ["xformOp:translate"]\n}\n')
 
 BAD = {
     "missing_material_texture": (
@@ -63,6 +65,10 @@ def Material "Mx"
         "warning", "/Mx", "MaterialX-only",
     ),
     "empty_scene": (header(), "error", "/", "no probes"),
+    "nothing_emits": (
+        header() + material("M", diffuse=(0.5, 0.5, 0.5)) + box_mesh("Box", 1.0, "/M") + probe("P", (0, 3, 0)),
+        "warning", "/", "every probe will be black",
+    ),
     "unknown_encoding": (
         header() + probe("P", body='uniform token[] bakery:encodings = ["sh99"]'),
         "error", "/P", "unknown encoding",
@@ -169,3 +175,14 @@ def test_check_reports_what_a_bake_would_silently_change(tmp_path):
     assert any(p == "/Box" and "control cage" in m for p, m in messages)
     assert any(p == "/M/Tex" and "colour-space" in m for p, m in messages)
     assert any(p == "/Custom" and "not supported" in m for p, m in messages)
+
+
+@pytest.mark.parametrize("emitter", ["emissive_material", "dome"])
+def test_a_scene_lit_only_by_emission_or_a_dome_is_not_called_black(tmp_path, emitter):
+    """The black-scene warning is about what emits: an emissive surface or a dome alone lights the probes."""
+    if emitter == "emissive_material":
+        text = header() + material("M", emissive=(2.0, 2.0, 2.0)) + box_mesh("Box", 1.0, "/M")
+    else:
+        text = header() + 'def DomeLight "Sky"\n{\n}\n'
+    issues = check_scene(write(tmp_path / f"{emitter}.usda", text + probe("P", (0, 3, 0))))
+    assert not [i for i in issues if "black" in i.message], issues

@@ -134,7 +134,7 @@ def Material "Mx"
         token outputs:out
     }
 }
-""" + box_mesh("Box", 1.0, "/Mx") + probe("P", (0, 3, 0))
+""" + box_mesh("Box", 1.0, "/Mx") + probe("P", (0, 3, 0)) + 'def DomeLight "Sky"\n{\n}\n'
     reading = read_scene(write(tmp_path / "mx.usda", text))
     m = reading.scene.meshes[0].material
     np.testing.assert_allclose(m.diffuse, (0.8, 0.1, 0.1), rtol=1e-6)

@@ -168,7 +168,7 @@ def test_preview_surface_texture_means_are_linear_and_used_without_texture_coord
     text = header() + material("M", extra=tex).replace(
         "color3f inputs:diffuseColor = (0.18, 0.18, 0.18)",
         "color3f inputs:diffuseColor.connect = </M/Tex.outputs:rgb>",
-    ) + box_mesh("Box", 1.0, "/M") + probe("P", (0, 5, 0))
+    ) + box_mesh("Box", 1.0, "/M") + probe("P", (0, 5, 0)) + 'def DomeLight "Sky"\n{\n}\n'
     reading = read_scene(write(tmp_path / "tex.usda", text))
     # the box has no texture coordinates: the texture's linear mean is used, and that is reported
     assert [i.message for i in reading.issues] == [
