@@ -11,7 +11,8 @@ Sampling: one lobe is picked with probability p_s = lum F(n·wo) / (lum F(n·wo)
 [0.05, 0.95] (0 or 1 when a lobe is absent); diffuse directions are cosine-distributed, specular ones follow the
 GGX distribution of visible normals (:func:`bakery.brdf.sampling.sample_ggx_vndf`). The returned pdf is the
 mixture p_s·pdf_s + (1 − p_s)·pdf_d, as multiple importance sampling needs. Surfaces are two-sided (the shading
-normal faces the incoming ray).
+normal faces the incoming ray). With interpolated shading normals, directions below the geometric surface are
+excluded (value and pdf 0).
 """
 
 from __future__ import annotations
@@ -43,8 +44,12 @@ class Bsdf:
     """
 
     def __init__(self, normals: np.ndarray, wo: np.ndarray, albedo: np.ndarray, f0: np.ndarray,
-                 roughness: np.ndarray) -> None:
+                 roughness: np.ndarray, geometric: np.ndarray | None = None) -> None:
         self.n = normals
+        #: the geometric normal (3, M) facing wo when ``normals`` are interpolated shading normals: directions
+        #: below the geometric surface get no value and no pdf (a sampled one ends its path), so shading normals
+        #: never let light through a surface
+        self.geometric = geometric
         self.wo = wo
         self.f0 = f0
         self.albedo_pi = albedo * _INV_PI
@@ -84,6 +89,8 @@ class Bsdf:
         n, wo = e(self.n), e(self.wo)
         nl = dot(n, wi)
         above = (nl > 0).astype(wi.dtype)
+        if self.geometric is not None:
+            above *= dot(e(self.geometric), wi) > 0
         nlc = np.maximum(nl, 0)
         c = dot(wo, wi)
         inv_h = 1 / np.sqrt(np.maximum(2 + 2 * c, TINY))

@@ -460,8 +460,12 @@ class ProbeRenderer:
                 prim, bu, bv, t, self._primary_spread if depth == 0 else BOUNCE_SPREAD)
             n = np.take(normals, prim, axis=1)
             n *= 1 - 2 * (dot(n, directions) > 0).astype(REAL)  # face the incoming ray
-            points = hits + self.tracer.offset_soa(hits) * n
-            bsdf = Bsdf(n, -directions, albedo, f0, roughness)
+            points = hits + self.tracer.offset_soa(hits) * n  # offset along the geometric normal
+            if self.tracer.shading_soa is None:
+                bsdf = Bsdf(n, -directions, albedo, f0, roughness)
+            else:  # authored normals shade; the geometric normal bounds what the surface lets through
+                shading = self.tracer.shading_normals(prim, bu, bv, n, -directions)
+                bsdf = Bsdf(shading, -directions, albedo, f0, roughness, geometric=n)
             out_add = self._direct(points, bsdf, owners)
             if emission is not None:
                 out_add += emission

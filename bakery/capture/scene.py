@@ -174,12 +174,15 @@ class Mesh:
         material: the bound material.
         uvs: (T, 3, 2) float32 texture coordinates per triangle corner (the primvar the material's textures
             read), or None.
+        normals: (T, 3, 3) float32 unit shading normals per triangle corner in the bake frame (the mesh's authored
+            ``normals``), interpolated with the hit's barycentrics; None: the geometric normal is the shading normal.
     """
 
     name: str
     triangles: np.ndarray
     material: Material = field(default_factory=Material)
     uvs: np.ndarray | None = None
+    normals: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

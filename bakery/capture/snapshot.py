@@ -5,6 +5,7 @@ Layout of a snapshot directory::
     scene.json       every field of the CaptureScene except the large arrays, plus the array manifest and the hash
     triangles.npy    (T, 3, 3) all meshes' triangles concatenated (mesh i is rows offsets[i]:offsets[i+1])
     uvs.npy          (U, 3, 2) texture coordinates of the meshes that have them, concatenated (only if any)
+    normals.npy      (S, 3, 3) shading normals of the meshes that have them, concatenated (only if any)
     dome.npy         (H, W, 3) dome pixels (only when the dome has a texture)
     texture_<i>.npy  (H, W, 4) pixels of CaptureScene.textures[i] (linear, float32)
 
@@ -53,7 +54,9 @@ __all__ = ["SNAPSHOT_FORMAT", "SNAPSHOT_VERSION", "read_capture_scene", "scene_c
 SNAPSHOT_FORMAT = "bakery.capture-scene"
 SNAPSHOT_VERSION = 2
 SCENE_JSON = "scene.json"
-_ARRAY_FILES = {"triangles": "triangles.npy", "dome": "dome.npy", "uvs": "uvs.npy"}
+_ARRAY_FILES = {"triangles": "triangles.npy", "dome": "dome.npy", "uvs": "uvs.npy", "normals": "normals.npy"}
+#: Mesh fields stored as slices of the concatenated arrays (or, for the material, as its own record).
+_MESH_ARRAYS = ("triangles", "material", "uvs", "normals")
 
 
 def _array_file(name: str) -> str | None:
@@ -198,17 +201,19 @@ def _dome_pixels(dome: Dome | None) -> np.ndarray | None:
     return _little(dome.pixels)
 
 
-def _concatenated_uvs(meshes: tuple[Mesh, ...]) -> tuple[np.ndarray | None, list[dict | None]]:
-    """The uvs of meshes that have them as one (U, 3, 2) array, and per mesh its slice record (None if no uvs)."""
+def _concatenated(meshes: tuple[Mesh, ...], attribute: str) -> tuple[np.ndarray | None, list[dict | None]]:
+    """A per-corner mesh attribute (``uvs`` (T, 3, 2) or ``normals`` (T, 3, 3)) of the meshes that have it as one
+    array, and per mesh its slice record (None if the mesh has none)."""
     arrays, records, start = [], [], 0
     for mesh in meshes:
-        if mesh.uvs is None:
+        value = getattr(mesh, attribute)
+        if value is None:
             records.append(None)
             continue
-        uv = np.asarray(mesh.uvs)
-        arrays.append(uv.reshape(-1, 3, 2))
-        records.append({"start": start, "stop": start + arrays[-1].shape[0], "shape": list(uv.shape),
-                        "dtype": uv.dtype.str})
+        value = np.asarray(value)
+        arrays.append(value.reshape(-1, 3, value.shape[-1]))
+        records.append({"start": start, "stop": start + arrays[-1].shape[0], "shape": list(value.shape),
+                        "dtype": value.dtype.str})
         start += arrays[-1].shape[0]
     if not arrays:
         return None, records
@@ -223,9 +228,12 @@ def _snapshot_body(scene: CaptureScene) -> tuple[dict[str, Any], dict[str, np.nd
     pixels = _dome_pixels(scene.dome)
     if pixels is not None:
         arrays["dome"] = pixels
-    uvs, uv_records = _concatenated_uvs(scene.meshes)
+    uvs, uv_records = _concatenated(scene.meshes, "uvs")
     if uvs is not None:
         arrays["uvs"] = uvs
+    normals, normal_records = _concatenated(scene.meshes, "normals")
+    if normals is not None:
+        arrays["normals"] = normals
     textures = []
     for i, texture in enumerate(scene.textures):
         arrays[f"texture_{i}"] = _little(texture.pixels)
@@ -238,12 +246,15 @@ def _snapshot_body(scene: CaptureScene) -> tuple[dict[str, Any], dict[str, np.nd
         entry["file"] = _array_file(name)
         manifest[name] = entry
     meshes = []
-    for mesh, start, stop, uv_record in zip(scene.meshes, offsets[:-1], offsets[1:], uv_records):
+    for mesh, start, stop, uv_record, normal_record in zip(scene.meshes, offsets[:-1], offsets[1:], uv_records,
+                                                           normal_records):
         tris = np.asarray(mesh.triangles)
-        record = _fields(mesh, skip=("triangles", "material", "uvs"))
+        record = _fields(mesh, skip=_MESH_ARRAYS)
         record["material"] = _fields(mesh.material)
         record["triangles"] = {"start": start, "stop": stop, "shape": list(tris.shape), "dtype": tris.dtype.str}
         record["uvs"] = uv_record
+        if normal_record is not None:  # only when authored: a scene without normals hashes as before
+            record["normals"] = normal_record
         meshes.append(record)
     dome = None
     if scene.dome is not None:
@@ -445,11 +456,11 @@ def read_capture_scene(directory: str | os.PathLike[str], mmap: bool = True, ver
         meshes = []
         for record in body["meshes"]:
             view = _slice(triangles, record["triangles"])
-            uv_info = record.get("uvs")
-            uvs = _slice(arrays["uvs"], uv_info) if uv_info is not None else None
+            slices = {name: _slice(arrays[name], record[name]) if record.get(name) is not None else None
+                      for name in ("uvs", "normals")}
             material = _build(Material, record["material"])
-            meshes.append(_build(Mesh, {k: v for k, v in record.items() if k not in ("triangles", "material", "uvs")},
-                                 triangles=view, material=material, uvs=uvs))
+            meshes.append(_build(Mesh, {k: v for k, v in record.items() if k not in _MESH_ARRAYS},
+                                 triangles=view, material=material, **slices))
         lights = tuple(_build(Light, record) for record in body["lights"])
         portals = tuple(_build(Light, record) for record in body["portals"])
         textures = tuple(_build(Texture, {k: v for k, v in record.items() if k != "pixels"},

@@ -45,6 +45,24 @@ class SceneTracer:
         self.normals = np.where(length > 0, cross / np.maximum(length, 1e-300), np.array([0.0, 1.0, 0.0]))
         #: the normals' x, y and z rows in float32 (structure-of-arrays gathers of the renderer)
         self.normals_soa = np.ascontiguousarray(self.normals.T, dtype=np.float32)
+        #: authored shading normals of the triangles' corners (9, T) float32 (rows: corner-major x, y, z) and which
+        #: triangles have them (T,) bool; None when no mesh has normals
+        self.shading_soa, self.has_shading = None, None
+        if any(m.normals is not None for m in scene.meshes if m.triangles.size):
+            corners, flags, start = [], [], 0
+            for m in scene.meshes:
+                count = m.triangles.reshape(-1, 3, 3).shape[0]
+                if count == 0:
+                    continue
+                if m.normals is None:
+                    geometric = self.normals[start : start + count]
+                    corners.append(np.repeat(geometric[:, None, :], 3, axis=1))
+                else:
+                    corners.append(np.asarray(m.normals, dtype=np.float64).reshape(-1, 3, 3))
+                flags.append(np.full(count, m.normals is not None))
+                start += count
+            self.shading_soa = np.ascontiguousarray(np.concatenate(corners).reshape(-1, 9).T, dtype=np.float32)
+            self.has_shading = np.concatenate(flags)
         if len(tris):
             lo, hi = tris.reshape(-1, 3).min(axis=0), tris.reshape(-1, 3).max(axis=0)
             diagonal = float(np.linalg.norm(hi - lo))
@@ -58,6 +76,21 @@ class SceneTracer:
             self._scene = rtcs.EmbreeScene(robust=True)  # watertight: no leaks along shared edges
             # Embree keeps a reference to the mesh buffer through the scene object.
             self._mesh = TriangleMesh(self._scene, tris.astype(np.float32))
+
+    def shading_normals(self, prim: np.ndarray, bu: np.ndarray, bv: np.ndarray, geometric: np.ndarray,
+                        wo: np.ndarray) -> np.ndarray:
+        """Shading normals (3, M) at hits: the authored corner normals interpolated with the barycentrics (u, v)
+        and normalised, turned to the side of ``geometric`` (3, M) (the geometric normal facing the viewer ``wo``,
+        two-sided surfaces); the geometric normal itself on triangles without normals and where the interpolated
+        normal faces away from the viewer (n_s·wo ≤ 0: no shading frame exists there)."""
+        c = [np.take(self.shading_soa[i], prim) for i in range(9)]
+        w0 = 1 - bu - bv
+        ns = np.stack([w0 * c[k] + bu * c[3 + k] + bv * c[6 + k] for k in range(3)])
+        length = np.sqrt(ns[0] * ns[0] + ns[1] * ns[1] + ns[2] * ns[2])
+        ns /= np.maximum(length, np.float32(1e-30))
+        ns *= 1 - 2 * ((ns * geometric).sum(axis=0) < 0).astype(ns.dtype)
+        fallback = ~np.take(self.has_shading, prim) | ((ns * wo).sum(axis=0) <= 0) | (length <= 0)
+        return np.where(fallback, geometric, ns)
 
     def offset(self, points: np.ndarray) -> np.ndarray:
         """Ray-origin offsets (M,) in metres: relative to the points' magnitude, as float32 hit points are

@@ -63,6 +63,8 @@ def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN00
 
     parts: list = [(mesh.name, mesh.material.__dict__, np.asarray(mesh.triangles, dtype=np.float32),
                     None if getattr(mesh, "uvs", None) is None else np.asarray(mesh.uvs, dtype=np.float32))
+                   # shading normals only when authored (the hash of a scene without them is unchanged)
+                   + (() if getattr(mesh, "normals", None) is None else (np.asarray(mesh.normals, np.float32),))
                    for mesh in scene.meshes]
     if scene.dome is not None:
         dome = scene.dome

@@ -594,7 +594,7 @@ class SceneReader:
         corners = np.stack([s, s + j + 1, s + j + 2], axis=-1)
         return indices[corners], corners, face_of_tri
 
-    def _mesh_geometry(self, prim: Usd.Prim) -> tuple[np.ndarray, tuple | None]:
+    def _mesh_geometry(self, prim: Usd.Prim) -> tuple[np.ndarray | gprims.Tessellation, tuple | None]:
         """Local-space triangles (T, 3, 3) of a Mesh or implicit-surface prim, and for meshes the triangulation
         (point indices, face-vertex positions, face indices) for primvar interpolation."""
         if prim.IsA(UsdGeom.Mesh):
@@ -619,8 +619,9 @@ class SceneReader:
             return points[tris], (tris, corners, faces, counts.size)
         return self._implicit_surface(prim), None
 
-    def _implicit_surface(self, prim: Usd.Prim) -> np.ndarray:
-        """Local triangles of a Sphere, Cube, Cylinder(_1), Cone, Capsule(_1) or Plane (:mod:`bakery.usd.gprims`)."""
+    def _implicit_surface(self, prim: Usd.Prim) -> gprims.Tessellation:
+        """Local triangles and normals of a Sphere, Cube, Cylinder(_1), Cone, Capsule(_1) or Plane
+        (:mod:`bakery.usd.gprims`)."""
         def value(name: str) -> object:
             return prim.GetAttribute(name).Get(self.time)
 
@@ -647,9 +648,6 @@ class SceneReader:
             return gprims.cylinder(*radii, length("height"), axis)
         return gprims.capsule(*radii, length("height"), axis)
 
-    def _mesh_triangles(self, prim: Usd.Prim) -> np.ndarray:
-        return self._mesh_geometry(prim)[0]
-
     def _read_mesh(self, prim: Usd.Prim) -> None:
         local, topology = self._mesh_geometry(prim)
         self._add_mesh(prim, local, self.world(prim), str(prim.GetPath()), topology)
@@ -667,24 +665,55 @@ class SceneReader:
         if values.ndim != 2 or values.shape[1] < 2:
             self.issue("warning", prim, f"primvar {name!r} is not float2; the textures' mean values are used")
             return None
-        values = values[:, :2]
-        tris, corners, faces, face_count = topology
         interpolation = primvar.GetInterpolation()
-        try:
-            if interpolation == UsdGeom.Tokens.faceVarying:
-                return values[corners]
-            if interpolation in (UsdGeom.Tokens.vertex, UsdGeom.Tokens.varying):
-                return values[tris]
-            if interpolation == UsdGeom.Tokens.uniform:
-                return np.repeat(values[faces][:, None, :], 3, axis=1)
-            return np.broadcast_to(values[0], tris.shape + (2,)).copy()
-        except IndexError:
+        at_corners = _at_corners(values[:, :2], interpolation, topology)
+        if at_corners is None:
             self.issue("warning", prim, f"primvar {name!r} has too few values for its {interpolation} "
                        "interpolation; the textures' mean values are used")
-            return None
+        return at_corners
 
-    def _add_mesh(self, prim: Usd.Prim, local: np.ndarray, matrix: np.ndarray, name: str,
+    def _corner_normals(self, prim: Usd.Prim, topology) -> np.ndarray | None:  # noqa: ANN001
+        """A polygonal Mesh's authored shading normals (``primvars:normals``, else ``normals``) at every triangle
+        corner, local (T, 3, 3), or None (not authored, subdivided — subdivision defines its own normals — or
+        unusable, reported)."""
+        mesh = UsdGeom.Mesh(prim)
+        scheme = mesh.GetSubdivisionSchemeAttr()
+        if scheme and scheme.HasAuthoredValue() and str(scheme.Get()) != "none":
+            return None
+        primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar("normals")
+        if primvar and primvar.HasValue():
+            values, interpolation = primvar.ComputeFlattened(self.time), primvar.GetInterpolation()
+        elif mesh.GetNormalsAttr().HasAuthoredValue():
+            values, interpolation = mesh.GetNormalsAttr().Get(self.time), mesh.GetNormalsInterpolation()
+        else:
+            return None
+        values = np.asarray(values if values is not None else [], dtype=np.float64)
+        local = _at_corners(values.reshape(-1, 3), interpolation, topology) if values.size else None
+        if local is None or not np.all(np.isfinite(local)):
+            self.issue("warning", prim, f"normals ({interpolation}) do not match the mesh or are not finite; the "
+                       "geometric normals are used")
+            return None
+        return local
+
+    def _bake_normals(self, prim: Usd.Prim, local: np.ndarray, matrix: np.ndarray) -> np.ndarray | None:
+        """Local corner normals (T, 3, 3) → bake-frame unit normals float32, or None (reported) if one vanishes."""
+        # normals transform by the inverse transpose of the world matrix (row vectors: n · M⁻ᵀ), then rotate
+        world = local.reshape(-1, 3) @ np.linalg.inv(matrix[:3, :3]).T @ self.frame.axes
+        length = np.linalg.norm(world, axis=-1, keepdims=True)
+        if not np.all(length > 0):
+            self.issue("warning", prim, "normals include zero vectors; the geometric normals are used")
+            return None
+        return (world / length).reshape(-1, 3, 3).astype(np.float32)
+
+    def _add_mesh(self, prim: Usd.Prim, local: np.ndarray | gprims.Tessellation, matrix: np.ndarray, name: str,
                   topology=None) -> None:  # noqa: ANN001
+        """Add a mesh from local triangles (a Mesh's, with its triangulation ``topology``) or a gprim's
+        tessellation, placed by the world ``matrix``."""
+        local_normals = None
+        if isinstance(local, gprims.Tessellation):
+            local, local_normals = local.triangles, local.normals
+        elif topology is not None:
+            local_normals = self._corner_normals(prim, topology)
         if local.size == 0:
             return
         if not np.all(np.isfinite(local)):
@@ -701,7 +730,8 @@ class SceneReader:
                 uvs = None if corner is None else corner.astype(np.float32)
         if uvs is None and material.maps:
             material = dataclasses.replace(material, maps=())
-        self.meshes.append(Mesh(name, tris, material, uvs))
+        normals = None if local_normals is None else self._bake_normals(prim, local_normals, matrix)
+        self.meshes.append(Mesh(name, tris, material, uvs, normals))
 
     def _read_point_instancer(self, prim: Usd.Prim) -> None:
         instancer = UsdGeom.PointInstancer(prim)
@@ -785,6 +815,22 @@ def catmull_clark(points: np.ndarray, counts: np.ndarray, indices: np.ndarray, l
         indices = np.stack([vi, e_next, fi, e_prev], axis=-1).reshape(-1)
         counts = np.full(indices.size // 4, 4, dtype=np.int64)
     return points, counts, indices
+
+
+def _at_corners(values: np.ndarray, interpolation: str, topology) -> np.ndarray | None:  # noqa: ANN001
+    """Primvar values (N, C) at every triangle corner (T, 3, C) by their interpolation, from a mesh's
+    triangulation (point indices, face-vertex indices, face index per triangle, face count); None if too few."""
+    tris, corners, faces, _face_count = topology
+    try:
+        if interpolation == UsdGeom.Tokens.faceVarying:
+            return values[corners]
+        if interpolation in (UsdGeom.Tokens.vertex, UsdGeom.Tokens.varying):
+            return values[tris]
+        if interpolation == UsdGeom.Tokens.uniform:
+            return np.repeat(values[faces][:, None, :], 3, axis=1)
+        return np.broadcast_to(values[0], tris.shape + values.shape[1:]).copy()
+    except IndexError:
+        return None
 
 
 #: The implicit surfaces the capture tessellates (:mod:`bakery.usd.gprims`).

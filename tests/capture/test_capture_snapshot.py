@@ -62,6 +62,8 @@ def hand_scene() -> CaptureScene:
     rng = np.random.default_rng(7)
     rot = tuple(map(tuple, np.eye(3)[[0, 2, 1]] * np.array([1.0, 1.0, -1.0])))  # np.float64 entries, as USD gives
     floor_uvs = rng.uniform(-1.0, 2.0, (12, 3, 2)).astype(np.float32)
+    lamp_normals = rng.normal(size=(12, 3, 3))
+    lamp_normals = (lamp_normals / np.linalg.norm(lamp_normals, axis=-1, keepdims=True)).astype(np.float32)
     textured = Material("/Looks/Floor", diffuse=(0.5, 0.4, 0.3), roughness=0.7, metallic=0.1, ior=1.45,
                         opacity_threshold=0.5, maps=(
                             {"input": "diffuseColor", "texture": 0, "channels": "rgb", "scale": (1.0, 1.0, 1.0, 1.0),
@@ -73,7 +75,8 @@ def hand_scene() -> CaptureScene:
     meshes = (
         Mesh("/World/Floor", _box((-3, -0.1, -3), (3, 0.0, 3)), textured, uvs=floor_uvs),
         Mesh("/World/Lamp", _box((0.5, 0.5, 0.5), (0.7, 0.7, 0.7)),
-             Material("/Looks/Emitter", diffuse=(0.1 + 0.2, 0.0, 1e-300), emission=(4.0, 3.5, -0.0))),
+             Material("/Looks/Emitter", diffuse=(0.1 + 0.2, 0.0, 1e-300), emission=(4.0, 3.5, -0.0)),
+             normals=lamp_normals),
         Mesh("/World/Empty", np.zeros((0, 3, 3), np.float32)),
     )
     lights = (
