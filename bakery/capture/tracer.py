@@ -83,14 +83,21 @@ class SceneTracer:
         and normalised, turned to the side of ``geometric`` (3, M) (the geometric normal facing the viewer ``wo``,
         two-sided surfaces); the geometric normal itself on triangles without normals and where the interpolated
         normal faces away from the viewer (n_s·wo ≤ 0: no shading frame exists there)."""
+        smooth = np.flatnonzero(np.take(self.has_shading, prim))  # only hits on meshes with normals
+        if smooth.size == 0:
+            return geometric
+        prim, bu, bv = np.take(prim, smooth), np.take(bu, smooth), np.take(bv, smooth)
+        g, w = np.take(geometric, smooth, axis=1), np.take(wo, smooth, axis=1)
         c = [np.take(self.shading_soa[i], prim) for i in range(9)]
         w0 = 1 - bu - bv
         ns = np.stack([w0 * c[k] + bu * c[3 + k] + bv * c[6 + k] for k in range(3)])
         length = np.sqrt(ns[0] * ns[0] + ns[1] * ns[1] + ns[2] * ns[2])
         ns /= np.maximum(length, np.float32(1e-30))
-        ns *= 1 - 2 * ((ns * geometric).sum(axis=0) < 0).astype(ns.dtype)
-        fallback = ~np.take(self.has_shading, prim) | ((ns * wo).sum(axis=0) <= 0) | (length <= 0)
-        return np.where(fallback, geometric, ns)
+        ns *= 1 - 2 * ((ns * g).sum(axis=0) < 0).astype(ns.dtype)
+        fallback = ((ns * w).sum(axis=0) <= 0) | (length <= 0)
+        out = geometric.copy()
+        out[:, smooth] = np.where(fallback, g, ns)
+        return out
 
     def offset(self, points: np.ndarray) -> np.ndarray:
         """Ray-origin offsets (M,) in metres: relative to the points' magnitude, as float32 hit points are
