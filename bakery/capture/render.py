@@ -402,17 +402,19 @@ class ProbeRenderer:
     # ------------------------------------------------------------------------------------------------------------
     def _intersect(self, origins: np.ndarray, directions: np.ndarray, owners: _Owners
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Closest hit (prim, t, u, v) of rays (3, M) that is not cut out (opacity below the material's
-        opacityThreshold); the rays are counted for their probes (``owners``)."""
+        """Closest hit (prim, t, u, v) of rays (3, M) that is not passed through (opacity below the material's
+        opacityThreshold, or not present: u ≥ opacity on materials of partial opacity); the rays are counted for
+        their probes (``owners``, in any order)."""
         prim, t, bu, bv = self.tracer.intersect_uv(origins, directions, soa=True)
         owners.traced()
         if not self.surfaces.cutout:
             return prim, t, bu, bv
+        idx = np.flatnonzero(prim >= 0)  # hits not yet tested (a hit kept once stays: presence is drawn once)
         for _ in range(32):
-            idx = np.flatnonzero(prim >= 0)
             if idx.size == 0:
                 break
-            cut = self.surfaces.cut(prim[idx], bu[idx].astype(np.float64), bv[idx].astype(np.float64))
+            u = self._presence_numbers(owners, idx) if self.surfaces.stochastic else None
+            cut = self.surfaces.cut(prim[idx], bu[idx].astype(np.float64), bv[idx].astype(np.float64), u)
             if not cut.any():
                 break
             j = idx[cut]
@@ -423,7 +425,18 @@ class ProbeRenderer:
             owners.traced(j)
             prim[j], bu[j], bv[j] = p2, u2, v2
             t[j] = np.where(p2 >= 0, t2 + t[j] + off, FAR)
+            idx = j[p2 >= 0]
         return prim, t, bu, bv
+
+    @staticmethod
+    def _presence_numbers(owners: _Owners, idx: np.ndarray) -> np.ndarray:
+        """Uniform numbers (K,) for the rays ``idx`` whose owners may be in any order (shadow rays come strategy
+        by strategy): drawn from each probe's generator in its rays' order (a stable sort by owner), so a probe
+        draws the same numbers whatever shares the batch."""
+        order = np.argsort(np.take(owners.owner, idx), kind="stable")
+        u = np.empty(idx.size, dtype=REAL)
+        u[order] = owners.take(idx[order]).random()
+        return u
 
     def _visible(self, points: np.ndarray, wi: np.ndarray, dist: np.ndarray, owners: _Owners,
                  skip: np.ndarray | None = None) -> np.ndarray:

@@ -115,7 +115,8 @@ class Material:
         specular: (3,) F0 of the specular workflow (``use_specular_workflow``).
         ior: index of refraction of the dielectric Fresnel (F0 = ((ior − 1)/(ior + 1))²).
         opacity, opacity_threshold: cut-outs: a hit whose opacity is below the threshold (threshold > 0) is
-            passed through; partial opacity without a threshold is not modelled (reported by the reader).
+            passed through; without a threshold, opacity is the surface's presence: a hit is passed through with
+            probability 1 − opacity (stochastic alpha: a window of opacity 0.2 passes 80 % of the light).
         maps: textured inputs, each a dict {"input": name, "texture": index into CaptureScene.textures,
             "channels": "rgb" | "r" | "g" | "b" | "a", "scale": (4,), "bias": (4,), "fallback": (4,),
             "wrap": (wrapS, wrapT)}; texture coordinates come from the mesh's ``uvs``.

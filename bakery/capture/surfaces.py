@@ -193,7 +193,12 @@ class Surfaces:
         self.specular_workflow = np.array([m.use_specular_workflow for m in mats], dtype=bool)
         self.threshold = np.array([m.opacity_threshold for m in mats], dtype=np.float64)
         self.textured = [i for i, m in enumerate(self.materials) if m.maps]
-        self.cutout = bool(np.any(self.threshold > 0))
+        #: materials of partial presence: opacity < 1 (or textured) without an opacityThreshold — a hit passes
+        #: through with probability 1 − opacity (stochastic presence)
+        self.partial = np.array([m.opacity_threshold <= 0 and (m.opacity < 1 or any(
+            entry.get("input") == "opacity" for entry in m.maps)) for m in mats], dtype=bool)
+        self.stochastic = bool(self.partial.any())
+        self.cutout = bool(np.any(self.threshold > 0)) or self.stochastic
         self._textures: dict[int, MipTexture] = {}
         self.scene = scene
         self.triangles = tracer.triangles
@@ -311,14 +316,20 @@ class Surfaces:
                                      spread if np.isscalar(spread) else np.asarray(spread)[sel], values)
         return self._point(values, mi)
 
-    def cut(self, prim: np.ndarray, bu: np.ndarray, bv: np.ndarray) -> np.ndarray:
-        """Whether hits are cut out: opacity below the material's opacityThreshold (> 0)."""
+    def cut(self, prim: np.ndarray, bu: np.ndarray, bv: np.ndarray, u: np.ndarray | None = None) -> np.ndarray:
+        """Whether hits are passed through: opacity below the material's opacityThreshold (> 0: a cut-out), or,
+        on materials of partial presence (:attr:`partial`), u ≥ opacity for the uniform numbers ``u`` (M,) (one per
+        hit; required when :attr:`stochastic`)."""
         mi = self.mesh_of[prim]
         result = np.zeros(prim.shape, dtype=bool)
         sel = np.flatnonzero(self.threshold[mi] > 0)
         if sel.size:
             point = self.at(prim[sel], bu[sel], bv[sel])
             result[sel] = point.opacity < point.threshold
+        if self.stochastic:
+            sel = np.flatnonzero(self.partial[mi])
+            if sel.size:
+                result[sel] = u[sel] >= self.at(prim[sel], bu[sel], bv[sel]).opacity
         return result
 
     def _apply_maps(self, k: int, sel: np.ndarray, prim: np.ndarray, bu: np.ndarray, bv: np.ndarray,

@@ -5,7 +5,7 @@ Outcomes
     *failed*         any "error" issue: the bake refuses to run (its result could not be trusted);
     *warnings*       what a bake would silently change: documented fallbacks and approximations (textures averaged
                      where a mesh has no texture coordinates, unreadable or missing textures, float textures without
-                     colour-space information, unmodelled material lobes and normal maps, partial opacity,
+                     colour-space information, unmodelled material lobes and normal maps,
                      subdivision surfaces baked as their cage, unsupported gprims, light types and light inputs,
                      unauthored metersPerUnit, ...).
 

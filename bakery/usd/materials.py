@@ -162,7 +162,7 @@ class MaterialReader:
                 surface.notes.append(f"{name} is not modelled by the capture")
         normal = shader.GetInput("normal")
         if normal and normal.HasConnectedSource():
-            surface.notes.append("normal maps are not modelled by the capture (geometric normals are used)")
+            surface.notes.append("normal maps are not modelled by the capture (the mesh's normals are used)")
         return self._finish(path, surface)
 
     def _finish(self, path: str, surface: Surface) -> tuple[Material, bool, str | None]:
@@ -170,9 +170,6 @@ class MaterialReader:
         for note in surface.notes:
             self._warn_once(path, note)
         opacity, threshold = float(np.mean(v["opacity"])), float(np.mean(v["opacityThreshold"]))
-        if threshold <= 0 and (opacity < 1.0 or "opacity" in surface.maps):
-            self._warn_once(path, f"partial opacity ({opacity:g}) without opacityThreshold is not modelled "
-                            "(the surface is opaque in the capture)")
         maps = []
         for name, entry in surface.maps.items():
             maps.append(dict(entry, input=name))

@@ -119,7 +119,7 @@ def _to_surface(category: str, values: dict[str, object], maps: dict[str, dict],
         if name in maps or (name in d and abs(_mean(d[name]) - neutral) > 1e-6):
             surface.notes.append(f"{category} {name} is not modelled by the capture")
     if "normal" in maps:
-        surface.notes.append("normal maps are not modelled by the capture (geometric normals are used)")
+        surface.notes.append("normal maps are not modelled by the capture (the mesh's normals are used)")
 
     def put(target: str, colour_input: str | None, weight_input: str | None, scalar: bool = False) -> None:
         weight = _mean(d.get(weight_input, 1.0)) if weight_input else 1.0
@@ -184,7 +184,7 @@ def surface_from_document(reader, document: str, material_name: str, prim: str) 
                 values[name] = _py(inp.getValue())
             continue
         if name == "normal":
-            notes.append("normal maps are not modelled by the capture (geometric normals are used)")
+            notes.append("normal maps are not modelled by the capture (the mesh's normals are used)")
             continue
         if upstream.getCategory() not in ("image", "tiledimage"):
             notes.append(f"input {name} is computed by a {upstream.getCategory()} node, which the capture does not "

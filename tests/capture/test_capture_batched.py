@@ -1,6 +1,7 @@
 """Batched capture (ProbeRenderer.render_many, UsdSceneSource.capture_many): a probe's cube and stats are
 bit-identical whether it is rendered alone or together with any other probes, in any order and batch size."""
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +24,14 @@ FACE = 8
 def usd_scenes():
     from bakery.usd.scene import read_scene
 
-    return {name: read_scene(path).scene for name, path in EXAMPLES.items()}
+    scenes = {name: read_scene(path).scene for name, path in EXAMPLES.items()}
+    # every other mesh of the room half present (opacity 0.5, no threshold): presence draws random numbers in the
+    # camera, bounce and shadow rays' intersections
+    indoor = scenes["indoor"]
+    scenes["translucent"] = dataclasses.replace(indoor, meshes=tuple(
+        dataclasses.replace(m, material=dataclasses.replace(m.material, opacity=0.5)) if i % 2 == 0 else m
+        for i, m in enumerate(indoor.meshes)))
+    return scenes
 
 
 def _key(result):
@@ -36,7 +44,7 @@ def _render_many(renderer, probes):
 
 
 @pytest.mark.parametrize("adaptive", [False, True])
-@pytest.mark.parametrize("name", ["indoor", "outdoor"])
+@pytest.mark.parametrize("name", ["indoor", "outdoor", "translucent"])
 def test_a_probe_renders_the_same_alone_batched_and_reordered(name, adaptive, usd_scenes, monkeypatch):
     """Small chunks and calls (several chunks per probe, chunks of several probes per call) so packing matters;
     adaptive: a noise target between the probes' first-pass noises, so some drop out after one pass."""
