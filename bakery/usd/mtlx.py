@@ -20,8 +20,9 @@ Mapping (metallic workflow of the capture; see ``docs/capture.md``)
     Inputs connected to ``image``/``tiledimage`` nodes (directly or through a nodegraph output) become texture maps
     with the node's file, ``colorspace`` (colour inputs are converted with OpenColorIO), address modes and default;
     a scalar weight multiplying a textured colour (base · base_color) folds into the map's scale. Lobes the
-    capture cannot represent (coat, sheen, transmission, subsurface, thin film, specular weight/colour ≠ 1, normal
-    maps, other node types in a graph) are reported.
+    capture cannot represent (coat, sheen, subsurface, thin film, specular weight/colour ≠ 1, normal
+    maps, other node types in a graph) are reported. Transmission is read as thin, straight pass-through: the
+    presence (opacity) is multiplied by 1 − transmission·(1 − metalness) (reported: no refraction or tint).
 """
 
 from __future__ import annotations
@@ -36,14 +37,18 @@ from bakery.usd.materials import COLOR_INPUTS, Surface
 _SUPPORTED = ("standard_surface", "open_pbr_surface", "UsdPreviewSurface", "gltf_pbr")
 #: Lobe weights the capture does not model: (input, neutral value).
 _UNMODELLED = {
-    "standard_surface": (("coat", 0.0), ("sheen", 0.0), ("transmission", 0.0), ("subsurface", 0.0),
+    "standard_surface": (("coat", 0.0), ("sheen", 0.0), ("subsurface", 0.0),
                          ("thin_film_thickness", 0.0), ("specular", 1.0), ("specular_color", 1.0)),
-    "open_pbr_surface": (("coat_weight", 0.0), ("fuzz_weight", 0.0), ("transmission_weight", 0.0),
+    "open_pbr_surface": (("coat_weight", 0.0), ("fuzz_weight", 0.0),
                          ("subsurface_weight", 0.0), ("thin_film_weight", 0.0), ("specular_weight", 1.0),
                          ("specular_color", 1.0)),
     "UsdPreviewSurface": (("clearcoat", 0.0), ("displacement", 0.0)),
-    "gltf_pbr": (("clearcoat", 0.0), ("transmission", 0.0), ("sheen_color", 0.0)),
+    "gltf_pbr": (("clearcoat", 0.0), ("sheen_color", 0.0)),
 }
+#: (transmission weight, metalness) inputs: transmission is modelled as thin, straight pass-through — the surface's
+#: presence (opacity) is multiplied by 1 − t·(1 − metalness), the share of the base that is not transmitted
+_TRANSMISSION = {"standard_surface": ("transmission", "metalness"),
+                 "open_pbr_surface": ("transmission_weight", "base_metalness"), "gltf_pbr": ("transmission", "metallic")}
 
 
 class MaterialXError(ValueError):
@@ -143,8 +148,30 @@ def _to_surface(category: str, values: dict[str, object], maps: dict[str, dict],
 
     for target, colour_input, weight_input, scalar in _INPUT_MAP.get(category, _PREVIEW_SURFACE_MAP):
         put(target, colour_input, weight_input, scalar)
+    if category in _TRANSMISSION:
+        _transmission_as_presence(category, d, maps, surface)
     surface.primvar = "st" if surface.maps else None
     return surface
+
+
+def _transmission_as_presence(category: str, values: dict[str, object], maps: dict[str, dict],
+                              surface: Surface) -> None:
+    """Transmission weight t (textured: its mean) → presence ×(1 − t·(1 − metalness)) (:data:`_TRANSMISSION`):
+    a window of t = 1 lets all light through unrefracted and untinted; reported when t > 0."""
+    weight_input, metal_input = _TRANSMISSION[category]
+    weight = min(max(_mean(values.get(weight_input, 0.0)), 0.0), 1.0)
+    if weight_input in maps:
+        weight = min(max(_mean(maps[weight_input].get("_mean", weight)), 0.0), 1.0)
+    if weight <= 0:
+        return
+    keep = 1.0 - weight * (1.0 - min(max(_mean(values.get(metal_input, 0.0)), 0.0), 1.0))
+    surface.values["opacity"] = float(surface.values.get("opacity", 1.0)) * keep
+    if "opacity" in surface.maps:
+        entry = surface.maps["opacity"]
+        entry["scale"] = tuple(float(x) * keep for x in entry.get("scale", (1.0, 1.0, 1.0, 1.0)))
+        entry["bias"] = tuple(float(x) * keep for x in entry.get("bias", (0.0, 0.0, 0.0, 0.0)))
+    surface.notes.append(f"{category} {weight_input} {weight:g} is modelled as straight pass-through (presence "
+                         f"×{keep:g}): no refraction, tint or reflection of the transmitted light")
 
 
 # ----------------------------------------------------------------------------------------------------------------

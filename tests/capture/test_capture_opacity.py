@@ -72,3 +72,42 @@ def test_a_cut_out_keeps_its_threshold(tmp_path):
     cube = _capture(tmp_path, header() + DOME + _ceiling(0.3, threshold=0.5) + probe("P", (0.0, 1.0, 0.0)))
     omega = cube_texel_solid_angles(16)
     np.testing.assert_allclose((cube[..., 0] * omega).sum(), 4 * math.pi, rtol=1e-6)
+
+
+def _glass(category_id: str, inputs: str) -> str:
+    """A MaterialX surface authored in USD (a ``mtlx`` surface output) on the ceiling."""
+    return f"""
+def Material "Glass"
+{{
+    token outputs:mtlx:surface.connect = </Glass/Surf.outputs:out>
+    def Shader "Surf"
+    {{
+        uniform token info:id = "{category_id}"
+        {inputs}
+        token outputs:out
+    }}
+}}
+""" + plane_mesh("Ceiling", 1e4, "/Glass", height=2.0)
+
+
+@pytest.mark.parametrize(("category_id", "inputs", "presence"), [
+    ("ND_standard_surface_surfaceshader", "float inputs:transmission = 0.8\n        float inputs:base = 0", 0.2),
+    ("ND_standard_surface_surfaceshader",
+     "float inputs:transmission = 1\n        float inputs:metalness = 0.5\n        float inputs:base = 0", 0.5),
+    ("ND_open_pbr_surface_surfaceshader",
+     "float inputs:transmission_weight = 0.6\n        float inputs:base_weight = 0", 0.4),
+])
+def test_materialx_transmission_passes_light_straight_through(tmp_path, category_id, inputs, presence):
+    """Transmission t is thin, straight pass-through: presence 1 − t·(1 − metalness); under a uniform dome the
+    probe sees (1 − presence) of the sky through the ceiling (plus the ceiling's own specular reflection of the
+    open lower hemisphere, bounded by its Fresnel: the mean stays within F(0°..90°) of the pass-through share)."""
+    text = header() + DOME + _glass(category_id, inputs) + probe("P", (0.0, 1.0, 0.0))
+    reading = read_scene(write(tmp_path / "glass.usda", text))
+    assert not reading.errors, reading.errors
+    (mesh,) = reading.scene.meshes
+    assert mesh.material.opacity == pytest.approx(presence)
+    assert [i for i in reading.issues if "pass-through" in i.message]
+    cubes, _ = capture_probes(reading.scene, 16, samples=16, bounces=0)
+    up = cube_texel_directions(16)[..., 1] > 0.2
+    seen = cubes[0][up][:, 0].astype(np.float64)
+    assert (1.0 - presence) - 0.02 <= seen.mean() <= (1.0 - presence) + 0.1 * presence + 0.02
