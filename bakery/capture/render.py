@@ -84,6 +84,11 @@ from bakery.sphere.cubemap import (
 
 #: Default largest number of bounces (continuations); Russian roulette ends paths long before.
 DEFAULT_BOUNCES = 64
+#: Version of what the capture models: part of every scene probe's content hash (:func:`bakery.pipeline.
+#: dependencies.environment_hash`), bumped whenever the same scene and settings capture differently, so a store
+#: baked before is re-baked rather than reused. 2: partial opacity as presence (was opaque), MaterialX transmission,
+#: shading normals, Cylinder/Cone/Capsule/Plane gprims.
+CAPTURE_MODEL_VERSION = 2
 #: Bounces up to this one are never ended by Russian roulette (exact); later ones may be.
 RR_START = 3
 #: Camera rays per chunk of a probe's pass (memory bound for large faces × samples; fixes the order of its random

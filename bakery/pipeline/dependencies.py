@@ -1,8 +1,9 @@
 """What each scene probe's result depends on, for incremental bakes (conservative, no ``pxr``).
 
-Global part (affects every probe): meshes (triangles and materials), the dome (texture content, scale,
-rotation), distant lights, and every referenced asset's bytes. Any change there re-bakes all probes — geometry
-anywhere can occlude, reflect or emit towards any probe.
+Global part (affects every probe): meshes (triangles, materials and shading normals), the dome (texture content,
+scale, rotation), distant lights, every referenced asset's bytes and the capture's model version
+(:data:`bakery.capture.render.CAPTURE_MODEL_VERSION`). Any change there re-bakes all probes — geometry anywhere can
+occlude, reflect or emit towards any probe.
 
 Per-probe part: the probe's own prim data (kind, position, rotation, resolution, encodings, influence) and the
 bytes of its captured image, if any. Moving one probe re-bakes only that probe.
@@ -60,6 +61,7 @@ def file_digest(path: str) -> str:
 def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN001 - bakery.capture.scene.CaptureScene
     """Hash of everything that can affect every probe (module docstring)."""
     from bakery.capture.lights import light_model
+    from bakery.capture.render import CAPTURE_MODEL_VERSION
 
     parts: list = [(mesh.name, mesh.material.__dict__, np.asarray(mesh.triangles, dtype=np.float32),
                     None if getattr(mesh, "uvs", None) is None else np.asarray(mesh.uvs, dtype=np.float32))
@@ -75,6 +77,7 @@ def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN00
     parts.append((getattr(scene, "time_code", None), getattr(scene, "working_space", "lin_rec709")))
     parts += [file_digest(asset) for asset in sorted(set(assets))]
     parts.append((scene.meters_per_unit, scene.up_axis))
+    parts.append(("capture model", CAPTURE_MODEL_VERSION))  # what the same scene captures to
     return stable_hash(*parts)
 
 

@@ -78,3 +78,23 @@ def test_light_bound_is_conservative_against_the_render(tmp_path):
         if bound[i] < LIGHT_INFLUENCE_FRACTION * eb[i]:
             assert abs(ea[i] - eb[i]) < LIGHT_INFLUENCE_FRACTION * eb[i]
     assert abs(ea[0] - eb[0]) <= bound[0]  # the bound bounds the real change
+
+
+def test_scene_hash_covers_the_capture_model_and_shading_normals(tmp_path, monkeypatch):
+    """A store baked by a capture that models the scene differently is re-baked, not reused: the scene hash
+    includes the capture model's version and the meshes' shading normals."""
+    import dataclasses
+
+    import bakery.capture.render as render
+    from bakery.pipeline.dependencies import environment_hash
+    from bakery.usd.scene import read_scene
+
+    scene = read_scene(write(tmp_path / "scene.usda", scene_text())).scene
+    base = environment_hash(scene)
+    assert environment_hash(scene) == base
+    mesh = scene.meshes[0]
+    up = np.broadcast_to(np.float32([0.0, 1.0, 0.0]), mesh.triangles.shape).copy()
+    smooth = dataclasses.replace(scene, meshes=(dataclasses.replace(mesh, normals=up),) + scene.meshes[1:])
+    assert environment_hash(smooth) != base
+    monkeypatch.setattr(render, "CAPTURE_MODEL_VERSION", render.CAPTURE_MODEL_VERSION + 1)
+    assert environment_hash(scene) != base
