@@ -18,9 +18,10 @@ What is read (``docs/capture.md``)
     Probes (bakery schema types); every UsdLux light through its class in :mod:`bakery.capture.lights`
     (Sphere, Disk, Rect with texture, Cylinder, Distant; ShapingAPI; color temperature; ``inputs:*`` attributes,
     else the legacy un-namespaced ones), Dome/DomeLight_1, GeometryLight (emission on its meshes), PortalLight (a
-    dome sampling guide); meshes (fan-triangulated, catmullClark refined ``subdivision`` levels), Sphere, Cube,
-    Cylinder(_1), Cone, Capsule(_1) and Plane gprims (tessellated, :mod:`bakery.usd.gprims`), point instancers and native instances (instance proxies), with payloads loaded;
-    texture coordinates for textured materials; UsdPreviewSurface and MaterialX materials
+    dome sampling guide); meshes (fan-triangulated, catmullClark refined ``subdivision`` levels; authored normals
+    of polygonal meshes), Sphere, Cube, Cylinder(_1), Cone, Capsule(_1) and Plane gprims (tessellated with their
+    exact normals, :mod:`bakery.usd.gprims`), point instancers and native instances (instance proxies), with
+    payloads loaded; texture coordinates for textured materials; UsdPreviewSurface and MaterialX materials
     (:mod:`bakery.usd.materials`, :mod:`bakery.usd.mtlx`). Invisible prims and ``guide``/``proxy`` purposes are
     skipped. Composition errors (unparsable sublayers, missing references and payloads) are errors. The stage is
     read at ``time`` (default: authored defaults, else each attribute's earliest time sample).
