@@ -101,7 +101,7 @@ def test_plane_axes_follow_usdgeomplane():
 
 
 @pytest.mark.parametrize("type_name", ["Cylinder", "Cylinder_1", "Cone", "Capsule", "Capsule_1"])
-def test_white_furnace_inside_each_closed_gprim(tmp_path, type_name):
+def test_no_ray_leaks_out_of_a_closed_emissive_gprim(tmp_path, type_name):
     """Inside a closed emissive black gprim every camera ray sees Le: none leaks out between the triangles. (With
     albedo a > 0 the furnace's Le·(1 + a + …) is not a closed form for these gprims: their smooth shading normals
     differ from the facets', and directions below a facet are excluded, as in pbrt — flat meshes keep the exact
