@@ -58,8 +58,10 @@ def Mesh "{name}" (
 """
 
 
-def plane_mesh(name: str, half: float, material_path: str, up_axis: str = "Y", height: float = 0.0) -> str:
-    """A square ground plane of half-size ``half`` at ``height`` along the up axis."""
+def plane_mesh(name: str, half: float, material_path: str, up_axis: str = "Y", height: float = 0.0,
+               extra: str = "") -> str:
+    """A square ground plane of half-size ``half`` at ``height`` along the up axis; ``extra``: more usda lines of
+    the mesh (normals, subdivisionScheme, …)."""
     if up_axis == "Y":
         pts = [(-half, height, -half), (half, height, -half), (half, height, half), (-half, height, half)]
     else:
@@ -73,6 +75,7 @@ def Mesh "{name}" (
     int[] faceVertexCounts = [4]
     int[] faceVertexIndices = [0, 1, 2, 3]
     point3f[] points = [{text}]
+    {extra}
     rel material:binding = <{material_path}>
 }}
 """

@@ -135,6 +135,11 @@ class Material:
     maps: tuple[dict, ...] = ()
 
     @property
+    def emits(self) -> bool:
+        """Whether the surface emits: a positive emissive colour, or a textured one."""
+        return max(self.emission) > 0 or any(entry.get("input") == "emissiveColor" for entry in self.maps)
+
+    @property
     def albedo(self) -> np.ndarray:
         """Diffuse albedo diffuse · (1 − metallic) (metallic workflow), clipped to [0, 1]."""
         weight = 1.0 if self.use_specular_workflow else 1.0 - self.metallic

@@ -220,8 +220,7 @@ class Surfaces:
         point = self._point({name: array.copy() for name, array in self.base.items()}, np.arange(len(mats)))
         self.table = np.ascontiguousarray(np.concatenate(
             [point.albedo.T, point.f0.T, point.roughness[None], point.emission.T]), dtype=np.float32)
-        self.emissive = bool(point.emission.max() > 0) or any(
-            entry.get("input") == "emissiveColor" for k in self.textured for entry in self.materials[k].maps)
+        self.emissive = any(m.emits for m in self.materials)
         self.mesh_of_soa = np.ascontiguousarray(self.mesh_of, dtype=np.int32)
 
     def params_soa(self, prim: np.ndarray, bu: np.ndarray, bv: np.ndarray, t: np.ndarray, spread: float

@@ -37,7 +37,7 @@ import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
 
 from bakery.capture.lights import LIGHT_MODELS, Placement
-from bakery.capture.scene import CaptureScene, Dome, Light, Material, Mesh, ProbeSpec
+from bakery.capture.scene import CaptureScene, Dome, Light, Mesh, ProbeSpec
 from bakery.environment.io import is_8bit_image, read_environment
 from bakery.errors import ImageError, SceneError
 from bakery.usd import gprims
@@ -118,11 +118,6 @@ class _Frame:
         if pre is not None:
             m3 = pre @ m3
         return (m3 @ self.axes).T
-
-
-def _emits(material: Material) -> bool:
-    """Whether a surface emits: a positive emissive colour or a textured one (GeometryLights are folded in)."""
-    return max(material.emission) > 0 or any(m["input"] == "emissiveColor" for m in material.maps)
 
 
 def blackbody_rgb(kelvin: float) -> np.ndarray:
@@ -233,7 +228,7 @@ class SceneReader:
         if not self.probes:
             self.issue("error", "/", "the scene has no probes (BakeryIrradianceProbe, BakeryReflectionProbe or "
                        "BakeryIrradianceProbeVolume prims)")
-        if not self.lights and not self.domes and not any(_emits(mesh.material) for mesh in self.meshes):
+        if not self.lights and not self.domes and not any(mesh.material.emits for mesh in self.meshes):
             self.issue("warning", "/", "nothing in the scene emits light (no UsdLux light, no dome light, no emissive "
                        "material): every probe will be black")
         if len(self.domes) > 1:

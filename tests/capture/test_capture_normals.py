@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 import pytest
-from usd_scenes import header, material, probe, write
+from usd_scenes import header, material, plane_mesh, probe, write
 
 from bakery.capture import capture_probes
 from bakery.sphere.cubemap import cube_texel_directions
@@ -17,21 +17,8 @@ from bakery.usd.scene import read_scene
 
 
 def _quad(name: str, half: float, material_path: str, normals: str = "", extra: str = "") -> str:
-    """A square y = 0 quad as two triangles' worth of one polygon, wound counter-clockwise seen from +y."""
-    pts = f"(-{half}, 0, -{half}), (-{half}, 0, {half}), ({half}, 0, {half}), ({half}, 0, -{half})"
-    return f"""
-def Mesh "{name}" (
-    prepend apiSchemas = ["MaterialBindingAPI"]
-)
-{{
-    int[] faceVertexCounts = [4]
-    int[] faceVertexIndices = [0, 1, 2, 3]
-    point3f[] points = [{pts}]
-    {normals}
-    {extra}
-    rel material:binding = <{material_path}>
-}}
-"""
+    """A square y = 0 quad with authored ``normals`` and ``extra`` usda lines."""
+    return plane_mesh(name, half, material_path, extra=f"{normals}\n    {extra}")
 
 
 def _sun(zenith_deg: float, intensity: float = 3.0) -> str:
@@ -79,8 +66,8 @@ def test_tilted_shading_normal_gives_the_cosine_to_the_tilted_normal(tmp_path, i
 
 
 def test_normals_attribute_and_normals_against_the_winding(tmp_path):
-    """The ``normals`` attribute is read when there is no primvar; a normal authored opposite to the triangle's
-    winding is turned to the viewer's side (two-sided surfaces), so it shades as the geometric normal."""
+    """The ``normals`` attribute is read when there is no primvar; normals are turned to the viewer's side
+    (two-sided surfaces), so +y and −y — one of them against the quad's winding — shade alike."""
     up = _plane_radiance(tmp_path, 'normal3f[] normals = [(0, 1, 0), (0, 1, 0), (0, 1, 0), (0, 1, 0)] (\n'
                                    '        interpolation = "vertex"\n    )')
     down = _plane_radiance(tmp_path, 'normal3f[] normals = [(0, -1, 0), (0, -1, 0), (0, -1, 0), (0, -1, 0)] (\n'
