@@ -23,7 +23,9 @@ Samplers (pbrt-v4, "Light Sampling")
 
 Shaping (UsdLuxShapingAPI, as HdEmbree evaluates it)
     with c = cos of the angle between the emission direction and the light's −Z axis:
-    focus: L *= lerp(focusTint, 1, |c|^focus); cone: L *= 1 − smoothstep(θ, (1 − softness)·θ_cone, θ_cone).
+    focus: L *= lerp(focusTint, 1, |c|^focus); cone: L *= 1 − smoothstep(θ, (1 − softness)·θ_cone, θ_cone);
+    IES profile: L *= the profile's value along the emission direction (:mod:`bakery.capture.ies`). Distant
+    lights are not shaped.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from bakery.capture import vec
+from bakery.capture.ies import evaluate_ies
 from bakery.capture.scene import FAR, Light
 from bakery.capture.vec import TINY, dot, dotc
 
@@ -164,6 +167,9 @@ class LightModel:
                 radiance = radiance * ((1 - ff) * tint + ff)
         else:
             radiance = colour * scale
+        if self.light.ies is not None:  # the profile sampled along the emission direction −wi, light-local
+            local = -np.stack([dotc(self.x_axis, wi), dotc(self.y_axis, wi), dotc(self.z_axis, wi)])
+            radiance = radiance * evaluate_ies(self.light.ies, local)
         if self.texture is not None and coords is not None:
             radiance = radiance * self._texel(coords)
         return radiance

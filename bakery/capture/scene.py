@@ -19,6 +19,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from bakery.capture.ies import IesShaping
+
 LIGHT_TYPES = ("distant", "sphere", "rect", "disk", "cylinder")
 #: Distance used for "no hit" and for unbounded shadow rays (metres).
 FAR = 1e30
@@ -43,6 +45,8 @@ class Light:
             occluding (False for point-like lights, which are reached by next-event estimation only).
         shaping: UsdLuxShapingAPI as (cone angle°, cone softness, focus, focus tint r, g, b); () = unshaped.
         texture: index into :attr:`CaptureScene.textures` of a RectLight's ``texture:file`` (−1: none).
+        ies: the light's IES profile with ``shaping:ies:angleScale`` and ``normalize`` (:mod:`bakery.capture.ies`),
+            or None.
     """
 
     kind: str
@@ -56,6 +60,7 @@ class Light:
     visible: bool = True
     shaping: tuple[float, ...] = ()
     texture: int = -1
+    ies: IesShaping | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in LIGHT_TYPES:

@@ -45,6 +45,7 @@ from typing import Any
 
 import numpy as np
 
+from bakery.capture.ies import IesProfile, IesShaping
 from bakery.capture.scene import CaptureScene, Dome, Light, Material, Mesh, ProbeSpec, Texture
 from bakery.errors import InputError
 from bakery.files import sha256_bytes
@@ -145,6 +146,24 @@ def _build(cls: type, record: dict[str, Any], **extra: Any) -> Any:
     values = {k: _decode(v) if type(v) is list or type(v) is dict else v for k, v in record.items() if k in names}
     values.update(extra)
     return cls(**values)
+
+
+def _light_record(light: Light) -> dict[str, Any]:
+    """A light's fields, its IES shaping as a nested record (only when it has one: the hash of a scene without
+    profiles is unchanged)."""
+    record = _fields(light, skip=("ies",))
+    if light.ies is not None:
+        record["ies"] = {**_fields(light.ies, skip=("profile",)), "profile": _fields(light.ies.profile)}
+    return record
+
+
+def _light(record: dict[str, Any]) -> Light:
+    ies = record.get("ies")
+    if ies is None:
+        return _build(Light, record)
+    profile = _build(IesProfile, ies["profile"])
+    return _build(Light, {k: v for k, v in record.items() if k != "ies"},
+                  ies=_build(IesShaping, {k: v for k, v in ies.items() if k != "profile"}, profile=profile))
 
 
 def _dumps(body: dict[str, Any]) -> bytes:
@@ -266,8 +285,8 @@ def _snapshot_body(scene: CaptureScene) -> tuple[dict[str, Any], dict[str, np.nd
         "arrays": manifest,
         "triangle_offsets": offsets,
         "meshes": meshes,
-        "lights": [_fields(light) for light in scene.lights],
-        "portals": [_fields(light) for light in scene.portals],
+        "lights": [_light_record(light) for light in scene.lights],
+        "portals": [_light_record(light) for light in scene.portals],
         "textures": textures,
         "dome": dome,
         "probes": [_fields(probe) for probe in scene.probes],
@@ -461,8 +480,8 @@ def read_capture_scene(directory: str | os.PathLike[str], mmap: bool = True, ver
             material = _build(Material, record["material"])
             meshes.append(_build(Mesh, {k: v for k, v in record.items() if k not in _MESH_ARRAYS},
                                  triangles=view, material=material, **slices))
-        lights = tuple(_build(Light, record) for record in body["lights"])
-        portals = tuple(_build(Light, record) for record in body["portals"])
+        lights = tuple(_light(record) for record in body["lights"])
+        portals = tuple(_light(record) for record in body["portals"])
         textures = tuple(_build(Texture, {k: v for k, v in record.items() if k != "pixels"},
                                 pixels=arrays[record["pixels"]]) for record in body["textures"])
         dome = None

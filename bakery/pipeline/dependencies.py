@@ -10,9 +10,9 @@ bytes of its captured image, if any. Moving one probe re-bakes only that probe.
 
 Local lights (sphere, rect, disk, cylinder) are tracked one by one in a light table stored with the bake
 (root attribute ``scene_lights``, and per bake in ``/history/scene_lights``): name, hash, centre, bounding radius R,
-emitting area A, radiance L (RGB, times the largest texel of a light texture), ``power`` = max_c L_c · A and a
-``geometry`` hash of everything but the radiance (kind, position, orientation, size, visibility, shaping,
-texture). A reused probe is compared with the table of the bake that produced it (so repeated small edits cannot
+emitting area A, radiance L (RGB, times the largest texel of a light texture and the largest factor of an IES
+profile), ``power`` = max_c L_c · A and a ``geometry`` hash of everything but the radiance (kind, position,
+orientation, size, visibility, shaping, IES profile, texture). A reused probe is compared with the table of the bake that produced it (so repeated small edits cannot
 accumulate unnoticed). When lights are added, removed or changed, a previously baked probe p is re-baked unless
 one of two sufficient conditions shows that its irradiance cannot have changed by τ = 1/256:
 
@@ -72,13 +72,22 @@ def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN00
         dome = scene.dome
         pixels = np.zeros(0) if dome.pixels is None else np.asarray(dome.pixels, dtype=np.float32)
         parts.append((dome.name, dome.scale, dome.rotation, dome.layout, pixels))
-    parts += [light.__dict__ for light in scene.lights if light_model(light).is_global]
-    parts += [portal.__dict__ for portal in getattr(scene, "portals", ())]
+    parts += [_light_fields(light) for light in scene.lights if light_model(light).is_global]
+    parts += [_light_fields(portal) for portal in getattr(scene, "portals", ())]
     parts.append((getattr(scene, "time_code", None), getattr(scene, "working_space", "lin_rec709")))
     parts += [file_digest(asset) for asset in sorted(set(assets))]
     parts.append((scene.meters_per_unit, scene.up_axis))
     parts.append(("capture model", CAPTURE_MODEL_VERSION))  # what the same scene captures to
     return stable_hash(*parts)
+
+
+def _light_fields(light) -> dict:  # noqa: ANN001 - bakery.capture.scene.Light
+    """A light's fields for hashing; ``ies`` only when it has a profile (hashes of lights without one are those of
+    the bakes before IES profiles were read)."""
+    fields = dict(light.__dict__)
+    if fields.get("ies", 0) is None:
+        del fields["ies"]
+    return fields
 
 
 def _texture_peak(scene, light) -> float:  # noqa: ANN001
@@ -102,10 +111,12 @@ def light_table(scene) -> list[dict]:  # noqa: ANN001
         if model.is_global:
             continue
         radius = model.bounding_radius
-        peak = _texture_peak(scene, light)
+        ies = getattr(light, "ies", None)
+        peak = _texture_peak(scene, light) * (1.0 if ies is None else ies.peak)  # the largest radiance factor
         radiance = [float(c) * peak for c in light.radiance]
-        geometry = {k: v for k, v in light.__dict__.items() if k not in ("name", "radiance")}
-        table.append({"name": light.name, "hash": stable_hash(light.__dict__), "geometry": stable_hash(geometry),
+        fields = _light_fields(light)
+        geometry = {k: v for k, v in fields.items() if k not in ("name", "radiance")}
+        table.append({"name": light.name, "hash": stable_hash(fields), "geometry": stable_hash(geometry),
                       "position": list(map(float, light.position)), "radius": float(radius),
                       "area": float(light.area), "radiance": radiance,
                       "power": float(max(radiance)) * float(light.area)})

@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
 
+from bakery.capture.ies import IesError, IesShaping, parse_ies
 from bakery.capture.lights import LIGHT_MODELS, Placement
 from bakery.capture.scene import CaptureScene, Dome, Light, Mesh, ProbeSpec
 from bakery.environment.io import is_8bit_image, read_environment
@@ -417,7 +418,7 @@ class SceneReader:
             scale = scale * blackbody_rgb(float(self._input(prim, "colorTemperature", 6500.0)))
         unapplied = sorted(
             a.GetName() for a in prim.GetAuthoredAttributes()
-            if a.GetName().startswith(("inputs:shaping:ies:", "shaping:ies:", "inputs:shadow:", "shadow:"))
+            if a.GetName().startswith(("inputs:shadow:", "shadow:"))
             or a.GetName() in ("inputs:diffuse", "diffuse", "inputs:specular", "specular")
         )
         if unapplied:
@@ -481,7 +482,8 @@ class SceneReader:
         for note in notes:
             self.issue("warning", prim, note)
         shaping = self._shaping(prim) if cls.kind != "distant" else ()
-        if cls.kind == "distant" and self._shaping(prim):
+        ies = self._ies(prim) if cls.kind != "distant" else None
+        if cls.kind == "distant" and (self._shaping(prim) or self._input(prim, "shaping:ies:file", None)):
             self.issue("warning", prim, "ShapingAPI on a DistantLight has no effect")
         texture = -1
         tex = self._input(prim, "texture:file", None)
@@ -490,7 +492,30 @@ class SceneReader:
                 self.issue("warning", prim, f"texture:file on a {prim.GetTypeName()} is not applied")
             else:
                 texture = self._light_texture(prim, tex)
-        self.lights.append(dataclasses.replace(light, shaping=shaping, texture=texture))
+        self.lights.append(dataclasses.replace(light, shaping=shaping, texture=texture, ies=ies))
+
+    def _ies(self, prim: Usd.Prim) -> IesShaping | None:
+        """UsdLuxShapingAPI's IES profile (``shaping:ies:file``, ``:angleScale``, ``:normalize``), or None."""
+        asset = self._input(prim, "shaping:ies:file", None)
+        if not isinstance(asset, Sdf.AssetPath) or not asset.path:
+            return None
+        resolved = local_asset_path(asset)
+        if resolved is None:
+            self.issue("warning", prim, f"IES profile {asset.path!r} not found; the light is not shaped by it")
+            return None
+        try:  # LM-63 files are ASCII; latin-1 reads any byte (a stray ° in a keyword line)
+            profile = parse_ies(Path(resolved).read_text(encoding="latin-1"), asset.path)
+        except OSError as error:
+            self.issue("error", prim, f"IES profile {asset.path!r} cannot be read: {error.strerror or error}")
+            return None
+        except IesError as error:
+            self.issue("error", prim, f"IES profile {error}")
+            return None
+        angle_scale = float(self._input(prim, "shaping:ies:angleScale", 0.0))
+        if not np.isfinite(angle_scale):
+            self.issue("error", prim, f"shaping:ies:angleScale {angle_scale} is not finite")
+            return None
+        return IesShaping(profile, angle_scale, bool(self._input(prim, "shaping:ies:normalize", False)))
 
     def _light_texture(self, prim: Usd.Prim, asset: Sdf.AssetPath) -> int:
         resolved = local_asset_path(asset)
