@@ -85,6 +85,19 @@ class Bsdf:
     def evaluate(self, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """f·cos θi (3, ..., M) and the sampling pdf (..., M) (solid angle) for directions wi (3, M) or (3, J, M)
         (J directions per point)."""
+        diffuse, specular, pdf, above = self._lobes(wi)
+        value = diffuse if specular is None else diffuse + specular
+        return value * above, pdf * above
+
+    def evaluate_lobes(self, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """As :meth:`evaluate`, the diffuse and the specular lobe's f·cos θi apart (3, ..., M) each, and the pdf
+        (lights' diffuse/specular multipliers scale them separately)."""
+        diffuse, specular, pdf, above = self._lobes(wi)
+        return diffuse * above, (np.zeros_like(diffuse) if specular is None else specular * above), pdf * above
+
+    def _lobes(self, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
+        """The diffuse f·cos, the specular f·cos (None without a specular lobe), the pdf and the mask of directions
+        above the surface, unmasked."""
         e = (lambda a: a[..., None, :]) if wi.ndim == 3 else (lambda a: a)
         n, wo = e(self.n), e(self.wo)
         nl = dot(n, wi)
@@ -97,7 +110,8 @@ class Bsdf:
         vh = np.clip((1 + c) * inv_h, 0, 1)
         f0 = e(self.f0)
         f = f0 + (e(self.f90) - f0) * _pow5(1 - vh)
-        value = e(self.albedo_pi) * (1 - f) * nlc
+        diffuse = e(self.albedo_pi) * (1 - f) * nlc
+        specular = None
         pdf = (1 - e(self.p_spec)) * _INV_PI * nlc
         if self.any_specular:
             a2 = e(self.a2)
@@ -114,12 +128,13 @@ class Bsdf:
             with np.errstate(over="ignore"):  # wi = −wo: den overflows, D = 0
                 d = (nh > 0) * a2 / (math.pi * den * den)
             vis = 0.5 / np.maximum(nlc * e(self.sqv) + e(self.nv) * np.sqrt(nlc * nlc * (1 - a2) + a2), TINY)
-            value = value + f * (d * vis * nlc)
+            specular = f * (d * vis * nlc)
             pdf = pdf + e(self.spec_pdf_scale) * d
-        return value * above, pdf * above
+        return diffuse, specular, pdf, above
 
-    def sample(self, u0: np.ndarray, u1: np.ndarray, u2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Directions wi (3, M), weights f·cos/pdf (3, M) and pdfs (M,) from uniform numbers u0, u1, u2 (M,)."""
+    def sample(self, u0: np.ndarray, u1: np.ndarray, u2: np.ndarray, lobes: bool = False) -> tuple[np.ndarray, ...]:
+        """Directions wi (3, M), weights f·cos/pdf (3, M) and pdfs (M,) from uniform numbers u0, u1, u2 (M,);
+        with ``lobes``, also the diffuse and the specular lobe's part of the weight (3, M) each."""
         t, b = frame(self.n)
         r = np.sqrt(u0)
         phi = (2 * math.pi) * u1
@@ -135,11 +150,18 @@ class Bsdf:
                                  np.take(self.alpha, idx))
                 h = h[0] * tk + h[1] * bk + h[2] * nk
                 wi[:, idx] = 2 * dot(wo, h) * h - wo
-        value, pdf = self.evaluate(wi)
+        if not lobes:
+            value, pdf = self.evaluate(wi)
+            ok = pdf > 0
+            with np.errstate(divide="ignore", invalid="ignore"):
+                weight = np.where(ok, value / np.where(ok, pdf, 1), 0)
+            return wi, weight, pdf
+        diffuse, specular, pdf = self.evaluate_lobes(wi)
         ok = pdf > 0
         with np.errstate(divide="ignore", invalid="ignore"):
-            weight = np.where(ok, value / np.where(ok, pdf, 1), 0)
-        return wi, weight, pdf
+            inv = np.where(ok, 1 / np.where(ok, pdf, 1), 0)
+        weight_d, weight_s = diffuse * inv, specular * inv
+        return wi, weight_d + weight_s, pdf, weight_d, weight_s
 
 
 def _sample_vndf(vx: np.ndarray, vy: np.ndarray, vz: np.ndarray, u1: np.ndarray, u2: np.ndarray,

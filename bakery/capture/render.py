@@ -258,6 +258,17 @@ class ProbeRenderer:
         self._light_can_hit = [bool(m.visible and not (isinstance(m, DistantLightModel) and m.delta))
                                for m in self.lights.models]
         self._light_shape = [surfaces.get(id(m), -1) for m in self.lights.models]
+        self._model_strategy = {id(m): j for j, m in enumerate(self.lights.models)}
+        self._surface_strategy = [self._model_strategy[id(m)] for m in self.lights.surfaces]
+        # UsdLux's diffuse/specular multipliers per emitter (the lobes are weighted apart only when one is ≠ 1, so
+        # scenes without them shade exactly as before) and ShadowAPI per analytic light
+        dome = scene.dome
+        self._dome_lobes = (1.0, 1.0) if dome is None else (float(dome.diffuse), float(dome.specular))
+        self._light_lobes = [(float(m.light.diffuse), float(m.light.specular)) for m in self.lights.models]
+        self._lobes = any(x != (1.0, 1.0) for x in [*self._light_lobes, self._dome_lobes])
+        self._shadowless = [not m.light.shadow for m in self.lights.models]
+        self._shadow_color = [tuple(map(float, m.light.shadow_color)) if m.light.shadow else (0.0, 0.0, 0.0)
+                              for m in self.lights.models]
 
     # ------------------------------------------------------------------------------------------------------------
     def prepare(self, face_size: int) -> None:
@@ -489,7 +500,10 @@ class ProbeRenderer:
                 out_add += emission
             # BSDF continuation: also the BSDF half of the MIS estimate of lights and dome at this vertex
             u = owners.random(3)
-            wi, weight, pdf_b = bsdf.sample(u[0], u[1], u[2])
+            if self._lobes:
+                wi, weight, pdf_b, weight_d, weight_s = bsdf.sample(u[0], u[1], u[2], lobes=True)
+            else:
+                wi, weight, pdf_b = bsdf.sample(u[0], u[1], u[2])
             alive = (pdf_b > 0) & (vmax(weight) > 0)
             prim2 = np.full(k, -1, dtype=np.int32)
             t2 = np.full(k, FAR, dtype=REAL)
@@ -501,7 +515,9 @@ class ProbeRenderer:
                 p2, tt, uu, vv = self._intersect(pa, wa, owners.take(ai))
                 prim2[ai], t2[ai], bu2[ai], bv2[ai] = p2, tt, uu, vv
                 found, on_light = self._emitted_along(pa, wa, tt, p2 < 0, pdf_b[ai])
-                if found is not None:
+                if found is not None and self._lobes:  # (diffuse, specular) emitter sums
+                    _add_at(out_add, ai, _take(weight_d, ai) * found[0] + _take(weight_s, ai) * found[1])
+                elif found is not None:
                     _add_at(out_add, ai, _take(weight, ai) * found)
                     prim2[ai[on_light]] = -1  # light shapes are opaque and do not reflect: the path ends there
             contribution = out_add if throughput is None else throughput * out_add
@@ -526,46 +542,63 @@ class ProbeRenderer:
         return out
 
     def _emitted_along(self, points: np.ndarray, wi: np.ndarray, t: np.ndarray, escaped: np.ndarray,
-                       pdf_b: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:
+                       pdf_b: np.ndarray) -> tuple[np.ndarray | tuple[np.ndarray, np.ndarray] | None, np.ndarray]:
         """Radiance (3, M) a BSDF-sampled ray finds at a light shape, the dome or a distant disc, weighted by the
         power heuristic against the next-event pdfs (None if nothing can be found), and whether the ray ended on a
-        light shape (M,)."""
+        light shape (M,). With diffuse/specular multipliers the radiance is a pair: the sums weighted by each
+        emitter's diffuse and specular multiplier. Lights without shadows are found by next-event estimation only
+        (they add nothing here)."""
         m = points.shape[1]
-        result = None
+        sums = [None, None] if self._lobes else [None]  # one sum, or the (diffuse, specular) weighted ones
+
+        def add(where: np.ndarray, value: np.ndarray, multipliers: tuple[float, float]) -> None:
+            for i, total in enumerate(sums):
+                if total is None:
+                    total = sums[i] = np.zeros((3, m), dtype=REAL)
+                factor = multipliers[i] if self._lobes else 1.0
+                _add_at(total, where, value if factor == 1.0 else value * REAL(factor))
+
         on_light = np.zeros(m, dtype=bool)
         if self.lights.surfaces:
-            result = np.zeros((3, m), dtype=REAL)
+            sums = [np.zeros((3, m), dtype=REAL) for _ in sums]
             t_l, which, l_l = self.lights.nearest_soa(points, wi)
             on_light = (which >= 0) & (t_l < t)
             for k, model in enumerate(self.lights.surfaces):
+                j = self._surface_strategy[k]
                 sel = np.flatnonzero(on_light & (which == k))
-                if sel.size:
+                if sel.size and not self._shadowless[j]:
                     pdf_l = model.pdf_soa(_take(points, sel), _take(wi, sel), t_l[sel])
-                    _add_at(result, sel, _take(l_l, sel) * power(pdf_b[sel], pdf_l))
+                    add(sel, _take(l_l, sel) * power(pdf_b[sel], pdf_l), self._light_lobes[j])
             escaped = escaped & ~on_light
-        distant = [light for light in self.distant if not light.delta]
-        if self.dome.black and not distant:
-            return result, on_light
-        ei = np.flatnonzero(escaped)
-        if ei.size == 0:
-            return result, on_light
-        w_dirs = _take(wi, ei)
-        pb = pdf_b[ei]
-        found = np.zeros((3, ei.size), dtype=REAL)
-        if not self.dome.black:
-            rest, pdf_rest = self.dome.rest_lookup_soa(w_dirs)
-            if self.portals:
-                pdf_rest = self._dome_pdf(_take(points, ei), w_dirs, pdf_rest)
-            found += rest * power(pb, pdf_rest)
-            if self.dome.has_sun:
-                sun, pdf_sun = self.dome.sun_lookup_soa(w_dirs)
-                found += sun * power(pb, pdf_sun)
-        for light in distant:
-            found += light.escaped_soa(w_dirs) * power(pb, light.pdf_soa(None, w_dirs, None))
-        if result is None:
-            result = np.zeros((3, m), dtype=REAL)
-        _add_at(result, ei, found)
-        return result, on_light
+        distant = [(light, self._model_strategy[id(light)]) for light in self.distant if not light.delta]
+        distant = [(light, j) for light, j in distant if not self._shadowless[j]]
+        ei = np.flatnonzero(escaped) if not (self.dome.black and not distant) else np.zeros(0, dtype=np.int64)
+        if ei.size:
+            w_dirs = _take(wi, ei)
+            pb = pdf_b[ei]
+            parts = []  # (radiance (3, E), multipliers), summed in this order
+            if not self.dome.black:
+                rest, pdf_rest = self.dome.rest_lookup_soa(w_dirs)
+                if self.portals:
+                    pdf_rest = self._dome_pdf(_take(points, ei), w_dirs, pdf_rest)
+                parts.append((rest * power(pb, pdf_rest), self._dome_lobes))
+                if self.dome.has_sun:
+                    sun, pdf_sun = self.dome.sun_lookup_soa(w_dirs)
+                    parts.append((sun * power(pb, pdf_sun), self._dome_lobes))
+            for light, j in distant:
+                parts.append((light.escaped_soa(w_dirs) * power(pb, light.pdf_soa(None, w_dirs, None)),
+                              self._light_lobes[j]))
+            for i in range(len(sums)):
+                found = np.zeros((3, ei.size), dtype=REAL)
+                for value, multipliers in parts:
+                    factor = multipliers[i] if self._lobes else 1.0
+                    found += value if factor == 1.0 else value * REAL(factor)
+                if sums[i] is None:
+                    sums[i] = np.zeros((3, m), dtype=REAL)
+                _add_at(sums[i], ei, found)
+        if self._lobes:
+            return (None if sums[0] is None else (sums[0], sums[1])), on_light
+        return sums[0], on_light
 
     def _direct(self, points: np.ndarray, bsdf: Bsdf, owners: _Owners) -> np.ndarray:
         """Next-event estimates (3, M) of every light, the dome's rest and its sun (MIS-weighted, shadowed).
@@ -611,31 +644,47 @@ class ProbeRenderer:
         wi = np.stack(wis, axis=1)  # (3, J, M)
         radiance = np.stack(radiances, axis=1)
         pdf = np.stack(pdfs)  # (J, M)
-        value, pdf_b = bsdf.evaluate(wi)
+        lights = len(self.lights.models)  # strategies 0…lights−1 are the analytic lights, then the dome's
+        if self._lobes:  # each strategy's diffuse and specular multipliers weight the lobes apart
+            value_d, value_s, pdf_b = bsdf.evaluate_lobes(wi)
+            lobes = np.array(self._light_lobes + [self._dome_lobes] * (count - lights), dtype=REAL)  # (J, 2)
+            value = value_d * lobes[:, 0, None] + value_s * lobes[:, 1, None]
+        else:
+            value, pdf_b = bsdf.evaluate(wi)
         valid = (pdf > 0) & (vmax(radiance) > 0) & (vmax(value) > 0)
         weight = power(pdf, pdf_b)
+        shadowless = np.array(self._shadowless + [False] * (count - lights))
         for j in range(count):
-            if not can_hit[j]:
+            if not can_hit[j] or shadowless[j]:  # a shadowless light is found by next-event estimation alone
                 weight[j] = 1
         with np.errstate(divide="ignore"):
             inv = np.where(np.isinf(pdf), 1, np.where(pdf > 0, 1 / pdf, 0)).astype(REAL, copy=False)
         dist = np.stack(dists)
         short = np.where(dist < FAR, dist * (1.0 - SHADOW_EPSILON), FAR).astype(REAL, copy=False)
+        unblocked = valid & ~shadowless[:, None]  # the segments whose occlusion counts
         if self.lights.surfaces:  # light shapes first, on all (J, M) segments at once (no gathers)
             skip = np.asarray(shapes, dtype=np.int64)[:, None]
-            valid &= ~self.lights.occluded_soa(points, wi, short, skip)
-        idx = np.flatnonzero(valid)
-        if idx.size == 0:
-            return np.zeros((3, m), dtype=REAL)
-        sp, sw, sd = _take(points, idx % m), _take(wi.reshape(3, -1), idx), short.reshape(-1)[idx]
-        if self.surfaces.cutout:
-            visible = self._intersect(sp, sw, owners.take(idx % m))[1] >= sd
-        else:
-            visible = ~self.tracer.occluded(sp, sw, sd, soa=True)
-            owners.traced(idx % m)
+            unblocked &= ~self.lights.occluded_soa(points, wi, short, skip)
+        idx = np.flatnonzero(unblocked)
         scale = np.zeros(count * m, dtype=REAL)
-        scale[idx[visible]] = 1
-        terms = value * radiance * (scale.reshape(count, m) * weight * inv)
+        if idx.size:
+            sp, sw, sd = _take(points, idx % m), _take(wi.reshape(3, -1), idx), short.reshape(-1)[idx]
+            if self.surfaces.cutout:
+                visible = self._intersect(sp, sw, owners.take(idx % m))[1] >= sd
+            else:
+                visible = ~self.tracer.occluded(sp, sw, sd, soa=True)
+                owners.traced(idx % m)
+            scale[idx[visible]] = 1
+        scale = scale.reshape(count, m)
+        if shadowless.any():
+            scale[shadowless] = valid[shadowless]
+        elif idx.size == 0 and not any(self._shadow_color):
+            return np.zeros((3, m), dtype=REAL)
+        terms = value * radiance * (scale * weight * inv)
+        for j, colour in enumerate(self._shadow_color):  # ShadowAPI shadow:color: occluded segments deliver
+            if any(colour):                                # that fraction, by next-event estimation alone
+                occluded = (valid[j] & (scale[j] == 0)).astype(REAL) * inv[j]
+                terms[:, j] += value[:, j] * radiance[:, j] * (np.array(colour, dtype=REAL)[:, None] * occluded)
         total = terms[:, 0]
         for j in range(1, count):  # in strategy order, element by element (a reduction's order may depend on M)
             total = total + terms[:, j]

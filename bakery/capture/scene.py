@@ -47,6 +47,12 @@ class Light:
         texture: index into :attr:`CaptureScene.textures` of a RectLight's ``texture:file`` (−1: none).
         ies: the light's IES profile with ``shaping:ies:angleScale`` and ``normalize`` (:mod:`bakery.capture.ies`),
             or None.
+        diffuse, specular: UsdLux's non-physical multipliers of the light's effect on the diffuse and the specular
+            lobe of surfaces (their next-event and MIS-weighted BSDF estimates at every path vertex; a camera ray
+            sees the light's shape unscaled).
+        shadow: UsdLuxShadowAPI ``shadow:enable``: False lets the light's next-event rays through every occluder
+            (the light is then sampled by next-event estimation alone, without MIS).
+        shadow_color: ``shadow:color``: the fraction of the light (RGB) an occluded next-event ray still delivers.
     """
 
     kind: str
@@ -61,6 +67,10 @@ class Light:
     shaping: tuple[float, ...] = ()
     texture: int = -1
     ies: IesShaping | None = None
+    diffuse: float = 1.0
+    specular: float = 1.0
+    shadow: bool = True
+    shadow_color: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         if self.kind not in LIGHT_TYPES:
@@ -98,6 +108,8 @@ class Dome:
         pixels: (H, W, 3) float32 texture radiance, or ``None`` for a constant dome.
         layout: environment layout of ``pixels`` (:data:`bakery.environment.LAYOUTS`).
         source: texture file, for messages.
+        diffuse, specular: UsdLux's multipliers of the dome's effect on the diffuse and specular lobes of surfaces
+            (:class:`Light`); the dome seen by escaping camera rays is unscaled.
     """
 
     name: str
@@ -106,6 +118,8 @@ class Dome:
     pixels: np.ndarray | None = None
     layout: str = "equirect"
     source: str = ""
+    diffuse: float = 1.0
+    specular: float = 1.0
 
 
 @dataclass(frozen=True)

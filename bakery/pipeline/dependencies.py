@@ -10,10 +10,11 @@ bytes of its captured image, if any. Moving one probe re-bakes only that probe.
 
 Local lights (sphere, rect, disk, cylinder) are tracked one by one in a light table stored with the bake
 (root attribute ``scene_lights``, and per bake in ``/history/scene_lights``): name, hash, centre, bounding radius R,
-emitting area A, radiance L (RGB, times the largest texel of a light texture and the largest factor of an IES
-profile), ``power`` = max_c L_c · A and a ``geometry`` hash of everything but the radiance (kind, position,
-orientation, size, visibility, shaping, IES profile, texture). A reused probe is compared with the table of the bake that produced it (so repeated small edits cannot
-accumulate unnoticed). When lights are added, removed or changed, a previously baked probe p is re-baked unless
+emitting area A, radiance L (RGB, times the largest texel of a light texture, the largest factor of an IES
+profile and the larger of 1 and the light's diffuse/specular multipliers), ``power`` = max_c L_c · A and a
+``geometry`` hash of everything but the radiance (kind, position, orientation, size, visibility, shaping, IES
+profile, texture, multipliers, shadows). A reused probe is compared with the table of the bake that produced it
+(so repeated small edits cannot accumulate unnoticed). When lights are added, removed or changed, a previously baked probe p is re-baked unless
 one of two sufficient conditions shows that its irradiance cannot have changed by τ = 1/256:
 
     (a) relative:  every changed light kept its geometry and  r = max over lights and channels of
@@ -71,7 +72,9 @@ def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN00
     if scene.dome is not None:
         dome = scene.dome
         pixels = np.zeros(0) if dome.pixels is None else np.asarray(dome.pixels, dtype=np.float32)
-        parts.append((dome.name, dome.scale, dome.rotation, dome.layout, pixels))
+        response = (getattr(dome, "diffuse", 1.0), getattr(dome, "specular", 1.0))
+        parts.append((dome.name, dome.scale, dome.rotation, dome.layout, pixels)
+                     + (() if response == (1.0, 1.0) else (response,)))  # multipliers only when authored
     parts += [_light_fields(light) for light in scene.lights if light_model(light).is_global]
     parts += [_light_fields(portal) for portal in getattr(scene, "portals", ())]
     parts.append((getattr(scene, "time_code", None), getattr(scene, "working_space", "lin_rec709")))
@@ -82,12 +85,17 @@ def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN00
 
 
 def _light_fields(light) -> dict:  # noqa: ANN001 - bakery.capture.scene.Light
-    """A light's fields for hashing; ``ies`` only when it has a profile (hashes of lights without one are those of
-    the bakes before IES profiles were read)."""
+    """A light's fields for hashing, the later ones only when not at their defaults (so the hashes of lights
+    without them are those of the bakes before they were read)."""
     fields = dict(light.__dict__)
-    if fields.get("ies", 0) is None:
-        del fields["ies"]
+    for name, default in _LIGHT_DEFAULTS.items():
+        if name in fields and fields[name] == default:
+            del fields[name]
     return fields
+
+
+#: Light fields hashed only when they differ from these (the fields added after the light table's first format)
+_LIGHT_DEFAULTS = {"ies": None, "diffuse": 1.0, "specular": 1.0, "shadow": True, "shadow_color": (0.0, 0.0, 0.0)}
 
 
 def _texture_peak(scene, light) -> float:  # noqa: ANN001
@@ -113,6 +121,7 @@ def light_table(scene) -> list[dict]:  # noqa: ANN001
         radius = model.bounding_radius
         ies = getattr(light, "ies", None)
         peak = _texture_peak(scene, light) * (1.0 if ies is None else ies.peak)  # the largest radiance factor
+        peak *= max(1.0, float(getattr(light, "diffuse", 1.0)), float(getattr(light, "specular", 1.0)))
         radiance = [float(c) * peak for c in light.radiance]
         fields = _light_fields(light)
         geometry = {k: v for k, v in fields.items() if k not in ("name", "radiance")}

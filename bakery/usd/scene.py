@@ -51,6 +51,8 @@ _Z_UP_TO_BAKE = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 _POLE_Y_TO_Z = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # row vectors: +Y ↦ +Z
 #: Time at which the scene is read: authored defaults, else the first time sample.
 _T = Usd.TimeCode.EarliestTime()
+#: UsdLuxShadowAPI inputs the capture does not apply (reported per light)
+_SHADOW_UNAPPLIED = ("shadow:distance", "shadow:falloff", "shadow:falloffGamma")
 
 
 @dataclass(frozen=True)
@@ -418,14 +420,29 @@ class SceneReader:
             scale = scale * blackbody_rgb(float(self._input(prim, "colorTemperature", 6500.0)))
         unapplied = sorted(
             a.GetName() for a in prim.GetAuthoredAttributes()
-            if a.GetName().startswith(("inputs:shadow:", "shadow:"))
-            or a.GetName() in ("inputs:diffuse", "diffuse", "inputs:specular", "specular")
+            if a.GetName().split(":", 1)[-1] in _SHADOW_UNAPPLIED or a.GetName() in _SHADOW_UNAPPLIED
         )
         if unapplied:
             self.issue("warning", prim, f"not applied by the capture: {', '.join(unapplied)}")
         if not np.all(np.isfinite(scale)) or (scale < 0).any():
             raise SceneError(f"light emission {scale.tolist()} is negative or not finite")
         return scale
+
+    def _response(self, prim: Usd.Prim) -> dict[str, float]:
+        """UsdLux's ``diffuse`` and ``specular`` multipliers (non-negative, finite)."""
+        values = {name: float(self._input(prim, name, 1.0)) for name in ("diffuse", "specular")}
+        bad = {k: v for k, v in values.items() if not np.isfinite(v) or v < 0}
+        if bad:
+            raise SceneError(f"light {', '.join(f'{k} {v}' for k, v in bad.items())} must be finite and ≥ 0")
+        return values
+
+    def _shadow(self, prim: Usd.Prim) -> dict[str, object]:
+        """UsdLuxShadowAPI ``shadow:enable`` and ``shadow:color`` (shadow:distance/falloff are reported as not
+        applied)."""
+        color = tuple(float(c) for c in self._input(prim, "shadow:color", (0.0, 0.0, 0.0)))
+        if not all(np.isfinite(color)) or min(color) < 0:
+            raise SceneError(f"shadow:color {color} must be finite and ≥ 0")
+        return {"shadow": bool(self._input(prim, "shadow:enable", True)), "shadow_color": color}
 
     def _shaping(self, prim: Usd.Prim) -> tuple[float, ...]:
         """UsdLuxShapingAPI inputs as (cone angle°, softness, focus, tint r, g, b), or () if not shaped."""
@@ -467,6 +484,9 @@ class SceneReader:
             self._read_dome(prim, matrix, scale)
             return
         if prim.IsA(UsdLux.GeometryLight):
+            if self._response(prim) != {"diffuse": 1.0, "specular": 1.0} or self._shadow(prim)["shadow"] is False:
+                self.issue("warning", prim, "diffuse/specular multipliers and shadow:enable of a GeometryLight are "
+                                            "not applied (its meshes emit as surfaces)")
             targets = [str(t) for t in UsdLux.GeometryLight(prim).GetGeometryRel().GetTargets()]
             if not targets:
                 self.issue("warning", prim, "GeometryLight has no geometry targets; skipped")
@@ -492,7 +512,8 @@ class SceneReader:
                 self.issue("warning", prim, f"texture:file on a {prim.GetTypeName()} is not applied")
             else:
                 texture = self._light_texture(prim, tex)
-        self.lights.append(dataclasses.replace(light, shaping=shaping, texture=texture, ies=ies))
+        self.lights.append(dataclasses.replace(light, shaping=shaping, texture=texture, ies=ies,
+                                               **self._response(prim), **self._shadow(prim)))
 
     def _ies(self, prim: Usd.Prim) -> IesShaping | None:
         """UsdLuxShapingAPI's IES profile (``shaping:ies:file``, ``:angleScale``, ``:normalize``), or None."""
@@ -557,10 +578,13 @@ class SceneReader:
                 pre = _POLE_Y_TO_Z
         rotation = tuple(map(tuple, self.frame.rotation(matrix, pre)))
         name = str(prim.GetPath())
+        response = self._response(prim)
+        if self._shadow(prim) != {"shadow": True, "shadow_color": (0.0, 0.0, 0.0)}:
+            self.issue("warning", prim, "shadow:enable and shadow:color of a DomeLight are not applied")
         texture = self._input(prim, "texture:file", None)
         fmt = str(self._input(prim, "texture:format", "automatic") or "automatic")
         if not isinstance(texture, Sdf.AssetPath) or not texture.path:
-            self.domes.append(Dome(name, scale=tuple(scale), rotation=rotation))
+            self.domes.append(Dome(name, scale=tuple(scale), rotation=rotation, **response))
             return
         resolved = local_asset_path(texture)
         if resolved is None:
@@ -571,7 +595,7 @@ class SceneReader:
             self.issue("error", prim, f"dome texture format {fmt!r} is not supported (latlong, angular, automatic)")
             return
         if not self.load_textures:
-            self.domes.append(Dome(name, scale=tuple(scale), rotation=rotation, source=resolved))
+            self.domes.append(Dome(name, scale=tuple(scale), rotation=rotation, source=resolved, **response))
             return
         try:
             image, report = read_environment(resolved, layouts[fmt])
@@ -592,7 +616,8 @@ class SceneReader:
         if replaced:
             self.issue("warning", prim, f"dome texture: {replaced} non-finite or negative texels replaced")
         self.domes.append(
-            Dome(name, scale=tuple(scale), rotation=rotation, pixels=pixels, layout=image.layout, source=resolved)
+            Dome(name, scale=tuple(scale), rotation=rotation, pixels=pixels, layout=image.layout, source=resolved,
+                 **response)
         )
 
     # ------------------------------------------------------------------------------------------------------------

@@ -1,0 +1,202 @@
+"""UsdLux's non-physical light controls in the capture: the ``diffuse``/``specular`` multipliers and ShadowAPI's
+``shadow:enable`` and ``shadow:color``. References: the closed forms of a floor under a sun or a uniform dome, and
+linearity (a capture with the multipliers (1, 0) plus one with (0, 1) is the capture with (1, 1), sample for
+sample, since the lobes are weighted apart on the same paths)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from usd_scenes import box_mesh, header, material, plane_mesh, probe, write
+
+from bakery.capture import capture_probes
+from bakery.pipeline.dependencies import light_table
+from bakery.sphere.cubemap import cube_texel_directions
+from bakery.usd.scene import read_scene
+
+N = 16
+RHO, E = 0.5, 2.0
+
+
+def _sun(extra: str = "", api: str = "") -> str:
+    schemas = f'(\n    prepend apiSchemas = ["{api}"]\n)' if api else ""
+    return f"""
+def DistantLight "Sun" {schemas}
+{{
+    float inputs:intensity = {E}
+    bool inputs:normalize = 1
+    float inputs:angle = 0.1
+{extra}
+    float xformOp:rotateX = -90
+    uniform token[] xformOpOrder = ["xformOp:rotateX"]
+}}
+"""
+
+
+def _capture(tmp_path, text: str, name: str, **settings) -> np.ndarray:
+    reading = read_scene(write(tmp_path / f"{name}.usda", text))
+    assert not [i for i in reading.issues if "not applied" in i.message], reading.issues
+    cubes, _ = capture_probes(reading.scene, N, **{"samples": 4, "bounces": 0, **settings})
+    return cubes[0]
+
+
+def _floor(position=(0.0, 0.5, 0.0)) -> np.ndarray:
+    d = cube_texel_directions(N)
+    return d[..., 1] < -0.3
+
+
+@pytest.mark.parametrize("diffuse", [0.0, 0.25, 2.0])
+def test_diffuse_multiplier_scales_a_lambertian_floor_not_the_sun_itself(tmp_path, diffuse):
+    """ρE/π × diffuse on the floor; the sun's own splat in the probe's view (and so the sky texels) unchanged."""
+    floor = material("Ground", diffuse=(RHO,) * 3, diffuse_only=True) + plane_mesh("Plane", 100, "/Ground")
+    plain = _capture(tmp_path, header() + floor + _sun() + probe("P", (0.0, 0.5, 0.0)), "plain")
+    scaled = _capture(tmp_path, header() + floor + _sun(f"    float inputs:diffuse = {diffuse}")
+                      + probe("P", (0.0, 0.5, 0.0)), "scaled")
+    down = _floor()
+    np.testing.assert_allclose(scaled[down], diffuse * RHO * E / math.pi, rtol=1e-3, atol=1e-7)
+    up = ~down & (cube_texel_directions(N)[..., 1] > 0)
+    np.testing.assert_array_equal(scaled[up], plain[up])
+
+
+def test_lobe_multipliers_add_up_to_the_plain_capture(tmp_path):
+    """A glossy dielectric (both lobes) under the sun and a sphere light, with indirect light: (0, 0) leaves only
+    what the probe sees directly (the light's shape, the sun; the floor black), and the captures with (diffuse,
+    specular) = (1, 0) and (0, 1), less that, sum to the capture with (1, 1), which equals the capture without the
+    inputs."""
+    glossy = material("Ground", diffuse=(0.6, 0.4, 0.2), inputs="float inputs:roughness = 0.3\n        ")
+    base = header() + glossy + plane_mesh("Plane", 100, "/Ground") + box_mesh("Box", 0.3, "/Ground", (1.0, 0.3, 0.0))
+
+    def scene(d, s):
+        inputs = "" if d is None else f"    float inputs:diffuse = {d}\n    float inputs:specular = {s}"
+        lamp = f"""
+def SphereLight "Lamp"
+{{
+    float inputs:radius = 0.2
+    float inputs:intensity = 30
+{inputs}
+    double3 xformOp:translate = (-1, 1.5, 0.5)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+}}
+"""
+        return base + _sun(inputs) + lamp + probe("P", (0.0, 0.5, 0.0))
+
+    cubes = {key: _capture(tmp_path, scene(*key), f"s{i}", bounces=2)
+             for i, key in enumerate([(None, None), (1.0, 1.0), (1.0, 0.0), (0.0, 1.0), (0.0, 0.0)])}
+    np.testing.assert_allclose(cubes[1.0, 1.0], cubes[None, None], rtol=1e-5, atol=1e-7)
+    direct = cubes[0.0, 0.0]
+    np.testing.assert_allclose(cubes[1.0, 0.0] + cubes[0.0, 1.0] - direct, cubes[1.0, 1.0], rtol=1e-4, atol=1e-5)
+    assert float(np.abs(cubes[0.0, 0.0][_floor()]).max()) == 0.0
+    assert cubes[0.0, 1.0][_floor()].max() > 0 and cubes[1.0, 0.0][_floor()].max() > 0
+
+
+def test_dome_multiplier(tmp_path):
+    """A uniform dome L over a Lambertian floor: the floor is ρ·L·diffuse, the sky texels L."""
+    radiance, diffuse = 1.5, 0.4
+    text = header() + material("Ground", diffuse=(RHO,) * 3, diffuse_only=True) + plane_mesh("Plane", 100, "/Ground")
+    text += f"""
+def DomeLight "Sky"
+{{
+    float inputs:intensity = {radiance}
+    float inputs:diffuse = {diffuse}
+}}
+""" + probe("P", (0.0, 0.5, 0.0))
+    cube = _capture(tmp_path, text, "dome", samples=64)
+    d = cube_texel_directions(N)
+    np.testing.assert_allclose(cube[_floor()].mean(axis=0), RHO * radiance * diffuse, rtol=0.01)
+    np.testing.assert_allclose(cube[d[..., 1] > 0.05], radiance, rtol=1e-6)
+
+
+def _shadowed_scene(extra: str = "", api: str = "ShadowAPI") -> str:
+    """A black 1 m plate at height 1 over a Lambertian floor, under the zenith sun: a shadow under the plate."""
+    plate = material("Black", diffuse=(0.0, 0.0, 0.0), diffuse_only=True)
+    plate += plane_mesh("Plate", 0.5, "/Black", height=1.0)
+    return (header() + material("Ground", diffuse=(RHO,) * 3, diffuse_only=True) + plane_mesh("Plane", 100, "/Ground")
+            + plate + _sun(extra, api) + probe("P", (0.9, 0.5, 0.0)))
+
+
+def _shadow_masks():
+    d = cube_texel_directions(N)
+    position = np.array([0.9, 0.5, 0.0])
+    t = -position[1] / np.minimum(d[..., 1], -1e-9)
+    points = position + t[..., None] * d
+    down = d[..., 1] < -0.3
+    inside = down & (np.abs(points[..., 0]) < 0.4) & (np.abs(points[..., 2]) < 0.4)
+    outside = down & ((np.abs(points[..., 0]) > 0.6) | (np.abs(points[..., 2]) > 0.6))
+    return inside, outside
+
+
+def test_shadows_disabled_and_coloured(tmp_path):
+    """shadow:enable = false: the floor under the plate is lit as if the plate were not there (ρE/π); shadow:color
+    c: the shadow is c·ρE/π per channel; outside the shadow both are ρE/π, and a plain sun leaves it black."""
+    inside, outside = _shadow_masks()
+    assert inside.sum() > 3 and outside.sum() > 20
+    lit = RHO * E / math.pi
+    plain = _capture(tmp_path, _shadowed_scene(api=""), "plain")
+    assert float(np.abs(plain[inside]).max()) == 0.0
+    off = _capture(tmp_path, _shadowed_scene("    bool inputs:shadow:enable = 0"), "off")
+    np.testing.assert_allclose(off[inside | outside], lit, rtol=1e-3)
+    colour = (0.25, 0.5, 1.0)
+    tinted = _capture(tmp_path, _shadowed_scene(f"    color3f inputs:shadow:color = {colour}"), "tinted")
+    np.testing.assert_allclose(tinted[inside], np.broadcast_to(np.array(colour) * lit, tinted[inside].shape),
+                               rtol=1e-3)
+    np.testing.assert_allclose(tinted[outside], lit, rtol=1e-3)
+
+
+def test_shadow_disabled_sphere_light_counts_once(tmp_path):
+    """A shadowless SphereLight over an unoccluded floor delivers what the shadowed one does (next-event estimation
+    alone instead of MIS: no double counting), E = π·L·(r/d)²·cos β on the floor."""
+    def scene(extra):
+        return header() + material("Ground", diffuse=(RHO,) * 3, diffuse_only=True) + plane_mesh(
+            "Plane", 100, "/Ground") + f"""
+def SphereLight "Lamp" (
+    prepend apiSchemas = ["ShadowAPI"]
+)
+{{
+    float inputs:radius = 0.3
+    float inputs:intensity = 20
+{extra}
+    double3 xformOp:translate = (0, 2, 0)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+}}
+""" + probe("P", (0.0, 0.5, 0.0))
+    with_mis = _capture(tmp_path, scene(""), "mis", samples=64)
+    without = _capture(tmp_path, scene("    bool inputs:shadow:enable = 0"), "nee", samples=64)
+    down = _floor()
+    np.testing.assert_allclose(without[down].mean(), with_mis[down].mean(), rtol=0.01)
+
+
+def test_multipliers_and_shadows_are_read_hashed_and_bounded(tmp_path):
+    """The reader fills the Light fields; the light table's radiance bound takes max(1, diffuse, specular); a light
+    at the defaults hashes without the new fields; shadow:distance is still reported as not applied; negative
+    multipliers are errors."""
+    text = header() + plane_mesh("Plane", 10, "/Ground") + material("Ground") + """
+def SphereLight "Lamp" (
+    prepend apiSchemas = ["ShadowAPI"]
+)
+{
+    float inputs:intensity = 3
+    float inputs:diffuse = 2
+    float inputs:specular = 0.5
+    bool inputs:shadow:enable = 0
+    color3f inputs:shadow:color = (0.1, 0.2, 0.3)
+    float inputs:shadow:distance = 4
+}
+""" + probe("P", (0.0, 0.5, 0.0))
+    reading = read_scene(write(tmp_path / "lamp.usda", text))
+    light = reading.scene.lights[0]
+    assert (light.diffuse, light.specular, light.shadow) == (2.0, 0.5, False)
+    assert light.shadow_color == pytest.approx((0.1, 0.2, 0.3))
+    assert any("shadow:distance" in i.message for i in reading.issues)
+    record = light_table(reading.scene)[0]
+    np.testing.assert_allclose(record["radiance"], np.asarray(light.radiance) * 2.0)
+    import dataclasses
+
+    default = dataclasses.replace(light, diffuse=1.0, specular=1.0, shadow=True, shadow_color=(0.0, 0.0, 0.0))
+    from bakery.pipeline.dependencies import _light_fields
+
+    assert not {"diffuse", "specular", "shadow", "shadow_color", "ies"} & set(_light_fields(default))
+    bad = text.replace("float inputs:diffuse = 2", "float inputs:diffuse = -1")
+    errors = [i for i in read_scene(write(tmp_path / "bad.usda", bad)).issues if i.severity == "error"]
+    assert len(errors) == 1 and errors[0].prim == "/Lamp" and "diffuse -1" in errors[0].message
