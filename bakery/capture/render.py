@@ -488,12 +488,18 @@ class ProbeRenderer:
             albedo, f0, roughness, emission = self.surfaces.params_soa(
                 prim, bu, bv, t, self._primary_spread if depth == 0 else BOUNCE_SPREAD)
             n = np.take(normals, prim, axis=1)
-            n *= 1 - 2 * (dot(n, directions) > 0).astype(REAL)  # face the incoming ray
+            back = dot(n, directions) > 0  # hits on the side opposite the winding normal
+            n *= 1 - 2 * back.astype(REAL)  # face the incoming ray
             points = hits + self.tracer.offset_soa(hits) * n  # offset along the geometric normal
-            if self.tracer.shading_soa is None:
+            if self.tracer.shading_soa is None and not self.surfaces.normal_maps:
                 bsdf = Bsdf(n, -directions, albedo, f0, roughness)
-            else:  # authored normals shade; the geometric normal bounds what the surface lets through
-                shading = self.tracer.shading_normals(prim, bu, bv, n, -directions)
+            else:  # authored and mapped normals shade; the geometric normal bounds what the surface lets through
+                shading = n if self.tracer.shading_soa is None else self.tracer.shading_normals(
+                    prim, bu, bv, n, -directions)
+                if self.surfaces.normal_maps:
+                    shading = self.surfaces.mapped_normals(
+                        prim, bu, bv, t, self._primary_spread if depth == 0 else BOUNCE_SPREAD, shading, back,
+                        -directions)
                 bsdf = Bsdf(shading, -directions, albedo, f0, roughness, geometric=n)
             out_add = self._direct(points, bsdf, owners)
             if emission is not None:

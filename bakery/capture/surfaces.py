@@ -10,6 +10,14 @@ Filtering
     comes from the ray's footprint: a ray of angular spread σ (the probe texel's angular size for primary rays,
     :data:`BOUNCE_SPREAD` for bounce rays) covers ≈ t·σ metres at distance t, i.e. t·σ·√(A_uv/A_world)·resolution
     texels of that triangle, so a probe texel averages the texture over its footprint instead of aliasing it.
+
+Normal maps (UsdPreviewSurface ``normal``: a tangent-space normal in [−1, 1]³, i.e. the texture's scale/bias
+already applied, as its specification asks)
+    n = normalize(x·T + y·B + z·N) with N the unperturbed shading normal on the triangle's front (winding) side,
+    T = dP/ds of the triangle orthogonalised against N, B = ±N × T with the sign of the triangle's (dP/ds, dP/dt,
+    normal) handedness (right-handed tangent space: x along +s, y along +t, z out of the surface); a hit on the
+    back side mirrors n with the surface. Where the mapped normal faces away from the viewer (or z ≤ 0) the
+    unperturbed one is kept; as for authored normals, directions below the geometric surface get no BSDF value.
 """
 
 from __future__ import annotations
@@ -141,6 +149,27 @@ class MipTexture:
         return out
 
 
+def _tangent_frames(triangles: np.ndarray, uvs: np.ndarray) -> np.ndarray:
+    """Per-triangle tangent frames (4, T) float32: dP/ds (rows 0–2, unit; the edge direction where the texture
+    coordinates are degenerate) and the handedness ±1 (row 3) of (dP/ds, dP/dt, winding normal), from the
+    triangle's positions (T, 3, 3) and texture coordinates (T, 3, 2) — [dP/ds dP/dt] = [e1 e2]·[Δuv1 Δuv2]⁻¹."""
+    tris = np.asarray(triangles, dtype=np.float64)
+    uv = np.asarray(uvs, dtype=np.float64)
+    e1, e2 = tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]
+    d1, d2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    det = d1[:, 0] * d2[:, 1] - d2[:, 0] * d1[:, 1]
+    ok = np.abs(det) > 1e-20
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)[:, None]
+    dp_ds = (e1 * d2[:, 1:2] - e2 * d1[:, 1:2]) * inv
+    dp_dt = (e2 * d1[:, 0:1] - e1 * d2[:, 0:1]) * inv
+    normal = np.cross(e1, e2)
+    dp_ds = np.where(ok[:, None], dp_ds, e1)
+    length = np.linalg.norm(dp_ds, axis=1, keepdims=True)
+    dp_ds = dp_ds / np.maximum(length, 1e-300)
+    handed = np.where(np.einsum("ij,ij->i", np.cross(normal, dp_ds), dp_dt) < 0, -1.0, 1.0)
+    return np.ascontiguousarray(np.concatenate([dp_ds.T, handed[None]]), dtype=np.float32)
+
+
 def _shrink(level: np.ndarray, axis: int) -> np.ndarray:
     """Halve an odd-sized axis by averaging overlapping pairs (keeps the mean close)."""
     n = level.shape[axis]
@@ -222,6 +251,62 @@ class Surfaces:
             [point.albedo.T, point.f0.T, point.roughness[None], point.emission.T]), dtype=np.float32)
         self.emissive = any(m.emits for m in self.materials)
         self.mesh_of_soa = np.ascontiguousarray(self.mesh_of, dtype=np.int32)
+        #: materials with a UsdPreviewSurface ``normal`` map, and each one's map entry
+        self.normal_maps = {k: next(e for e in m.maps if e.get("input") == "normal")
+                            for k, m in enumerate(self.materials) if any(e.get("input") == "normal" for e in m.maps)}
+        self._tangents = None
+        if self.normal_maps:  # and which triangles have texture coordinates (no tangent frame without them)
+            self._tangents = _tangent_frames(self.triangles, self.uvs)
+            self._has_uv = np.concatenate([np.full(np.asarray(m.triangles).reshape(-1, 3, 3).shape[0],
+                                                   m.uvs is not None) for m in scene.meshes])
+
+    def mapped_normals(self, prim: np.ndarray, bu: np.ndarray, bv: np.ndarray, t: np.ndarray, spread: float,
+                       shading: np.ndarray, back: np.ndarray, wo: np.ndarray) -> np.ndarray:
+        """Shading normals (3, M) perturbed by normal maps (module docstring "Normal maps"): ``shading`` (3, M) the
+        unperturbed shading normals facing the viewer, ``back`` (M,) whether the hit is on the triangle's back
+        (the side opposite its winding normal), ``wo`` (3, M) towards the viewer. Hits on other materials, and
+        where the mapped normal faces away from the viewer, keep ``shading``."""
+        mi = np.take(self.mesh_of_soa, prim)
+        out = shading
+        for k, entry in self.normal_maps.items():
+            sel = np.flatnonzero((mi == k) & np.take(self._has_uv, prim))
+            if sel.size == 0:
+                continue
+            p, u, v = np.take(prim, sel), np.take(bu, sel), np.take(bv, sel)
+            n = np.take(shading, sel, axis=1)
+            side = 1 - 2 * np.take(back, sel).astype(n.dtype)  # +1 front, −1 back
+            front = n * side  # the shading normal on the front side (the tangent frame's side)
+            texture = self.texture(int(entry["texture"]))
+            uv = [np.take(self._uvs_soa_f32()[i], p) for i in range(6)]
+            w0 = 1 - u - v
+            s_ = w0 * uv[0] + u * uv[2] + v * uv[4]
+            t_ = w0 * uv[1] + u * uv[3] + v * uv[5]
+            density = np.take(self._uv_density32, p) * (np.take(t, sel) * spread)
+            lod = np.log2(np.maximum(density * max(texture.width, texture.height), 1))
+            texels = texture.lookup_soa(s_, t_, lod, tuple(entry.get("wrap", ("repeat", "repeat"))), (0, 1, 2))
+            scale, bias = entry.get("scale", (1.0,) * 4), entry.get("bias", (0.0,) * 4)
+            x, y, z = (texels[c] * np.float32(scale[c]) + np.float32(bias[c]) for c in range(3))
+            tangent = np.stack([np.take(self._tangents[c], p) for c in range(3)])
+            handed = np.take(self._tangents[3], p)
+            tangent = tangent - front * (tangent * front).sum(axis=0)  # Gram–Schmidt against the shading normal
+            tangent /= np.maximum(np.sqrt((tangent * tangent).sum(axis=0)), np.float32(1e-30))
+            bitangent = handed * np.stack([front[1] * tangent[2] - front[2] * tangent[1],
+                                           front[2] * tangent[0] - front[0] * tangent[2],
+                                           front[0] * tangent[1] - front[1] * tangent[0]])
+            mapped = (x * tangent + y * bitangent + z * front) * side  # back to the viewer's side
+            length = np.sqrt((mapped * mapped).sum(axis=0))
+            mapped /= np.maximum(length, np.float32(1e-30))
+            keep = ((mapped * np.take(wo, sel, axis=1)).sum(axis=0) <= 0) | (length <= 0) | (z <= 0)
+            if out is shading:
+                out = shading.copy()
+            out[:, sel] = np.where(keep, n, mapped)
+        return out
+
+    def _uvs_soa_f32(self) -> np.ndarray:
+        if self._uvs_soa is None:
+            self._uvs_soa = np.ascontiguousarray(self.uvs.reshape(-1, 6).T, dtype=np.float32)
+            self._uv_density32 = np.ascontiguousarray(self.uv_density, dtype=np.float32)
+        return self._uvs_soa
 
     def params_soa(self, prim: np.ndarray, bu: np.ndarray, bv: np.ndarray, t: np.ndarray, spread: float
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
@@ -249,10 +334,7 @@ class Surfaces:
         """:meth:`at` (textures, then :meth:`_point`) for hits on material ``k``, float32 (3, M) / (M,)."""
         m = prim.shape[0]
         dtype = t.dtype
-        if self._uvs_soa is None:
-            self._uvs_soa = np.ascontiguousarray(self.uvs.reshape(-1, 6).T, dtype=np.float32)
-            self._uv_density32 = np.ascontiguousarray(self.uv_density, dtype=np.float32)
-        uv = [np.take(self._uvs_soa[i], prim) for i in range(6)]
+        uv = [np.take(self._uvs_soa_f32()[i], prim) for i in range(6)]
         w0 = 1 - bu - bv
         s = w0 * uv[0] + bu * uv[2] + bv * uv[4]
         tt = w0 * uv[1] + bu * uv[3] + bv * uv[5]

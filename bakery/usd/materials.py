@@ -12,7 +12,7 @@ Surfaces, in order of preference
        ``MaterialX`` package (:mod:`bakery.usd.mtlx`);
     3. the universal ``UsdPreviewSurface``.
     All map onto the capture's one model (diffuse, emission, metallic, roughness, specular workflow, ior,
-    opacity/opacityThreshold); what does not fit (clearcoat, transmission, sheen, normal maps, …) is reported per
+    opacity/opacityThreshold, normal maps); what does not fit (clearcoat, transmission, sheen, …) is reported per
     prim. A gprim with no usable material uses its ``displayColor`` (else UsdPreviewSurface's 0.18 grey).
 
 Inputs
@@ -160,9 +160,12 @@ class MaterialReader:
             if shader_input and (shader_input.HasConnectedSource() or (
                     value is not None and float(np.mean(value)) != neutral)):
                 surface.notes.append(f"{name} is not modelled by the capture")
-        normal = shader.GetInput("normal")
-        if normal and normal.HasConnectedSource():
-            surface.notes.append("normal maps are not modelled by the capture (the mesh's normals are used)")
+        self._preview_input(shader, "normal", (0.0, 0.0, 1.0), surface)  # a tangent-space normal map
+        entry = surface.maps.get("normal")
+        index = -1 if entry is None else int(entry["texture"])
+        if 0 <= index < len(self.textures) and self.textures[index].color_space == "srgb_texture":
+            surface.notes.append("normal map decoded as sRGB (sourceColorSpace sRGB, or auto on an 8-bit file, as "
+                                 "UsdUVTexture specifies); normal maps are normally authored 'raw'")
         return self._finish(path, surface)
 
     def _finish(self, path: str, surface: Surface) -> tuple[Material, bool, str | None]:

@@ -20,8 +20,9 @@ Mapping (metallic workflow of the capture; see ``docs/capture.md``)
     Inputs connected to ``image``/``tiledimage`` nodes (directly or through a nodegraph output) become texture maps
     with the node's file, ``colorspace`` (colour inputs are converted with OpenColorIO), address modes and default;
     a scalar weight multiplying a textured colour (base · base_color) folds into the map's scale. Lobes the
-    capture cannot represent (coat, sheen, subsurface, thin film, specular weight/colour ≠ 1, normal
-    maps, other node types in a graph) are reported. Transmission is read as thin, straight pass-through: the
+    capture cannot represent (coat, sheen, subsurface, thin film, specular weight/colour ≠ 1, object-space
+    normal maps, other node types in a graph) are reported; a tangent-space ``normalmap`` of an image is a normal
+    map (2·in − 1, x and y times its ``scale``). Transmission is read as thin, straight pass-through: the
     presence (opacity) is multiplied by 1 − transmission·(1 − metalness) (reported: no refraction or tint).
 """
 
@@ -123,8 +124,8 @@ def _to_surface(category: str, values: dict[str, object], maps: dict[str, dict],
     for name, neutral in _UNMODELLED.get(category, ()):
         if name in maps or (name in d and abs(_mean(d[name]) - neutral) > 1e-6):
             surface.notes.append(f"{category} {name} is not modelled by the capture")
-    if "normal" in maps:
-        surface.notes.append("normal maps are not modelled by the capture (the mesh's normals are used)")
+    if "normal" in maps:  # a tangent-space normal map, already decoded to [−1, 1]³ (:func:`_normal_entry`)
+        surface.maps["normal"] = {k: v for k, v in maps["normal"].items() if k != "_mean"}
 
     def put(target: str, colour_input: str | None, weight_input: str | None, scalar: bool = False) -> None:
         weight = _mean(d.get(weight_input, 1.0)) if weight_input else 1.0
@@ -211,7 +212,9 @@ def surface_from_document(reader, document: str, material_name: str, prim: str) 
                 values[name] = _py(inp.getValue())
             continue
         if name == "normal":
-            notes.append("normal maps are not modelled by the capture (the mesh's normals are used)")
+            entry = _document_normal_map(reader, upstream, base_dir, prim, notes)
+            if entry is not None:
+                maps[name] = entry
             continue
         if upstream.getCategory() not in ("image", "tiledimage"):
             notes.append(f"input {name} is computed by a {upstream.getCategory()} node, which the capture does not "
@@ -222,6 +225,34 @@ def surface_from_document(reader, document: str, material_name: str, prim: str) 
         if entry is not None:
             maps[name] = entry
     return _to_surface(category, values, maps, notes)
+
+
+def _normal_entry(entry: dict, scale) -> dict:  # noqa: ANN001
+    """ND_normalmap on an image map entry: n = (2·in − 1) with x, y times ``scale`` (float or vector2), the
+    tangent-space normal the capture's normal maps read (:meth:`bakery.capture.surfaces.Surfaces.mapped_normals`)."""
+    sx, sy = (np.broadcast_to(np.asarray(1.0 if scale is None else _py(scale), dtype=np.float64), 2)[:2]).tolist()
+    return dict(entry, channels="rgb", scale=(2.0 * sx, 2.0 * sy, 2.0, 1.0), bias=(-sx, -sy, -1.0, 0.0))
+
+
+def _unmapped_normal(notes: list[str], what: str) -> None:
+    notes.append(f"normal is {what}, which the capture does not evaluate (the mesh's normals are used)")
+
+
+def _document_normal_map(reader, node, base_dir: Path, prim: str, notes: list[str]) -> dict | None:  # noqa: ANN001
+    """The map entry of a ``normalmap`` node (tangent space) fed by an ``image``/``tiledimage`` node, or None."""
+    if node.getCategory() != "normalmap":
+        _unmapped_normal(notes, f"computed by a {node.getCategory()} node")
+        return None
+    if (node.getInputValue("space") or "tangent") != "tangent":
+        _unmapped_normal(notes, "an object-space normal map")
+        return None
+    source = node.getInput("in")
+    image = source.getConnectedNode() if source is not None else None
+    if image is None or image.getCategory() not in ("image", "tiledimage"):
+        _unmapped_normal(notes, "a normalmap of a computed vector")
+        return None
+    entry = _image_map(reader, image, base_dir, False, prim)
+    return None if entry is None else _normal_entry(entry, node.getInputValue("scale"))
 
 
 def _image_map(reader, node, base_dir: Path, is_color: bool, prim: str) -> dict | None:  # noqa: ANN001
@@ -269,6 +300,11 @@ def surface_from_usd_shader(reader, shader, shader_id: str) -> Surface | None:  
                 values[name] = _py(value)
             continue
         upstream_id = upstream.GetShaderId() or ""
+        if name == "normal":
+            entry = _usd_normal_map(reader, upstream, upstream_id, notes)
+            if entry is not None:
+                maps[name] = entry
+            continue
         if upstream_id == "UsdUVTexture":
             entry, mean, _primvar = reader._uv_texture(upstream, output, name in COLOR_INPUTS or "color" in name)
             if entry is not None:
@@ -282,6 +318,29 @@ def surface_from_usd_shader(reader, shader, shader_id: str) -> Surface | None:  
         notes.append(f"input {name} is computed by {upstream_id or 'an untyped shader'}, which the capture does not "
                      "evaluate; its default is used")
     return _to_surface(category, values, maps, notes)
+
+
+def _usd_normal_map(reader, node, node_id: str, notes: list[str]) -> dict | None:  # noqa: ANN001
+    """:func:`_document_normal_map` for a MaterialX ``ND_normalmap…`` shader authored in USD."""
+    if node_id == "UsdUVTexture":  # a tangent-space normal in [−1, 1]³ after the texture's scale/bias
+        entry, _mean, _primvar = reader._uv_texture(node, "rgb", False)
+        return None if entry is None else dict(entry, channels="rgb")
+    if not node_id.startswith("ND_normalmap"):
+        _unmapped_normal(notes, f"computed by {node_id or 'an untyped shader'}")
+        return None
+    space = node.GetInput("space")
+    if space and space.Get(reader.time) and str(space.Get(reader.time)) != "tangent":
+        _unmapped_normal(notes, "an object-space normal map")
+        return None
+    source = node.GetInput("in")
+    _value, image, _output = reader._producer(source) if source else (None, None, None)
+    image_id = (image.GetShaderId() or "") if image is not None else ""
+    if not (image_id.startswith("ND_image_") or image_id.startswith("ND_tiledimage_")):
+        _unmapped_normal(notes, "a normalmap of a computed vector")
+        return None
+    entry = _usd_image_map(reader, image, False)
+    scale = node.GetInput("scale")
+    return None if entry is None else _normal_entry(entry, scale.Get(reader.time) if scale else None)
 
 
 def _usd_image_map(reader, node, is_color: bool) -> dict | None:  # noqa: ANN001

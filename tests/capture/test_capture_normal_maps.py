@@ -1,0 +1,248 @@
+"""UsdPreviewSurface normal maps in the capture: a Lambertian floor whose tangent-space normal map tilts the normal
+by β under a sun at 30° shades as ρE·(n·l)/π with n the tilted normal (closed form), along +s and +t (tangent
+frame and handedness from the texture coordinates), and a flat map changes nothing."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+from usd_scenes import header, probe, write
+
+from bakery.capture import capture_probes
+from bakery.sphere.cubemap import cube_texel_directions
+from bakery.usd.scene import read_scene
+
+N = 16
+RHO, E, SUN, TURN = 0.5, 2.0, math.radians(30.0), math.radians(40.0)
+#: the sun's direction: 30° from the zenith, turned 40° about +Y from +x (so it has x and z components)
+LIGHT = np.array([math.sin(SUN) * math.cos(TURN), math.cos(SUN), -math.sin(SUN) * math.sin(TURN)])
+
+
+def _write_exr(path, rgb):
+    pixels = np.broadcast_to(np.asarray(rgb, dtype=np.float32), (4, 4, 3)).copy()
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), oiio.ImageSpec(4, 4, 3, oiio.FLOAT))
+    out.write_image(pixels)
+    out.close()
+
+
+def _material(normal_file: str | None, colour_space: str = "raw") -> str:
+    normal = "" if normal_file is None else "normal3f inputs:normal.connect = </Floor/NormalTex.outputs:rgb>"
+    texture = "" if normal_file is None else f"""
+    def Shader "Reader"
+    {{
+        uniform token info:id = "UsdPrimvarReader_float2"
+        string inputs:varname = "st"
+        float2 outputs:result
+    }}
+    def Shader "NormalTex"
+    {{
+        uniform token info:id = "UsdUVTexture"
+        asset inputs:file = @{normal_file}@
+        token inputs:sourceColorSpace = "{colour_space}"
+        float2 inputs:st.connect = </Floor/Reader.outputs:result>
+        float4 inputs:scale = (2, 2, 2, 1)
+        float4 inputs:bias = (-1, -1, -1, 0)
+        float3 outputs:rgb
+    }}"""
+    return f"""
+def Material "Floor"
+{{
+    token outputs:surface.connect = </Floor/Surface.outputs:surface>
+    def Shader "Surface"
+    {{
+        uniform token info:id = "UsdPreviewSurface"
+        color3f inputs:diffuseColor = ({RHO}, {RHO}, {RHO})
+        int inputs:useSpecularWorkflow = 1
+        color3f inputs:specularColor = (0, 0, 0)
+        {normal}
+        token outputs:surface
+    }}{texture}
+}}
+"""
+
+
+def _floor(uvs: bool = True, reverse: bool = False) -> str:
+    # s along +x, t along −z (right-handed with the +Y winding normal; ``reverse``: the winding normal is −Y and
+    # the probe above sees the back side)
+    st = ('texCoord2f[] primvars:st = [(0, 0), (1, 0), (1, 1), (0, 1)] (\n        interpolation = "faceVarying"\n    )'
+          if uvs else "")
+    indices = "3, 2, 1, 0" if reverse else "0, 1, 2, 3"
+    if reverse:
+        st = st.replace("[(0, 0), (1, 0), (1, 1), (0, 1)]", "[(0, 1), (1, 1), (1, 0), (0, 0)]")
+    return f"""
+def Mesh "Ground" (
+    prepend apiSchemas = ["MaterialBindingAPI"]
+)
+{{
+    int[] faceVertexCounts = [4]
+    int[] faceVertexIndices = [{indices}]
+    point3f[] points = [(-20, 0, 20), (20, 0, 20), (20, 0, -20), (-20, 0, -20)]
+    {st}
+    uniform token subdivisionScheme = "none"
+    rel material:binding = </Floor>
+}}
+"""
+
+
+def _sun() -> str:
+    return f"""
+def DistantLight "Sun"
+{{
+    float inputs:intensity = {E}
+    bool inputs:normalize = 1
+    float inputs:angle = 0.1
+    float xformOp:rotateY = {math.degrees(TURN)}
+    float xformOp:rotateZ = {-math.degrees(SUN)}
+    float xformOp:rotateX = -90
+    uniform token[] xformOpOrder = ["xformOp:rotateY", "xformOp:rotateZ", "xformOp:rotateX"]
+}}
+"""
+
+
+def _capture(tmp_path, material: str, name: str, uvs: bool = True, reverse: bool = False):
+    reading = read_scene(write(tmp_path / f"{name}.usda", header() + material + _floor(uvs, reverse) + _sun()
+                               + probe("P", (0.0, 0.5, 0.0))))
+    cubes, _ = capture_probes(reading.scene, N, samples=4, bounces=0)
+    return cubes[0], reading
+
+
+def _down():
+    return cube_texel_directions(N)[..., 1] < -0.3
+
+
+@pytest.mark.parametrize("tilt_deg, axis, reverse", [(20.0, "s", False), (-20.0, "s", False), (20.0, "t", False),
+                                                     (-20.0, "t", False), (45.0, "s", False), (20.0, "s", True),
+                                                     (20.0, "t", True)])
+def test_tilted_normal_map_shades_with_the_mapped_normal(tmp_path, tilt_deg, axis, reverse):
+    """n_tangent = (sin β, 0, cos β) (along +s = world +x) or (0, sin β, cos β) (along +t = world −z); the sun
+    comes from l (30° from the zenith, with x and z components): the floor is ρE·max(0, n·l)/π wherever the mapped normal faces the probe,
+    and ρE·cos 30°/π (the unperturbed normal) where it faces away. Seen from the back of the triangle (reversed
+    winding) the mapped normal is mirrored with the surface: −(x·T + y·B + z·N_front)."""
+    beta = math.radians(tilt_deg)
+    tangent = (math.sin(beta), 0.0, math.cos(beta)) if axis == "s" else (0.0, math.sin(beta), math.cos(beta))
+    _write_exr(tmp_path / "n.exr", [(c + 1) / 2 for c in tangent])
+    cube, reading = _capture(tmp_path, _material("./n.exr"), "tilted", reverse=reverse)
+    assert not [i for i in reading.issues if "normal" in i.message], reading.issues
+    world = np.array([tangent[0], tangent[2], -tangent[1]])  # T = +x, N = +y, B = −z
+    if reverse:  # front N = −y (B = −z still): −(x·T + y·B − z·y)
+        world = -np.array([tangent[0], -tangent[2], -tangent[1]])
+    light = LIGHT
+    expected = RHO * E * max(0.0, float(world @ light)) / math.pi
+    d = cube_texel_directions(N)
+    facing = (-d @ world) > 0.02  # wo = −d: the mapped normal faces the viewer
+    away = (-d @ world) < -0.02
+    np.testing.assert_allclose(cube[_down() & facing], expected, rtol=1e-3)  # the sun disc: ±5e-4
+    np.testing.assert_allclose(cube[_down() & away], RHO * E * math.cos(SUN) / math.pi, rtol=1e-3)
+    assert (_down() & facing).sum() > 300
+
+
+def test_flat_normal_map_and_meshes_without_coordinates_change_nothing(tmp_path):
+    """A map of (0, 0, 1) shades as the plain floor; a normal-mapped mesh without texture coordinates keeps its
+    normals (the map needs a tangent frame)."""
+    _write_exr(tmp_path / "flat.exr", (0.5, 0.5, 1.0))
+    plain, _ = _capture(tmp_path, _material(None), "plain")
+    flat, _ = _capture(tmp_path, _material("./flat.exr"), "flat")
+    np.testing.assert_allclose(flat, plain, rtol=1e-6, atol=1e-9)
+    _write_exr(tmp_path / "tilted.exr", (0.8, 0.5, 0.9))
+    no_uv, reading = _capture(tmp_path, _material("./tilted.exr"), "nouv", uvs=False)
+    np.testing.assert_allclose(no_uv, plain, rtol=1e-6, atol=1e-9)
+
+
+def test_normal_map_decoded_as_srgb_is_reported(tmp_path):
+    _write_exr(tmp_path / "flat.exr", (0.5, 0.5, 1.0))
+    _cube, reading = _capture(tmp_path, _material("./flat.exr", colour_space="sRGB"), "srgb")
+    assert any("normal map decoded as sRGB" in i.message for i in reading.issues)
+
+
+_MTLX = """<?xml version="1.0"?>
+<materialx version="1.39">
+  <image name="bumps" type="vector3">
+    <input name="file" type="filename" value="n.exr" />
+  </image>
+  <normalmap name="mapped" type="vector3">
+    <input name="in" type="vector3" nodename="bumps" />
+    <input name="scale" type="float" value="{scale}" />
+  </normalmap>
+  <standard_surface name="SR_floor" type="surfaceshader">
+    <input name="base" type="float" value="1" />
+    <input name="base_color" type="color3" value="{rho}, {rho}, {rho}" />
+    <input name="specular_roughness" type="float" value="0.4" />
+    <input name="normal" type="vector3" nodename="mapped" />
+  </standard_surface>
+  <surfacematerial name="Floor" type="material">
+    <input name="surfaceshader" type="surfaceshader" nodename="SR_floor" />
+  </surfacematerial>
+</materialx>
+"""
+
+
+def _twin(scale: float) -> str:
+    """The UsdPreviewSurface twin of :data:`_MTLX`: the same lobes, the normalmap's decoding as scale/bias."""
+    text = _material("./n.exr").replace(
+        "int inputs:useSpecularWorkflow = 1\n        color3f inputs:specularColor = (0, 0, 0)",
+        "float inputs:roughness = 0.4")
+    return text.replace("float4 inputs:scale = (2, 2, 2, 1)", f"float4 inputs:scale = ({2 * scale}, {2 * scale}, 2, 1)"
+                        ).replace("float4 inputs:bias = (-1, -1, -1, 0)",
+                                  f"float4 inputs:bias = ({-scale}, {-scale}, -1, 0)")
+
+
+@pytest.mark.parametrize("scale", [1.0, 0.5])
+def test_materialx_normalmap_matches_its_preview_surface_twin(tmp_path, scale):
+    """A standard_surface whose ``normal`` is a tangent-space ``normalmap`` (xy × scale) of an image captures as the
+    UsdPreviewSurface with the same lobes and the map decoded by scale/bias — in a .mtlx document and authored in
+    USD as ND_ shaders."""
+    _write_exr(tmp_path / "n.exr", (0.7, 0.4, 0.9))
+    (tmp_path / "floor.mtlx").write_text(_MTLX.format(scale=scale, rho=RHO))
+    document = """
+def Scope "Looks" (
+    references = @./floor.mtlx@</MaterialX>
+)
+{
+}
+"""
+    twin, _ = _capture(tmp_path, _twin(scale), "twin")
+    _write_exr(tmp_path / "flat.exr", (0.5, 0.5, 1.0))
+    unmapped, _ = _capture(tmp_path, _twin(scale).replace("./n.exr", "./flat.exr"), "unmapped")
+    assert np.abs(twin - unmapped)[_down()].max() > 0.05 * twin[_down()].max()  # the map matters
+    floor = _floor().replace("</Floor>", "</Looks/Materials/Floor>")
+    reading = read_scene(write(tmp_path / "doc.usda", header() + document + floor + _sun() + probe("P", (0, 0.5, 0))))
+    assert not [i for i in reading.issues if "normal" in i.message], reading.issues
+    entry = next(e for e in reading.scene.meshes[0].material.maps if e["input"] == "normal")
+    assert entry["scale"] == (2 * scale, 2 * scale, 2.0, 1.0) and entry["bias"] == (-scale, -scale, -1.0, 0.0)
+    from_document, _ = capture_probes(reading.scene, N, samples=4, bounces=0)
+    np.testing.assert_allclose(from_document[0], twin, rtol=1e-5, atol=1e-8)
+    authored = f"""
+def Material "Floor"
+{{
+    token outputs:mtlx:surface.connect = </Floor/Surf.outputs:out>
+    def Shader "Surf"
+    {{
+        uniform token info:id = "ND_standard_surface_surfaceshader"
+        float inputs:base = 1
+        color3f inputs:base_color = ({RHO}, {RHO}, {RHO})
+        float inputs:specular_roughness = 0.4
+        float3 inputs:normal.connect = </Floor/Mapped.outputs:out>
+        token outputs:out
+    }}
+    def Shader "Mapped"
+    {{
+        uniform token info:id = "ND_normalmap_float"
+        float3 inputs:in.connect = </Floor/Bumps.outputs:out>
+        float inputs:scale = {scale}
+        float3 outputs:out
+    }}
+    def Shader "Bumps"
+    {{
+        uniform token info:id = "ND_image_vector3"
+        asset inputs:file = @./n.exr@
+        float3 outputs:out
+    }}
+}}
+"""
+    in_usd, reading = _capture(tmp_path, authored, "authored")
+    assert not [i for i in reading.issues if "normal" in i.message], reading.issues
+    np.testing.assert_allclose(in_usd, twin, rtol=1e-5, atol=1e-8)
