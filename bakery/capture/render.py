@@ -266,6 +266,12 @@ class ProbeRenderer:
         self._dome_lobes = (1.0, 1.0) if dome is None else (float(dome.diffuse), float(dome.specular))
         self._light_lobes = [(float(m.light.diffuse), float(m.light.specular)) for m in self.lights.models]
         self._lobes = any(x != (1.0, 1.0) for x in [*self._light_lobes, self._dome_lobes])
+        # UsdLux light linking: per emitter, the meshes it illuminates (bool per mesh), or None for all
+        meshes = np.arange(len(scene.meshes))
+        self._light_links = [None if m.light.links is None else np.isin(meshes, m.light.links)
+                             for m in self.lights.models]
+        self._dome_links = None if dome is None or dome.links is None else np.isin(meshes, dome.links)
+        self._linking = any(x is not None for x in [*self._light_links, self._dome_links])
         self._shadowless = [not m.light.shadow for m in self.lights.models]
         self._shadow_color = [tuple(map(float, m.light.shadow_color)) if m.light.shadow else (0.0, 0.0, 0.0)
                               for m in self.lights.models]
@@ -501,7 +507,8 @@ class ProbeRenderer:
                         prim, bu, bv, t, self._primary_spread if depth == 0 else BOUNCE_SPREAD, shading, back,
                         -directions)
                 bsdf = Bsdf(shading, -directions, albedo, f0, roughness, geometric=n)
-            out_add = self._direct(points, bsdf, owners)
+            mesh = np.take(self.surfaces.mesh_of_soa, prim) if self._linking else None  # for light linking
+            out_add = self._direct(points, bsdf, owners, mesh)
             if emission is not None:
                 out_add += emission
             # BSDF continuation: also the BSDF half of the MIS estimate of lights and dome at this vertex
@@ -520,7 +527,8 @@ class ProbeRenderer:
                 pa, wa = _take(points, ai), _take(wi, ai)
                 p2, tt, uu, vv = self._intersect(pa, wa, owners.take(ai))
                 prim2[ai], t2[ai], bu2[ai], bv2[ai] = p2, tt, uu, vv
-                found, on_light = self._emitted_along(pa, wa, tt, p2 < 0, pdf_b[ai])
+                found, on_light = self._emitted_along(pa, wa, tt, p2 < 0, pdf_b[ai],
+                                                      None if mesh is None else mesh[ai])
                 if found is not None and self._lobes:  # (diffuse, specular) emitter sums
                     _add_at(out_add, ai, _take(weight_d, ai) * found[0] + _take(weight_s, ai) * found[1])
                 elif found is not None:
@@ -548,12 +556,14 @@ class ProbeRenderer:
         return out
 
     def _emitted_along(self, points: np.ndarray, wi: np.ndarray, t: np.ndarray, escaped: np.ndarray,
-                       pdf_b: np.ndarray) -> tuple[np.ndarray | tuple[np.ndarray, np.ndarray] | None, np.ndarray]:
+                       pdf_b: np.ndarray, mesh: np.ndarray | None = None
+                       ) -> tuple[np.ndarray | tuple[np.ndarray, np.ndarray] | None, np.ndarray]:
         """Radiance (3, M) a BSDF-sampled ray finds at a light shape, the dome or a distant disc, weighted by the
         power heuristic against the next-event pdfs (None if nothing can be found), and whether the ray ended on a
         light shape (M,). With diffuse/specular multipliers the radiance is a pair: the sums weighted by each
         emitter's diffuse and specular multiplier. Lights without shadows are found by next-event estimation only
-        (they add nothing here)."""
+        (they add nothing here); with light linking, ``mesh`` (M,) is the mesh each ray leaves, and an emitter not
+        linked to it adds nothing."""
         m = points.shape[1]
         sums = [None, None] if self._lobes else [None]  # one sum, or the (diffuse, specular) weighted ones
 
@@ -572,6 +582,8 @@ class ProbeRenderer:
             for k, model in enumerate(self.lights.surfaces):
                 j = self._surface_strategy[k]
                 sel = np.flatnonzero(on_light & (which == k))
+                if sel.size and mesh is not None and self._light_links[j] is not None:
+                    sel = sel[self._light_links[j][mesh[sel]]]
                 if sel.size and not self._shadowless[j]:
                     pdf_l = model.pdf_soa(_take(points, sel), _take(wi, sel), t_l[sel])
                     add(sel, _take(l_l, sel) * power(pdf_b[sel], pdf_l), self._light_lobes[j])
@@ -583,17 +595,21 @@ class ProbeRenderer:
             w_dirs = _take(wi, ei)
             pb = pdf_b[ei]
             parts = []  # (radiance (3, E), multipliers), summed in this order
+
+            def linked(value: np.ndarray, links: np.ndarray | None) -> np.ndarray:
+                return value if mesh is None or links is None else value * links[mesh[ei]].astype(REAL)
+
             if not self.dome.black:
                 rest, pdf_rest = self.dome.rest_lookup_soa(w_dirs)
                 if self.portals:
                     pdf_rest = self._dome_pdf(_take(points, ei), w_dirs, pdf_rest)
-                parts.append((rest * power(pb, pdf_rest), self._dome_lobes))
+                parts.append((linked(rest * power(pb, pdf_rest), self._dome_links), self._dome_lobes))
                 if self.dome.has_sun:
                     sun, pdf_sun = self.dome.sun_lookup_soa(w_dirs)
-                    parts.append((sun * power(pb, pdf_sun), self._dome_lobes))
+                    parts.append((linked(sun * power(pb, pdf_sun), self._dome_links), self._dome_lobes))
             for light, j in distant:
-                parts.append((light.escaped_soa(w_dirs) * power(pb, light.pdf_soa(None, w_dirs, None)),
-                              self._light_lobes[j]))
+                value = light.escaped_soa(w_dirs) * power(pb, light.pdf_soa(None, w_dirs, None))
+                parts.append((linked(value, self._light_links[j]), self._light_lobes[j]))
             for i in range(len(sums)):
                 found = np.zeros((3, ei.size), dtype=REAL)
                 for value, multipliers in parts:
@@ -606,8 +622,10 @@ class ProbeRenderer:
             return (None if sums[0] is None else (sums[0], sums[1])), on_light
         return sums[0], on_light
 
-    def _direct(self, points: np.ndarray, bsdf: Bsdf, owners: _Owners) -> np.ndarray:
-        """Next-event estimates (3, M) of every light, the dome's rest and its sun (MIS-weighted, shadowed).
+    def _direct(self, points: np.ndarray, bsdf: Bsdf, owners: _Owners, mesh: np.ndarray | None = None
+                ) -> np.ndarray:
+        """Next-event estimates (3, M) of every light, the dome's rest and its sun (MIS-weighted, shadowed); with
+        light linking, ``mesh`` (M,) is each point's mesh, and an emitter not linked to it delivers nothing.
 
         All strategies' samples (J per point) are evaluated as one (3, J, M) batch and their shadow rays traced in
         one occlusion query."""
@@ -658,6 +676,10 @@ class ProbeRenderer:
         else:
             value, pdf_b = bsdf.evaluate(wi)
         valid = (pdf > 0) & (vmax(radiance) > 0) & (vmax(value) > 0)
+        if mesh is not None:  # light linking
+            for j, links in enumerate(self._light_links + [self._dome_links] * (count - lights)):
+                if links is not None:
+                    valid[j] &= links[mesh]
         weight = power(pdf, pdf_b)
         shadowless = np.array(self._shadowless + [False] * (count - lights))
         for j in range(count):

@@ -53,6 +53,8 @@ class Light:
         shadow: UsdLuxShadowAPI ``shadow:enable``: False lets the light's next-event rays through every occluder
             (the light is then sampled by next-event estimation alone, without MIS).
         shadow_color: ``shadow:color``: the fraction of the light (RGB) an occluded next-event ray still delivers.
+        links: UsdLux light linking (``collection:lightLink``): indices into :attr:`CaptureScene.meshes` of the
+            meshes the light illuminates; None: every mesh. A probe still sees an unlinked light directly.
     """
 
     kind: str
@@ -71,6 +73,7 @@ class Light:
     specular: float = 1.0
     shadow: bool = True
     shadow_color: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    links: tuple[int, ...] | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in LIGHT_TYPES:
@@ -110,6 +113,7 @@ class Dome:
         source: texture file, for messages.
         diffuse, specular: UsdLux's multipliers of the dome's effect on the diffuse and specular lobes of surfaces
             (:class:`Light`); the dome seen by escaping camera rays is unscaled.
+        links: light linking as :attr:`Light.links` (None: every mesh).
     """
 
     name: str
@@ -120,6 +124,7 @@ class Dome:
     source: str = ""
     diffuse: float = 1.0
     specular: float = 1.0
+    links: tuple[int, ...] | None = None
 
 
 @dataclass(frozen=True)

@@ -73,8 +73,9 @@ def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN00
         dome = scene.dome
         pixels = np.zeros(0) if dome.pixels is None else np.asarray(dome.pixels, dtype=np.float32)
         response = (getattr(dome, "diffuse", 1.0), getattr(dome, "specular", 1.0))
-        parts.append((dome.name, dome.scale, dome.rotation, dome.layout, pixels)
-                     + (() if response == (1.0, 1.0) else (response,)))  # multipliers only when authored
+        links = getattr(dome, "links", None)
+        parts.append((dome.name, dome.scale, dome.rotation, dome.layout, pixels)  # the later fields only when authored
+                     + (() if response == (1.0, 1.0) else (response,)) + (() if links is None else (("links", links),)))
     parts += [_light_fields(light) for light in scene.lights if light_model(light).is_global]
     parts += [_light_fields(portal) for portal in getattr(scene, "portals", ())]
     parts.append((getattr(scene, "time_code", None), getattr(scene, "working_space", "lin_rec709")))
@@ -95,7 +96,8 @@ def _light_fields(light) -> dict:  # noqa: ANN001 - bakery.capture.scene.Light
 
 
 #: Light fields hashed only when they differ from these (the fields added after the light table's first format)
-_LIGHT_DEFAULTS = {"ies": None, "diffuse": 1.0, "specular": 1.0, "shadow": True, "shadow_color": (0.0, 0.0, 0.0)}
+_LIGHT_DEFAULTS = {"ies": None, "diffuse": 1.0, "specular": 1.0, "shadow": True, "shadow_color": (0.0, 0.0, 0.0),
+                   "links": None}
 
 
 def _texture_peak(scene, light) -> float:  # noqa: ANN001

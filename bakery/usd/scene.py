@@ -165,6 +165,7 @@ class SceneReader:
         self.probes: list[ProbeSpec] = []
         self.portals: list[Light] = []
         self.geometry_lights: list[tuple[str, list[str], np.ndarray, bool]] = []
+        self._linked: list[tuple[str, int, Usd.Prim]] = []  # ("light" | "dome", index, prim): light linking
 
     def issue(self, severity: str, prim: Usd.Prim | str, message: str) -> None:
         path = prim if isinstance(prim, str) else str(prim.GetPath())
@@ -225,6 +226,7 @@ class SceneReader:
             except SceneError as exc:
                 self.issue("error", prim, str(exc))
         self._apply_geometry_lights()
+        self._apply_light_links()
         self._check_encodings()
         for severity, path, message in self.materials.issues:
             self.issue(severity, path, message)
@@ -482,6 +484,8 @@ class SceneReader:
         normalize = bool(self._input(prim, "normalize", False))
         if prim.IsA(UsdLux.DomeLight) or prim.IsA(UsdLux.DomeLight_1):
             self._read_dome(prim, matrix, scale)
+            if self.domes and self.domes[-1].name == str(prim.GetPath()):
+                self._linked.append(("dome", len(self.domes) - 1, prim))
             return
         if prim.IsA(UsdLux.GeometryLight):
             if self._response(prim) != {"diffuse": 1.0, "specular": 1.0} or self._shadow(prim)["shadow"] is False:
@@ -514,6 +518,7 @@ class SceneReader:
                 texture = self._light_texture(prim, tex)
         self.lights.append(dataclasses.replace(light, shaping=shaping, texture=texture, ies=ies,
                                                **self._response(prim), **self._shadow(prim)))
+        self._linked.append(("light", len(self.lights) - 1, prim))
 
     def _ies(self, prim: Usd.Prim) -> IesShaping | None:
         """UsdLuxShapingAPI's IES profile (``shaping:ies:file``, ``:angleScale``, ``:normalize``), or None."""
@@ -547,6 +552,29 @@ class SceneReader:
             return -1
         index = self.materials.texture_index(resolved, "auto", str(prim.GetPath()))
         return -1 if index is None else index
+
+    def _apply_light_links(self) -> None:
+        """UsdLux light linking: a light (or the dome) whose ``collection:lightLink`` leaves out some of the meshes
+        read illuminates only the others (:attr:`Light.links`); shadow linking and light filters are reported."""
+        for kind, index, prim in self._linked:
+            api = UsdLux.LightAPI(prim)
+            links = self._members(api.GetLightLinkCollectionAPI())
+            if links is not None:
+                if kind == "light":
+                    self.lights[index] = dataclasses.replace(self.lights[index], links=links)
+                else:
+                    self.domes[index] = dataclasses.replace(self.domes[index], links=links)
+            if self._members(api.GetShadowLinkCollectionAPI()) is not None:
+                self.issue("warning", prim, "shadow linking (collection:shadowLink) is not applied: every mesh casts "
+                                            "shadows")
+            if api.GetFiltersRel().GetTargets():
+                self.issue("warning", prim, "light filters are not applied by the capture")
+
+    def _members(self, collection: Usd.CollectionAPI) -> tuple[int, ...] | None:
+        """Indices of the meshes read that ``collection`` includes, or None if it includes them all."""
+        query = collection.ComputeMembershipQuery()
+        included = [query.IsPathIncluded(Sdf.Path(mesh.name.split("#", 1)[0])) for mesh in self.meshes]
+        return None if all(included) else tuple(i for i, inside in enumerate(included) if inside)
 
     def _apply_geometry_lights(self) -> None:
         """GeometryLight: its emission (intensity·2^exposure·color, ÷ area in stage units² when normalized) is

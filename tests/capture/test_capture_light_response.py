@@ -1,5 +1,5 @@
-"""UsdLux's non-physical light controls in the capture: the ``diffuse``/``specular`` multipliers and ShadowAPI's
-``shadow:enable`` and ``shadow:color``. References: the closed forms of a floor under a sun or a uniform dome, and
+"""UsdLux's non-physical light controls in the capture: the ``diffuse``/``specular`` multipliers, ShadowAPI's
+``shadow:enable`` and ``shadow:color``, and light linking. References: the closed forms of a floor under a sun or a uniform dome, and
 linearity (a capture with the multipliers (1, 0) plus one with (0, 1) is the capture with (1, 1), sample for
 sample, since the lobes are weighted apart on the same paths)."""
 
@@ -200,3 +200,80 @@ def SphereLight "Lamp" (
     bad = text.replace("float inputs:diffuse = 2", "float inputs:diffuse = -1")
     errors = [i for i in read_scene(write(tmp_path / "bad.usda", bad)).issues if i.severity == "error"]
     assert len(errors) == 1 and errors[0].prim == "/Lamp" and "diffuse -1" in errors[0].message
+
+
+def _two_floors() -> str:
+    """Two Lambertian floor halves, /A (x < 0) and /B (x > 0)."""
+    mat = material("Ground", diffuse=(RHO,) * 3, diffuse_only=True)
+    quad = """
+def Mesh "{name}" (
+    prepend apiSchemas = ["MaterialBindingAPI"]
+)
+{{
+    int[] faceVertexCounts = [4]
+    int[] faceVertexIndices = [0, 1, 2, 3]
+    point3f[] points = [({x0}, 0, 50), ({x1}, 0, 50), ({x1}, 0, -50), ({x0}, 0, -50)]
+    rel material:binding = </Ground>
+}}
+"""
+    return mat + quad.format(name="A", x0=-50, x1=0) + quad.format(name="B", x0=0, x1=50)
+
+
+def _halves():
+    d = cube_texel_directions(N)
+    down = d[..., 1] < -0.3
+    x = 0.5 * d[..., 0] / np.maximum(-d[..., 1], 1e-9)  # the floor point's x, seen from the probe at height 0.5
+    return down & (x < -0.1), down & (x > 0.1)
+
+
+LINK_A = '    uniform bool collection:lightLink:includeRoot = 0\n    rel collection:lightLink:includes = </A>'
+
+
+def test_light_linking_lights_only_the_linked_meshes(tmp_path):
+    """collection:lightLink = {/A}: a sun lights /A with ρE/π and leaves /B black (it is still seen directly:
+    the sky texels are those of the unlinked capture); a uniform dome linked to /A lights /A with ρL and not /B;
+    a sphere light linked to /B lights /B as unlinked and not /A."""
+    a, b = _halves()
+    assert a.sum() > 50 and b.sum() > 50
+    up = cube_texel_directions(N)[..., 1] > 0
+    plain = _capture(tmp_path, header() + _two_floors() + _sun() + probe("P", (0.0, 0.5, 0.0)), "plain")
+    sun = _capture(tmp_path, header() + _two_floors() + _sun(LINK_A) + probe("P", (0.0, 0.5, 0.0)), "sun")
+    np.testing.assert_allclose(sun[a], RHO * E / math.pi, rtol=1e-3)
+    assert float(np.abs(sun[b]).max()) == 0.0
+    np.testing.assert_array_equal(sun[up], plain[up])
+    dome = f"""
+def DomeLight "Sky"
+{{
+    float inputs:intensity = 1.5
+{LINK_A}
+}}
+"""
+    sky = _capture(tmp_path, header() + _two_floors() + dome + probe("P", (0.0, 0.5, 0.0)), "dome", samples=64)
+    np.testing.assert_allclose(sky[a].mean(axis=0), RHO * 1.5, rtol=0.01)
+    assert float(np.abs(sky[b]).max()) == 0.0
+    lamp = """
+def SphereLight "Lamp"
+{{
+    float inputs:radius = 0.2
+    float inputs:intensity = 20
+{links}
+    double3 xformOp:translate = (0, 2, 0)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+}}
+"""
+    both = _capture(tmp_path, header() + _two_floors() + lamp.format(links="") + probe("P", (0.0, 0.5, 0.0)),
+                    "lamp", samples=16)
+    only_b = _capture(tmp_path, header() + _two_floors() + lamp.format(links=LINK_A.replace("</A>", "</B>"))
+                      + probe("P", (0.0, 0.5, 0.0)), "lamp_b", samples=16)
+    np.testing.assert_array_equal(only_b[b], both[b])  # same paths, same numbers on the linked half
+    assert float(np.abs(only_b[a]).max()) == 0.0 and both[a].max() > 0
+
+
+def test_shadow_links_and_filters_are_reported(tmp_path):
+    text = header() + _two_floors() + _sun(
+        '    uniform bool collection:shadowLink:includeRoot = 0\n    rel collection:shadowLink:includes = </A>\n'
+        '    rel light:filters = </Filter>') + 'def LightFilter "Filter"\n{\n}\n' + probe("P", (0.0, 0.5, 0.0))
+    reading = read_scene(write(tmp_path / "links.usda", text))
+    messages = [i.message for i in reading.issues if i.prim == "/Sun"]
+    assert any("shadow linking" in m for m in messages) and any("light filters" in m for m in messages)
+    assert reading.scene.lights[0].links is None
