@@ -38,7 +38,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
 
 from bakery.capture.ies import IesError, IesShaping, parse_ies
 from bakery.capture.lights import LIGHT_MODELS, Placement
-from bakery.capture.scene import CaptureScene, Dome, Light, Mesh, ProbeSpec
+from bakery.capture.scene import CaptureScene, Dome, Light, Material, Mesh, ProbeSpec
 from bakery.environment.io import is_8bit_image, read_environment
 from bakery.errors import ImageError, SceneError
 from bakery.usd import gprims
@@ -164,7 +164,8 @@ class SceneReader:
         self.domes: list[Dome] = []
         self.probes: list[ProbeSpec] = []
         self.portals: list[Light] = []
-        self.geometry_lights: list[tuple[str, list[str], np.ndarray, bool]] = []
+        #: (name, targets, emission, normalize[, materialSyncMode of a MeshLightAPI])
+        self.geometry_lights: list[tuple] = []
         self._linked: list[tuple[str, int, Usd.Prim]] = []  # ("light" | "dome", index, prim): light linking
 
     def issue(self, severity: str, prim: Usd.Prim | str, message: str) -> None:
@@ -212,6 +213,9 @@ class SceneReader:
                     self._read_probe(prim, type_name)
                 elif "probe" in type_name.lower():
                     self.issue("error", prim, f"unknown probe type {type_name!r}; known: {', '.join(PROBE_TYPES)}")
+                elif prim.HasAPI(UsdLux.MeshLightAPI) and (prim.IsA(UsdGeom.Mesh) or is_surface_gprim(prim)):
+                    self._read_mesh(prim) if prim.IsA(UsdGeom.Mesh) else self._read_gprim(prim)
+                    self._read_mesh_light(prim)  # the geometry is read as any mesh, then emits
                 elif prim.HasAPI(UsdLux.LightAPI) or prim.IsA(UsdLux.DomeLight) or prim.IsA(UsdLux.DomeLight_1):
                     self._read_light(prim)
                 elif prim.IsA(UsdGeom.PointInstancer):
@@ -576,10 +580,26 @@ class SceneReader:
         included = [query.IsPathIncluded(Sdf.Path(mesh.name.split("#", 1)[0])) for mesh in self.meshes]
         return None if all(included) else tuple(i for i, inside in enumerate(included) if inside)
 
+    def _read_mesh_light(self, prim: Usd.Prim) -> None:
+        """UsdLuxMeshLightAPI on a mesh or gprim: recorded, and applied to its meshes by
+        :meth:`_apply_geometry_lights`."""
+        scale = self._emission_scale(prim)
+        if self._response(prim) != {"diffuse": 1.0, "specular": 1.0} or self._shadow(prim)["shadow"] is False:
+            self.issue("warning", prim, "diffuse/specular multipliers and shadow:enable of a mesh light are not "
+                                        "applied (it emits as a surface)")
+        attr = prim.GetAttribute("light:materialSyncMode")
+        mode = str(attr.Get()) if attr and attr.Get() else str(UsdLux.Tokens.materialGlowTintsLight)
+        self.geometry_lights.append((str(prim.GetPath()), [str(prim.GetPath())], scale,
+                                     bool(self._input(prim, "normalize", False)), mode))
+
     def _apply_geometry_lights(self) -> None:
-        """GeometryLight: its emission (intensity·2^exposure·color, ÷ area in stage units² when normalized) is
-        added to the emission of the meshes under its geometry targets."""
-        for name, targets, scale, normalize in self.geometry_lights:
+        """GeometryLight and MeshLightAPI: the light's emission L = intensity·2^exposure·color (÷ area in stage units²
+        when normalized) on the meshes under the GeometryLight's targets, or of the MeshLightAPI prim. A
+        GeometryLight adds L to the material's emission. A mesh light's surface emits (the capture has one emission
+        per surface: what rays see and what lights the scene) by its ``light:materialSyncMode``:
+        ``materialGlowTintsLight`` L ⊙ the material's emissive colour (or L where the material does not emit),
+        ``independent`` L, ``noMaterialResponse`` L with no diffuse or specular response."""
+        for name, targets, scale, normalize, *mode in self.geometry_lights:
             found = False
             for i, mesh in enumerate(self.meshes):
                 base = mesh.name.split("#", 1)[0]
@@ -590,11 +610,37 @@ class SceneReader:
                 area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=-1).sum()
                 area_su = area / self.frame.mpu**2
                 radiance = scale / area_su if normalize and area_su > 0 else scale
-                emission = tuple(float(a + b) for a, b in zip(mesh.material.emission, radiance))
-                material = dataclasses.replace(mesh.material, emission=emission)
+                material = mesh.material
+                if not mode:  # GeometryLight
+                    emission = tuple(float(a + b) for a, b in zip(material.emission, radiance))
+                    material = dataclasses.replace(material, emission=emission)
+                else:
+                    material = self._mesh_light_material(name, material, radiance, mode[0])
                 self.meshes[i] = dataclasses.replace(mesh, material=material)
             if not found and targets:
                 self.issue("warning", name, f"GeometryLight targets {targets} hold no meshes the capture reads")
+
+    def _mesh_light_material(self, name: str, material: Material, radiance: np.ndarray, mode: str) -> Material:
+        """The material of a MeshLightAPI surface emitting ``radiance`` (:meth:`_apply_geometry_lights`)."""
+        light = tuple(float(c) for c in radiance)
+        if mode == "noMaterialResponse":
+            keep = tuple(m for m in material.maps if m.get("input") == "opacity")
+            return dataclasses.replace(material, diffuse=(0.0, 0.0, 0.0), specular=(0.0, 0.0, 0.0),
+                                       use_specular_workflow=True, emission=light, maps=keep)
+        maps = tuple(m for m in material.maps if m.get("input") != "emissiveColor")
+        if mode == "materialGlowTintsLight" and material.emits:
+            tint = [dict(m, scale=tuple(float(x) * c for x, c in zip(m.get("scale", (1.0,) * 4), (*light, 1.0))),
+                         bias=tuple(float(x) * c for x, c in zip(m.get("bias", (0.0,) * 4), (*light, 1.0))))
+                    for m in material.maps if m.get("input") == "emissiveColor"]
+            emission = tuple(a * b for a, b in zip(material.emission, light))
+            return dataclasses.replace(material, emission=emission, maps=tuple(sorted(
+                (*maps, *tint), key=lambda m: m["input"])))
+        if mode not in ("materialGlowTintsLight", "independent"):
+            self.issue("warning", name, f"light:materialSyncMode {mode!r} is unknown; read as 'independent'")
+        if material.emits and mode == "independent":
+            self.issue("warning", name, "materialSyncMode 'independent': the surface emits the light's colour; the "
+                                        "material's own glow is not added (the capture has one emission per surface)")
+        return dataclasses.replace(material, emission=light, maps=maps)
 
     def _read_dome(self, prim: Usd.Prim, matrix: np.ndarray, scale: np.ndarray) -> None:
         pre = None
