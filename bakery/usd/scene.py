@@ -34,7 +34,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
 
 from bakery.capture.ies import IesError, IesShaping, parse_ies
 from bakery.capture.lights import LIGHT_MODELS, Placement
@@ -167,6 +167,7 @@ class SceneReader:
         #: (name, targets, emission, normalize[, materialSyncMode of a MeshLightAPI])
         self.geometry_lights: list[tuple] = []
         self._linked: list[tuple[str, int, Usd.Prim]] = []  # ("light" | "dome", index, prim): light linking
+        self._cage_faces: dict[str, np.ndarray] = {}  # refined meshes: the control-cage face of each triangle
 
     def issue(self, severity: str, prim: Usd.Prim | str, message: str) -> None:
         path = prim if isinstance(prim, str) else str(prim.GetPath())
@@ -727,10 +728,11 @@ class SceneReader:
             if scheme not in ("none", "bilinear"):
                 levels = self.subdivision
                 if levels > 0 and scheme == "catmullClark":
-                    points, counts, indices = catmull_clark(points, counts, indices, levels)
+                    points, counts, indices, cage = catmull_clark(points, counts, indices, levels, with_faces=True)
                     self.issue("warning", prim, f"catmullClark subdivision refined {levels} level(s) (creases and "
                                "boundary rules simplified; primvars are read on the control cage)")
                     tris, corners, faces = self._triangulate(prim, points, counts, indices)
+                    self._cage_faces[str(prim.GetPath())] = cage[faces]  # for GeomSubsets
                     return points[tris], None
                 self.issue("warning", prim, f"subdivisionScheme {scheme!r}: baked as its control cage "
                            + ("(set the recipe's capture.subdivision to refine)" if scheme == "catmullClark" else
@@ -839,19 +841,58 @@ class SceneReader:
         if not np.all(np.isfinite(local)):
             raise SceneError("mesh points are not finite")
         tris = self.frame.points(local.reshape(-1, 3), matrix).reshape(-1, 3, 3).astype(np.float32)
-        material, primvar = self.materials.material_for(prim)
-        uvs = None
-        if primvar is not None:
-            if topology is None:
-                self.issue("warning", prim, f"{prim.GetTypeName()} gprims have no texture coordinates; the textures' "
-                           "mean values are used")
-            else:
-                corner = self._corner_primvar(prim, primvar, topology)
-                uvs = None if corner is None else corner.astype(np.float32)
-        if uvs is None and material.maps:
-            material = dataclasses.replace(material, maps=())
         normals = None if local_normals is None else self._bake_normals(prim, local_normals, matrix)
-        self.meshes.append(Mesh(name, tris, material, uvs, normals))
+        for part, material, primvar, label in self._material_parts(prim, topology, tris.shape[0]):
+            uvs = None
+            if primvar is not None:
+                if topology is None:
+                    self.issue("warning", prim, f"{prim.GetTypeName()} gprims have no texture coordinates; the "
+                               "textures' mean values are used")
+                else:
+                    corner = self._corner_primvar(prim, primvar, topology)
+                    uvs = None if corner is None else corner.astype(np.float32)
+            if uvs is None and material.maps:
+                material = dataclasses.replace(material, maps=())
+
+            def take(array: np.ndarray | None) -> np.ndarray | None:
+                return array if array is None or part is None else array[part]
+
+            self.meshes.append(Mesh(name if label is None else f"{name}#{label}", take(tris), material, take(uvs),
+                                    take(normals)))
+
+    def _material_parts(self, prim: Usd.Prim, topology, triangles: int):  # noqa: ANN001, ANN202
+        """(triangle indices or None for all, material, primvar, subset label or None) per material of the mesh:
+        UsdGeomSubsets of the ``materialBind`` family bind their own materials to their faces (UsdShade), the
+        rest keeps the mesh's binding."""
+        subsets = UsdShade.MaterialBindingAPI(prim).GetMaterialBindSubsets() if prim.IsA(UsdGeom.Mesh) else []
+        material, primvar = self.materials.material_for(prim)
+        if not subsets:
+            return [(None, material, primvar, None)]
+        faces = topology[2] if topology is not None else self._cage_faces.get(str(prim.GetPath()))
+        if faces is None or faces.size != triangles:
+            self.issue("warning", prim, "GeomSubset materials cannot be mapped to this mesh's triangles; the mesh's "
+                                        "binding is used")
+            return [(None, material, primvar, None)]
+        face_count = int(faces.max()) + 1 if faces.size else 0
+        owner = np.full(face_count, -1, dtype=np.int64)  # the subset binding each face (−1: the mesh's)
+        for k, subset in enumerate(subsets):
+            if str(subset.GetElementTypeAttr().Get()) != "face":
+                continue
+            index = np.asarray(subset.GetIndicesAttr().Get(self.time) or [], dtype=np.int64)
+            index = index[(index >= 0) & (index < face_count)]
+            owner[index[owner[index] < 0]] = k  # a face in two subsets keeps the first (the schema forbids it)
+        parts = []
+        per_triangle = owner[faces]
+        for k in range(-1, len(subsets)):
+            part = np.flatnonzero(per_triangle == k)
+            if part.size == 0:
+                continue
+            if k < 0:
+                parts.append((part, material, primvar, None))
+            else:
+                sub_material, sub_primvar = self.materials.material_for(subsets[k].GetPrim())
+                parts.append((part, sub_material, sub_primvar, subsets[k].GetPrim().GetName()))
+        return parts
 
     def _read_point_instancer(self, prim: Usd.Prim) -> None:
         instancer = UsdGeom.PointInstancer(prim)
@@ -880,11 +921,13 @@ class SceneReader:
                                    topology)
 
 
-def catmull_clark(points: np.ndarray, counts: np.ndarray, indices: np.ndarray, levels: int
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def catmull_clark(points: np.ndarray, counts: np.ndarray, indices: np.ndarray, levels: int,
+                  with_faces: bool = False) -> tuple[np.ndarray, ...]:
     """``levels`` steps of Catmull-Clark refinement of a polygon mesh (points (P, 3), faceVertexCounts,
     faceVertexIndices) → a quad mesh. Boundary edges and their vertices follow the cubic B-spline boundary rules
-    (edge midpoints, ¾ + ⅛ + ⅛ vertices: UsdGeom's "edgeAndCorner" boundaries without creases)."""
+    (edge midpoints, ¾ + ⅛ + ⅛ vertices: UsdGeom's "edgeAndCorner" boundaries without creases). ``with_faces``:
+    also the control-cage face (Q,) each quad comes from (for GeomSubsets)."""
+    parent = np.arange(np.asarray(counts).size)
     for _ in range(levels):
         counts = np.asarray(counts, dtype=np.int64)
         indices = np.asarray(indices, dtype=np.int64)
@@ -934,7 +977,8 @@ def catmull_clark(points: np.ndarray, counts: np.ndarray, indices: np.ndarray, l
         points = np.concatenate([new_vertices, edge_points, face_points])
         indices = np.stack([vi, e_next, fi, e_prev], axis=-1).reshape(-1)
         counts = np.full(indices.size // 4, 4, dtype=np.int64)
-    return points, counts, indices
+        parent = parent[face_of]  # one quad per face-vertex of the previous level
+    return (points, counts, indices, parent) if with_faces else (points, counts, indices)
 
 
 def _at_corners(values: np.ndarray, interpolation: str, topology) -> np.ndarray | None:  # noqa: ANN001
