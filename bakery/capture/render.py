@@ -533,7 +533,7 @@ class ProbeRenderer:
                     _add_at(out_add, ai, _take(weight_d, ai) * found[0] + _take(weight_s, ai) * found[1])
                 elif found is not None:
                     _add_at(out_add, ai, _take(weight, ai) * found)
-                    prim2[ai[on_light]] = -1  # light shapes are opaque and do not reflect: the path ends there
+                prim2[ai[on_light]] = -1  # light shapes are opaque and do not reflect: the path ends there
             contribution = out_add if throughput is None else throughput * out_add
             if ray_index is None:
                 out += contribution

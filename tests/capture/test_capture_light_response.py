@@ -277,3 +277,36 @@ def test_shadow_links_and_filters_are_reported(tmp_path):
     messages = [i.message for i in reading.issues if i.prim == "/Sun"]
     assert any("shadow linking" in m for m in messages) and any("light filters" in m for m in messages)
     assert reading.scene.lights[0].links is None
+
+
+def test_light_shapes_end_paths_with_lobe_multipliers(tmp_path):
+    """With a multiplier ≠ 1 somewhere (the lobe-weighted path), a BSDF ray that reaches a light's shape still
+    ends there: a sphere light under a bright emissive ceiling hides the ceiling from the floor exactly as without
+    multipliers (an extra, dark light with diffuse 0.5 switches the lobe-weighted path on)."""
+    ceiling = material("Glow", diffuse=(0.0, 0.0, 0.0), emissive=(50.0, 50.0, 50.0), diffuse_only=True)
+    ceiling += plane_mesh("Ceiling", 3, "/Glow", height=1.6)
+    lamp = """
+def SphereLight "Lamp"
+{
+    float inputs:radius = 0.5
+    float inputs:intensity = 0.001
+    double3 xformOp:translate = (0, 0.9, 0)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+}
+"""
+    dark = """
+def SphereLight "Dark"
+{{
+    float inputs:radius = 0.1
+    float inputs:intensity = 0.001
+    float inputs:diffuse = {diffuse}
+    double3 xformOp:translate = (2.5, 1.2, 2.5)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+}}
+"""
+    base = header() + material("Ground", diffuse=(RHO,) * 3, diffuse_only=True) + plane_mesh("Plane", 3, "/Ground")
+    base += ceiling + lamp + probe("P", (0.6, 0.3, 0.0))
+    plain = _capture(tmp_path, base + dark.format(diffuse=1.0), "plain", samples=64, bounces=1)
+    lobes = _capture(tmp_path, base + dark.format(diffuse=0.5), "lobes", samples=64, bounces=1)
+    down = _floor()
+    np.testing.assert_allclose(lobes[down].mean(), plain[down].mean(), rtol=0.02)
