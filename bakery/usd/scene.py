@@ -577,6 +577,12 @@ class SceneReader:
 
     def _members(self, collection: Usd.CollectionAPI) -> tuple[int, ...] | None:
         """Indices of the meshes read that ``collection`` includes, or None if it includes them all."""
+        include_root = collection.GetIncludeRootAttr().Get()
+        expression = collection.GetMembershipExpressionAttr() if hasattr(collection, "GetMembershipExpressionAttr") \
+            else None
+        if include_root and not collection.GetExcludesRel().GetTargets() and not (
+                expression and expression.HasAuthoredValue()):
+            return None  # the fallback: everything (no query per mesh)
         query = collection.ComputeMembershipQuery()
         included = [query.IsPathIncluded(Sdf.Path(mesh.name.split("#", 1)[0])) for mesh in self.meshes]
         return None if all(included) else tuple(i for i, inside in enumerate(included) if inside)
