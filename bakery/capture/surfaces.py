@@ -149,6 +149,43 @@ class MipTexture:
         return out
 
 
+class UdimTexture:
+    """UDIM tiles (``<UDIM>`` in a UsdUVTexture file): tile 1001 + ⌊s⌋ + 10·⌊t⌋ (0 ≤ ⌊s⌋ < 10) is looked up at
+    (s − ⌊s⌋, t − ⌊t⌋) with clamped edges; coordinates on a missing tile read black, as Hydra does. The same
+    interface as :class:`MipTexture`."""
+
+    def __init__(self, tiles: dict[int, MipTexture]) -> None:
+        self.tiles = tiles
+        self.width = max(t.width for t in tiles.values())
+        self.height = max(t.height for t in tiles.values())
+
+    def _split(self, s: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        u, v = np.floor(s), np.floor(t)
+        tile = np.where((u >= 0) & (u < 10) & (v >= 0), 1001 + u + 10 * v, -1).astype(np.int64)
+        return tile, s - u, t - v
+
+    def lookup_soa(self, s: np.ndarray, t: np.ndarray, lod: np.ndarray, wrap: tuple[str, str],
+                   channels: tuple[int, ...]) -> list[np.ndarray]:
+        tile, ls, lt = self._split(s, t)
+        out = [np.zeros(s.shape, dtype=s.dtype) for _ in channels]
+        for number, texture in self.tiles.items():
+            sel = np.flatnonzero(tile == number)
+            if sel.size:
+                values = texture.lookup_soa(ls[sel], lt[sel], lod[sel], ("clamp", "clamp"), channels)
+                for acc, value in zip(out, values):
+                    acc[sel] = value
+        return out
+
+    def lookup(self, st: np.ndarray, lod: np.ndarray, wrap: tuple[str, str]) -> np.ndarray:
+        tile, ls, lt = self._split(st[:, 0], st[:, 1])
+        out = np.zeros((st.shape[0], 4))
+        for number, texture in self.tiles.items():
+            sel = np.flatnonzero(tile == number)
+            if sel.size:
+                out[sel] = texture.lookup(np.stack([ls[sel], lt[sel]], axis=1), lod[sel], ("clamp", "clamp"))
+        return out
+
+
 def _tangent_frames(triangles: np.ndarray, uvs: np.ndarray) -> np.ndarray:
     """Per-triangle tangent frames (4, T) float32: dP/ds (rows 0–2, unit; the edge direction where the texture
     coordinates are degenerate) and the handedness ±1 (row 3) of (dP/ds, dP/dt, winding normal), from the
@@ -228,7 +265,7 @@ class Surfaces:
             entry.get("input") == "opacity" for entry in m.maps)) for m in mats], dtype=bool)
         self.stochastic = bool(self.partial.any())
         self.cutout = bool(np.any(self.threshold > 0)) or self.stochastic
-        self._textures: dict[int, MipTexture] = {}
+        self._textures: dict = {}  # MipTexture per texture index, UdimTexture per tile set
         self.scene = scene
         self.triangles = tracer.triangles
         self.uvs = None
@@ -276,7 +313,7 @@ class Surfaces:
             n = np.take(shading, sel, axis=1)
             side = 1 - 2 * np.take(back, sel).astype(n.dtype)  # +1 front, −1 back
             front = n * side  # the shading normal on the front side (the tangent frame's side)
-            texture = self.texture(int(entry["texture"]))
+            texture = self.entry_texture(entry)
             uv = [np.take(self._uvs_soa_f32()[i], p) for i in range(6)]
             w0 = 1 - u - v
             s_ = w0 * uv[0] + u * uv[2] + v * uv[4]
@@ -344,7 +381,7 @@ class Surfaces:
             name = entry["input"]
             if name not in self.base:
                 continue
-            texture = self.texture(int(entry["texture"]))
+            texture = self.entry_texture(entry)
             lod = np.log2(np.maximum(density * max(texture.width, texture.height), 1))
             channels = entry.get("channels", "rgb")
             index = {"r": (0,), "g": (1,), "b": (2,), "a": (3,)}.get(channels, (0, 1, 2))
@@ -378,6 +415,16 @@ class Surfaces:
         return (np.broadcast_to(np.clip(albedo, 0, 1), shape), np.broadcast_to(f0, shape),
                 np.broadcast_to(np.clip(get("roughness"), 0, 1), (m,)),
                 np.broadcast_to(np.maximum(get("emissiveColor"), 0), shape))
+
+    def entry_texture(self, entry: dict) -> MipTexture | UdimTexture:
+        """The texture a map entry reads: its image, or its UDIM tiles (``entry["udim"]``)."""
+        tiles = entry.get("udim")
+        if not tiles:
+            return self.texture(int(entry["texture"]))
+        key = ("udim", tuple(tiles))
+        if key not in self._textures:
+            self._textures[key] = UdimTexture({int(tile): self.texture(int(index)) for tile, index in tiles})
+        return self._textures[key]
 
     def texture(self, index: int) -> MipTexture:
         if index not in self._textures:
@@ -421,7 +468,7 @@ class Surfaces:
             name = entry["input"]
             if name not in values:
                 continue
-            texture = self.texture(int(entry["texture"]))
+            texture = self.entry_texture(entry)
             size = max(texture.width, texture.height)
             if t is None:
                 lod = np.zeros(sel.size)

@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from pxr import Sdf, Usd, UsdGeom, UsdShade
+from pxr import Ar, Sdf, Usd, UsdGeom, UsdShade
 
 from bakery.capture.scene import Material, Texture
 from bakery.environment.io import read_image
@@ -244,7 +244,9 @@ class MaterialReader:
         if not isinstance(asset, Sdf.AssetPath) or not asset.path:
             self._warn_once(path, "UsdUVTexture has no inputs:file; using the input's value")
             return None, None, None
-        resolved = local_asset_path(asset)
+        udim = "<UDIM>" in asset.path
+        tiles = self._udim_tiles(file_input, asset.path) if udim else []
+        resolved = tiles[0][1] if udim and tiles else (None if udim else local_asset_path(asset))
         if resolved is None:
             self._warn_once(path, f"texture {asset.path!r} not found; using the input's value")
             return None, None, None
@@ -255,12 +257,17 @@ class MaterialReader:
         index = self.texture_index(resolved, source_cs, path, color_space, is_color)
         if index is None:
             return None, None, None
+        udim_tiles, texel_mean = (), self._means[index]
+        if udim:  # every tile, by its number; the mean over the tiles stands for the whole texture
+            indices = [(tile, self.texture_index(file, source_cs, path, color_space, is_color)) for tile, file in tiles]
+            udim_tiles = tuple((tile, i) for tile, i in indices if i is not None)
+            texel_mean = np.mean([self._means[i] for _, i in udim_tiles], axis=0)
         scale = _value4(texture, "scale", (1.0, 1.0, 1.0, 1.0), self.time)
         bias = _value4(texture, "bias", (0.0, 0.0, 0.0, 0.0), self.time)
         fallback = _value4(texture, "fallback", (0.0, 0.0, 0.0, 1.0), self.time)
         wrap = tuple(_wrap_mode(_token(texture, w, "useMetadata", self.time)) for w in ("wrapS", "wrapT"))
         channels = output if output in ("r", "g", "b", "a") else "rgb"
-        mean = self._means[index] * scale + bias
+        mean = texel_mean * scale + bias
         mean_out = float(mean[{"r": 0, "g": 1, "b": 2, "a": 3}[channels]]) if channels != "rgb" else mean[:3]
         primvar = "st"
         st_input = texture.GetInput("st")
@@ -273,7 +280,25 @@ class MaterialReader:
                     primvar = str(name)
         entry = {"texture": index, "channels": channels, "scale": tuple(map(float, scale)),
                  "bias": tuple(map(float, bias)), "fallback": tuple(map(float, fallback)), "wrap": wrap}
+        if udim_tiles:
+            entry["udim"] = udim_tiles
         return entry, mean_out, primvar
+
+    def _udim_tiles(self, file_input: UsdShade.Input, pattern: str) -> list[tuple[int, str]]:
+        """The existing tiles (number, file) 1001–1100 of a ``<UDIM>`` path, resolved against the layer that
+        authored it (as Hydra's UDIM textures are: the resolver does not expand ``<UDIM>``)."""
+        attrs = file_input.GetValueProducingAttributes() if file_input else []
+        attr = attrs[0] if attrs else file_input.GetAttr()
+        layers = [spec.layer for spec in attr.GetPropertyStack(self.time)] if attr else []
+        found = []
+        for tile in range(1001, 1101):
+            name = pattern.replace("<UDIM>", str(tile))
+            for layer in layers[:1]:
+                candidate = Sdf.ComputeAssetPathRelativeToLayer(layer, name) if layer else name
+                resolved = Ar.GetResolver().Resolve(candidate)
+                if resolved and Path(str(resolved)).is_file():
+                    found.append((tile, str(resolved)))
+        return found
 
     def texture_index(self, filename: str, source_cs: str, prim: str, color_space: str = "",
                       is_color: bool = True) -> int | None:

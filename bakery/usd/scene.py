@@ -273,11 +273,19 @@ class SceneReader:
         """The textures some mesh map or light uses (others, e.g. of meshes without texture coordinates, are dropped
         from the snapshot), with the indices in materials and lights renumbered."""
         used = sorted({int(e["texture"]) for m in self.meshes for e in m.material.maps}
+                      | {int(i) for m in self.meshes for e in m.material.maps for _tile, i in e.get("udim", ())}
                       | {light.texture for light in self.lights if light.texture >= 0})
         index = {old: new for new, old in enumerate(used)}
+
+        def renumbered(entry: dict) -> dict:
+            entry = dict(entry, texture=index[int(entry["texture"])])
+            if entry.get("udim"):
+                entry["udim"] = tuple((tile, index[int(i)]) for tile, i in entry["udim"])
+            return entry
+
         for i, mesh in enumerate(self.meshes):
             if mesh.material.maps:
-                maps = tuple(dict(e, texture=index[int(e["texture"])]) for e in mesh.material.maps)
+                maps = tuple(renumbered(e) for e in mesh.material.maps)
                 self.meshes[i] = dataclasses.replace(mesh, material=dataclasses.replace(mesh.material, maps=maps))
         self.lights = [dataclasses.replace(light, texture=index[light.texture]) if light.texture >= 0 else light
                        for light in self.lights]
