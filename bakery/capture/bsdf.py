@@ -7,6 +7,12 @@ Fresnel — exactly the terms of :mod:`bakery.brdf.ggx` that the reflection enco
 c)⁵ with F90 = min(1, 50·luminance(F0)) (a surface with F0 = 0 has no specular lobe at all, so a purely diffuse
 material is exactly Lambertian). α = roughness², clamped to ≥ :data:`MIN_ALPHA`.
 
+Clearcoat (UsdPreviewSurface ``clearcoat`` c, ``clearcoatRoughness`` r_c; MaterialX coat): a white GGX lobe with
+F0 = 0.04 on top, F_c = c·Schlick(0.04, v·h), α_c = r_c² (≥ MIN_ALPHA); the base lobes are weighted by 1 − F_c (the
+light the coat transmits, as the diffuse lobe is by 1 − F under the specular one). It is picked first with
+probability p_c = clip(F_c(n·v) / (F_c(n·v) + (1 − F_c(n·v))·(base weights)), 0.05, 0.95) and sampled by its visible
+normals; the mixture pdf is p_c·pdf_c + (1 − p_c)·pdf_base. Without a coat the BSDF is unchanged.
+
 Sampling: one lobe is picked with probability p_s = lum F(n·wo) / (lum F(n·wo) + lum ρ_d(1 − F(n·wo))) clamped to
 [0.05, 0.95] (0 or 1 when a lobe is absent); diffuse directions are cosine-distributed, specular ones follow the
 GGX distribution of visible normals (:func:`bakery.brdf.sampling.sample_ggx_vndf`). The returned pdf is the
@@ -24,6 +30,8 @@ import numpy as np
 from bakery.capture.vec import TINY, dot, frame, luminance, vmax
 
 MIN_ALPHA = 1e-3
+#: F0 of the clearcoat lobe (UsdPreviewSurface: an IOR of 1.5)
+COAT_F0 = 0.04
 _INV_PI = 1.0 / math.pi
 
 
@@ -44,7 +52,8 @@ class Bsdf:
     """
 
     def __init__(self, normals: np.ndarray, wo: np.ndarray, albedo: np.ndarray, f0: np.ndarray,
-                 roughness: np.ndarray, geometric: np.ndarray | None = None) -> None:
+                 roughness: np.ndarray, geometric: np.ndarray | None = None,
+                 coat: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         self.n = normals
         #: the geometric normal (3, M) facing wo when ``normals`` are interpolated shading normals: directions
         #: below the geometric surface get no value and no pdf (a sampled one ends its path), so shading normals
@@ -78,6 +87,21 @@ class Bsdf:
             tan2 = (1 - nv * nv) / (nv * nv)
             g1v = 1 / (1 + 0.5 * (np.sqrt(1 + a2 * tan2) - 1))  # Smith G1(wo)
             self.spec_pdf_scale = self.p_spec * g1v / (4 * nv)
+        #: the clearcoat lobe (module docstring "Clearcoat"): None, or amount (M,) and GGX α² (M,)
+        self.coat = None
+        if coat is not None and bool(np.any(coat[0] > 0)):
+            amount = np.clip(coat[0], 0, 1).astype(nv.dtype, copy=False)
+            alpha_c = np.maximum(coat[1] * coat[1], MIN_ALPHA).astype(nv.dtype, copy=False)
+            a2c = alpha_c * alpha_c
+            fc_v = amount * (COAT_F0 + (1 - COAT_F0) * _pow5(1 - nv))  # the coat's Fresnel towards the viewer
+            base = (spec_w + luminance(albedo * (1 - fv))) * (1 - fc_v)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                pc = np.clip(np.where(fc_v + base > 0, fc_v / (fc_v + base), 0.5), 0.05, 0.95)
+            self.p_coat = np.where(amount > 0, np.where(base > 0, pc, 1), 0).astype(nv.dtype, copy=False)
+            tan2 = (1 - nv * nv) / (nv * nv)
+            g1c = 1 / (1 + 0.5 * (np.sqrt(1 + a2c * tan2) - 1))
+            self.coat = (amount, alpha_c, a2c, np.sqrt(nv * nv * (1 - a2c) + a2c), self.p_coat * g1c / (4 * nv),
+                         np.flatnonzero((amount > 0) & (alpha_c < 0.03)))
 
     def _fresnel(self, c: np.ndarray) -> np.ndarray:
         return self.f0 + (self.f90 - self.f0) * _pow5(1 - np.clip(c, 0, 1))
@@ -114,23 +138,36 @@ class Bsdf:
         specular = None
         pdf = (1 - e(self.p_spec)) * _INV_PI * nlc
         if self.any_specular:
-            a2 = e(self.a2)
-            nh = (e(self.nv_raw) + nl) * inv_h
-            den = nh * nh * (a2 - 1) + 1
-            if self.sharp.size:  # 1 − (n·h)² cancels in float32 near the peak of a sharp lobe: |n × h|² there
-                k = self.sharp
-                nk, ik, nhk = (np.take(a, k, axis=-1) for a in (n, inv_h, nh))
-                hk = np.take(wo, k, axis=-1) + np.take(wi, k, axis=-1)
-                cx = nk[1] * hk[2] - nk[2] * hk[1]
-                cy = nk[2] * hk[0] - nk[0] * hk[2]
-                cz = nk[0] * hk[1] - nk[1] * hk[0]
-                den[..., k] = (cx * cx + cy * cy + cz * cz) * (ik * ik) + nhk * nhk * np.take(a2, k, axis=-1)
-            with np.errstate(over="ignore"):  # wi = −wo: den overflows, D = 0
-                d = (nh > 0) * a2 / (math.pi * den * den)
-            vis = 0.5 / np.maximum(nlc * e(self.sqv) + e(self.nv) * np.sqrt(nlc * nlc * (1 - a2) + a2), TINY)
+            d, vis = self._ggx(e, n, wo, wi, nl, nlc, inv_h, e(self.a2), e(self.sqv), self.sharp)
             specular = f * (d * vis * nlc)
             pdf = pdf + e(self.spec_pdf_scale) * d
+        if self.coat is not None:  # [UsdPreviewSurface] clearcoat: a white GGX lobe (F0 0.04) over the base
+            amount, _alpha, a2c, sqvc, pdf_scale, sharp = self.coat
+            fc = e(amount) * (COAT_F0 + (1 - COAT_F0) * _pow5(1 - vh))
+            d, vis = self._ggx(e, n, wo, wi, nl, nlc, inv_h, e(a2c), e(sqvc), sharp)
+            keep = 1 - fc  # the base sees what the coat transmits
+            diffuse = diffuse * keep
+            coat = np.broadcast_to(fc * (d * vis * nlc), diffuse.shape)
+            specular = coat if specular is None else specular * keep + coat
+            pdf = (1 - e(self.p_coat)) * pdf + e(pdf_scale) * d
         return diffuse, specular, pdf, above
+
+    def _ggx(self, e, n, wo, wi, nl, nlc, inv_h, a2, sqv, sharp):  # noqa: ANN001, ANN202
+        """GGX D(h) and the height-correlated Smith visibility V (..., M) of a lobe with α² = ``a2``."""
+        nh = (e(self.nv_raw) + nl) * inv_h
+        den = nh * nh * (a2 - 1) + 1
+        if sharp.size:  # 1 − (n·h)² cancels in float32 near the peak of a sharp lobe: |n × h|² there
+            k = sharp
+            nk, ik, nhk = (np.take(a, k, axis=-1) for a in (n, inv_h, nh))
+            hk = np.take(wo, k, axis=-1) + np.take(wi, k, axis=-1)
+            cx = nk[1] * hk[2] - nk[2] * hk[1]
+            cy = nk[2] * hk[0] - nk[0] * hk[2]
+            cz = nk[0] * hk[1] - nk[1] * hk[0]
+            den[..., k] = (cx * cx + cy * cy + cz * cz) * (ik * ik) + nhk * nhk * np.take(a2, k, axis=-1)
+        with np.errstate(over="ignore"):  # wi = −wo: den overflows, D = 0
+            d = (nh > 0) * a2 / (math.pi * den * den)
+        vis = 0.5 / np.maximum(nlc * sqv + e(self.nv) * np.sqrt(nlc * nlc * (1 - a2) + a2), TINY)
+        return d, vis
 
     def sample(self, u0: np.ndarray, u1: np.ndarray, u2: np.ndarray, lobes: bool = False) -> tuple[np.ndarray, ...]:
         """Directions wi (3, M), weights f·cos/pdf (3, M) and pdfs (M,) from uniform numbers u0, u1, u2 (M,);
@@ -141,6 +178,11 @@ class Bsdf:
         x, y = r * np.cos(phi), r * np.sin(phi)
         z = np.sqrt(np.maximum(0, 1 - u0))
         wi = x * t + y * b + z * self.n  # cosine-distributed (Malley)
+        coat_idx = None
+        if self.coat is not None:  # the coat first (u2 < p_coat), then the base's lobes on the rescaled u2
+            p_coat = self.p_coat
+            coat_idx = np.flatnonzero(u2 < p_coat)
+            u2 = np.where(u2 < p_coat, 1, (u2 - p_coat) / np.maximum(1 - p_coat, TINY))
         if self.any_specular:
             idx = np.flatnonzero(u2 < self.p_spec)
             if idx.size:
@@ -150,6 +192,13 @@ class Bsdf:
                                  np.take(self.alpha, idx))
                 h = h[0] * tk + h[1] * bk + h[2] * nk
                 wi[:, idx] = 2 * dot(wo, h) * h - wo
+        if coat_idx is not None and coat_idx.size:
+            tk, bk, nk = (np.take(a, coat_idx, axis=1) for a in (t, b, self.n))
+            wo = np.take(self.wo, coat_idx, axis=1)
+            h = _sample_vndf(dot(wo, tk), dot(wo, bk), dot(wo, nk), np.take(u0, coat_idx), np.take(u1, coat_idx),
+                             np.take(self.coat[1], coat_idx))
+            h = h[0] * tk + h[1] * bk + h[2] * nk
+            wi[:, coat_idx] = 2 * dot(wo, h) * h - wo
         if not lobes:
             value, pdf = self.evaluate(wi)
             ok = pdf > 0

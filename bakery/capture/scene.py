@@ -138,6 +138,8 @@ class Material:
             weight (1 − metallic).
         specular: (3,) F0 of the specular workflow (``use_specular_workflow``).
         ior: index of refraction of the dielectric Fresnel (F0 = ((ior − 1)/(ior + 1))²).
+        clearcoat, clearcoat_roughness: a white GGX coat (F0 0.04) of that amount and roughness over the base
+            (:mod:`bakery.capture.bsdf`, "Clearcoat").
         opacity, opacity_threshold: cut-outs: a hit whose opacity is below the threshold (threshold > 0) is
             passed through; without a threshold, opacity is the surface's presence: a hit is passed through with
             probability 1 − opacity (stochastic alpha: a window of opacity 0.2 passes 80 % of the light).
@@ -157,6 +159,8 @@ class Material:
     opacity: float = 1.0
     opacity_threshold: float = 0.0
     maps: tuple[dict, ...] = ()
+    clearcoat: float = 0.0
+    clearcoat_roughness: float = 0.01
 
     @property
     def emits(self) -> bool:

@@ -288,6 +288,11 @@ class Surfaces:
             [point.albedo.T, point.f0.T, point.roughness[None], point.emission.T]), dtype=np.float32)
         self.emissive = any(m.emits for m in self.materials)
         self.mesh_of_soa = np.ascontiguousarray(self.mesh_of, dtype=np.int32)
+        #: (2, materials) float32 clearcoat amount and roughness, or None when no material has a coat
+        self.coat_table = None
+        if any(m.clearcoat > 0 for m in self.materials):
+            self.coat_table = np.array([[m.clearcoat for m in mats], [m.clearcoat_roughness for m in mats]],
+                                       dtype=np.float32)
         #: materials with a UsdPreviewSurface ``normal`` map, and each one's map entry
         self.normal_maps = {k: next(e for e in m.maps if e.get("input") == "normal")
                             for k, m in enumerate(self.materials) if any(e.get("input") == "normal" for e in m.maps)}
@@ -296,6 +301,13 @@ class Surfaces:
             self._tangents = _tangent_frames(self.triangles, self.uvs)
             self._has_uv = np.concatenate([np.full(np.asarray(m.triangles).reshape(-1, 3, 3).shape[0],
                                                    m.uvs is not None) for m in scene.meshes])
+
+    def coat_soa(self, prim: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """Clearcoat amount and roughness (M,) at hits, or None when no material has a coat."""
+        if self.coat_table is None:
+            return None
+        mi = np.take(self.mesh_of_soa, prim)
+        return np.take(self.coat_table[0], mi), np.take(self.coat_table[1], mi)
 
     def mapped_normals(self, prim: np.ndarray, bu: np.ndarray, bv: np.ndarray, t: np.ndarray, spread: float,
                        shading: np.ndarray, back: np.ndarray, wo: np.ndarray) -> np.ndarray:

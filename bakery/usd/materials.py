@@ -60,10 +60,12 @@ PREVIEW_FALLBACKS = {
     "ior": 1.5,
     "opacity": 1.0,
     "opacityThreshold": 0.0,
+    "clearcoat": 0.0,
+    "clearcoatRoughness": 0.01,
 }
 COLOR_INPUTS = ("diffuseColor", "emissiveColor", "specularColor")
 #: UsdPreviewSurface inputs the capture does not model (reported when authored away from their fallbacks).
-UNMODELLED = {"clearcoat": 0.0, "displacement": 0.0, "occlusion": 1.0}
+UNMODELLED = {"displacement": 0.0, "occlusion": 1.0}
 
 
 @dataclass
@@ -175,6 +177,9 @@ class MaterialReader:
         opacity, threshold = float(np.mean(v["opacity"])), float(np.mean(v["opacityThreshold"]))
         maps = []
         for name, entry in surface.maps.items():
+            if name in ("clearcoat", "clearcoatRoughness"):  # read as constants: the texture's mean
+                self._warn_once(path, f"{name} is textured; its mean {float(np.mean(v[name])):g} is used")
+                continue
             maps.append(dict(entry, input=name))
         material = Material(
             name=path,
@@ -188,6 +193,8 @@ class MaterialReader:
             opacity=opacity,
             opacity_threshold=threshold,
             maps=tuple(sorted(maps, key=lambda m: m["input"])),
+            clearcoat=float(np.clip(np.mean(v["clearcoat"]), 0.0, 1.0)),
+            clearcoat_roughness=float(np.clip(np.mean(v["clearcoatRoughness"]), 0.0, 1.0)),
         )
         return material, False, surface.primvar if maps else None
 

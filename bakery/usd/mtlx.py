@@ -20,7 +20,7 @@ Mapping (metallic workflow of the capture; see ``docs/capture.md``)
     Inputs connected to ``image``/``tiledimage`` nodes (directly or through a nodegraph output) become texture maps
     with the node's file, ``colorspace`` (colour inputs are converted with OpenColorIO), address modes and default;
     a scalar weight multiplying a textured colour (base · base_color) folds into the map's scale. Lobes the
-    capture cannot represent (coat, sheen, subsurface, thin film, specular weight/colour ≠ 1, object-space
+    capture cannot represent (coat colour, sheen, subsurface, thin film, specular weight/colour ≠ 1, object-space
     normal maps, other node types in a graph) are reported; a tangent-space ``normalmap`` of an image is a normal
     map (2·in − 1, x and y times its ``scale``). Transmission is read as thin, straight pass-through: the
     presence (opacity) is multiplied by 1 − transmission·(1 − metalness) (reported: no refraction or tint).
@@ -38,13 +38,13 @@ from bakery.usd.materials import COLOR_INPUTS, Surface
 _SUPPORTED = ("standard_surface", "open_pbr_surface", "UsdPreviewSurface", "gltf_pbr")
 #: Lobe weights the capture does not model: (input, neutral value).
 _UNMODELLED = {
-    "standard_surface": (("coat", 0.0), ("sheen", 0.0), ("subsurface", 0.0),
+    "standard_surface": (("coat_color", 1.0), ("sheen", 0.0), ("subsurface", 0.0),
                          ("thin_film_thickness", 0.0), ("specular", 1.0), ("specular_color", 1.0)),
-    "open_pbr_surface": (("coat_weight", 0.0), ("fuzz_weight", 0.0),
+    "open_pbr_surface": (("coat_color", 1.0), ("fuzz_weight", 0.0),
                          ("subsurface_weight", 0.0), ("thin_film_weight", 0.0), ("specular_weight", 1.0),
                          ("specular_color", 1.0)),
-    "UsdPreviewSurface": (("clearcoat", 0.0), ("displacement", 0.0)),
-    "gltf_pbr": (("clearcoat", 0.0), ("sheen_color", 0.0)),
+    "UsdPreviewSurface": (("displacement", 0.0),),
+    "gltf_pbr": (("sheen_color", 0.0),),
 }
 #: (transmission weight, metalness) inputs: transmission is modelled as thin, straight pass-through — the surface's
 #: presence (opacity) is multiplied by 1 − t·(1 − metalness), the share of the base that is not transmitted
@@ -102,19 +102,22 @@ _INPUT_MAP: dict[str, tuple[tuple[str, str, str | None, bool], ...]] = {
     "standard_surface": (
         ("diffuseColor", "base_color", "base", False), ("metallic", "metalness", None, True),
         ("roughness", "specular_roughness", None, True), ("ior", "specular_IOR", None, True),
-        ("emissiveColor", "emission_color", "emission", False), ("opacity", "opacity", None, True)),
+        ("emissiveColor", "emission_color", "emission", False), ("opacity", "opacity", None, True),
+        ("clearcoat", "coat", None, True), ("clearcoatRoughness", "coat_roughness", None, True)),
     "open_pbr_surface": (
         ("diffuseColor", "base_color", "base_weight", False), ("metallic", "base_metalness", None, True),
         ("roughness", "specular_roughness", None, True), ("ior", "specular_ior", None, True),
-        ("emissiveColor", "emission_color", "emission_luminance", False), ("opacity", "geometry_opacity", None, True)),
+        ("emissiveColor", "emission_color", "emission_luminance", False), ("opacity", "geometry_opacity", None, True),
+        ("clearcoat", "coat_weight", None, True), ("clearcoatRoughness", "coat_roughness", None, True)),
     "gltf_pbr": (
         ("diffuseColor", "base_color", None, False), ("metallic", "metallic", None, True),
         ("roughness", "roughness", None, True), ("ior", "ior", None, True),
-        ("emissiveColor", "emissive", "emissive_strength", False), ("opacity", "alpha", None, True)),
+        ("emissiveColor", "emissive", "emissive_strength", False), ("opacity", "alpha", None, True),
+        ("clearcoat", "clearcoat", None, True), ("clearcoatRoughness", "clearcoat_roughness", None, True)),
 }
 _PREVIEW_SURFACE_MAP = tuple((name, name, None, False) for name in ("diffuseColor", "emissiveColor", "specularColor")) \
     + tuple((name, name, None, True) for name in ("metallic", "roughness", "ior", "opacity", "opacityThreshold",
-                                                  "useSpecularWorkflow"))
+                                                  "useSpecularWorkflow", "clearcoat", "clearcoatRoughness"))
 
 
 def _to_surface(category: str, values: dict[str, object], maps: dict[str, dict], notes: list[str]) -> Surface:

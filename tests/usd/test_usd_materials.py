@@ -50,6 +50,8 @@ def test_materialx_documents_read_as_their_native_usdpreviewsurface_twins(shared
         fa, fb = _fields(a.material), _fields(b.material)
         assert fa.keys() == fb.keys()
         for key in fa:
+            if (case, key) == ("clearcoat", "clearcoat_roughness") and b.name.endswith(("_06", "_07", "_08")):
+                continue  # the two OpenUSD files disagree there: clearcoatRoughness 1.0 in the .mtlx, 0.01 native
             np.testing.assert_allclose(np.asarray(fb[key], dtype=float), np.asarray(fa[key], dtype=float), rtol=1e-6,
                                        err_msg=f"{b.name}: {key}")
 
@@ -68,8 +70,8 @@ def _srgb_decode(v):
 
 def test_standard_surface_and_open_pbr_documents_with_textures(tmp_path):
     """StandardShaderBall-style materials in a .mtlx document: standard_surface (base × base_color, metalness,
-    specular_roughness, emission, an sRGB image on base_color) and open_pbr_surface, with their real colours;
-    unmodelled lobes (coat) are reported."""
+    specular_roughness, emission, an sRGB image on base_color, coat) and open_pbr_surface, with their real colours;
+    the coat is the capture's clearcoat lobe."""
     _write_png(tmp_path / "albedo.png", np.array([[[255, 128, 0], [0, 64, 255]]], dtype=np.uint8))
     (tmp_path / "mats.mtlx").write_text("""<?xml version="1.0"?>
 <materialx version="1.39">
@@ -111,7 +113,7 @@ def Scope "Looks" (
     np.testing.assert_allclose(a.diffuse, 0.9 * mean_albedo, rtol=1e-4)  # OpenColorIO decodes in float32
     assert a.metallic == pytest.approx(0.25) and a.roughness == pytest.approx(0.35) and a.ior == pytest.approx(1.5)
     np.testing.assert_allclose(a.emission, (0.2, 0.4, 0.6), rtol=1e-6)
-    assert any("coat" in i.message for i in reading.issues)
+    assert a.clearcoat == pytest.approx(0.5) and a.clearcoat_roughness == pytest.approx(0.1)  # coat_roughness default
     np.testing.assert_allclose(b.diffuse, (0.7, 0.2, 0.1), rtol=1e-6)
     assert b.metallic == 1.0 and b.roughness == pytest.approx(0.1)
     # the base_color image is kept as a texture (sRGB decoded), read per hit where the mesh has texture coordinates
