@@ -270,11 +270,18 @@ def _image_map(reader, node, base_dir: Path, is_color: bool, prim: str) -> dict 
     path = Path(filename)
     if not path.is_absolute():
         path = (base_dir / path).resolve()
+    color_space = file_input.getActiveColorSpace() or ""
+    source = "raw" if not is_color else "auto"
+    tiles = ()
+    if "<UDIM>" in filename:  # every tile 1001–1100 next to the document
+        files = [(tile, Path(str(path).replace("<UDIM>", str(tile)))) for tile in range(1001, 1101)]
+        tiles = tuple((tile, reader.texture_index(str(f), source, prim, color_space, is_color))
+                      for tile, f in files if f.is_file())
+        tiles = tuple((tile, i) for tile, i in tiles if i is not None)
+        path = Path(str(path).replace("<UDIM>", str(tiles[0][0]))) if tiles else path
     if not path.is_file():
         reader._warn_once(prim, f"MaterialX image {filename!r} not found; the input's default is used")
         return None
-    color_space = file_input.getActiveColorSpace() or ""
-    source = "raw" if not is_color else "auto"
     index = reader.texture_index(str(path), source, prim, color_space, is_color)
     if index is None:
         return None
@@ -287,7 +294,14 @@ def _image_map(reader, node, base_dir: Path, is_color: bool, prim: str) -> dict 
             "fallback": tuple(np.broadcast_to(np.asarray(_py(default) if default is not None else 0.0, dtype=float),
                                               4).tolist()) if default is not None and np.ndim(_py(default)) <= 1
             and np.size(_py(default)) in (1, 4) else (0.0, 0.0, 0.0, 1.0),
-            "wrap": wrap, "_mean": tuple(mean[:3].tolist())}
+            "wrap": wrap, "_mean": tuple(mean[:3].tolist()), **_udim_fields(reader, tiles)}
+
+
+def _udim_fields(reader, tiles: tuple[tuple[int, int], ...]) -> dict:  # noqa: ANN001
+    """A map entry's UDIM tiles ((number, texture index), …) and their mean, or nothing for a single image."""
+    if not tiles:
+        return {}
+    return {"udim": tiles, "_mean": tuple(np.mean([reader.texture_mean(i)[:3] for _, i in tiles], axis=0).tolist())}
 
 
 def surface_from_usd_shader(reader, shader, shader_id: str) -> Surface | None:  # noqa: ANN001
@@ -359,12 +373,19 @@ def _usd_image_map(reader, node, is_color: bool) -> dict | None:  # noqa: ANN001
     asset = file_input.Get(reader.time) if file_input else None
     if not isinstance(asset, Sdf.AssetPath) or not asset.path:
         return None
-    resolved = local_asset_path(asset)
+    color_space = file_input.GetAttr().GetColorSpace() or ""
+    source = "raw" if not is_color else "auto"
+    tiles = ()
+    if "<UDIM>" in asset.path:
+        found = reader._udim_tiles(file_input, asset.path)
+        tiles = tuple((tile, i) for tile, i in ((t, reader.texture_index(f, source, str(node.GetPath()), color_space,
+                                                                         is_color)) for t, f in found) if i is not None)
+        resolved = found[0][1] if found else None
+    else:
+        resolved = local_asset_path(asset)
     if resolved is None:
         reader._warn_once(str(node.GetPath()), f"image {asset.path!r} not found; the input's default is used")
         return None
-    color_space = file_input.GetAttr().GetColorSpace() or ""
-    source = "raw" if not is_color else "auto"
     index = reader.texture_index(resolved, source, str(node.GetPath()), color_space, is_color)
     if index is None:
         return None
@@ -375,4 +396,4 @@ def _usd_image_map(reader, node, is_color: bool) -> dict | None:  # noqa: ANN001
         wrap.append(modes.get(str(inp.Get(reader.time)) if inp and inp.Get(reader.time) else "periodic", "repeat"))
     return {"texture": index, "channels": "rgb" if is_color else "r", "scale": (1.0, 1.0, 1.0, 1.0),
             "bias": (0.0, 0.0, 0.0, 0.0), "fallback": (0.0, 0.0, 0.0, 1.0), "wrap": tuple(wrap),
-            "_mean": tuple(reader.texture_mean(index)[:3].tolist())}
+            "_mean": tuple(reader.texture_mean(index)[:3].tolist()), **_udim_fields(reader, tiles)}

@@ -94,3 +94,42 @@ def test_udim_tiles_are_read_per_hit(tmp_path):
         assert sel.sum() > 10, (lo, hi)
         np.testing.assert_allclose(cubes[0][sel], np.broadcast_to(np.array(colour) * 2.0 / math.pi,
                                                                   cubes[0][sel].shape), rtol=1e-3, atol=1e-7)
+
+
+MTLX = """<?xml version="1.0"?>
+<materialx version="1.39">
+  <image name="albedo" type="color3">
+    <input name="file" type="filename" value="tiles/albedo.<UDIM>.exr" colorspace="lin_rec709" />
+  </image>
+  <standard_surface name="SR_floor" type="surfaceshader">
+    <input name="base" type="float" value="0.8" />
+    <input name="base_color" type="color3" nodename="albedo" />
+    <input name="specular_roughness" type="float" value="0.3" />
+  </standard_surface>
+  <surfacematerial name="Floor" type="material">
+    <input name="surfaceshader" type="surfaceshader" nodename="SR_floor" />
+  </surfacematerial>
+</materialx>
+"""
+
+
+def test_materialx_udim_image_matches_its_preview_surface_twin(tmp_path):
+    """A standard_surface whose base_color image has <UDIM> tiles captures as the UsdPreviewSurface twin (base ×
+    base_color as the texture's scale, the same roughness and IOR)."""
+    (tmp_path / "tiles").mkdir()
+    for tile, colour in TILES.items():
+        _write_exr(tmp_path / "tiles" / f"albedo.{tile}.exr", colour)
+    (tmp_path / "floor.mtlx").write_text(MTLX)
+    twin = SCENE.replace('''        int inputs:useSpecularWorkflow = 1
+        color3f inputs:specularColor = (0, 0, 0)''', '''        float inputs:roughness = 0.3''').replace(
+        '''        float3 outputs:rgb''', '''        float4 inputs:scale = (0.8, 0.8, 0.8, 1)
+        float3 outputs:rgb''')
+    document = SCENE[SCENE.index('def Mesh "Ground"'):].replace("</Floor>", "</Looks/Materials/Floor>")
+    document = 'def Scope "Looks" (\n    references = @./floor.mtlx@</MaterialX>\n)\n{\n}\n' + document
+    cubes = []
+    for name, text in (("twin", twin), ("document", document)):
+        reading = read_scene(write(tmp_path / f"{name}.usda", header() + text + probe("P", (0.0, 1.5, 0.0))))
+        assert not [i for i in reading.issues if "not found" in i.message], reading.issues
+        assert [tile for tile, _ in reading.scene.meshes[0].material.maps[0]["udim"]] == [1001, 1002]
+        cubes.append(capture_probes(reading.scene, N, samples=4, bounces=0)[0][0])
+    np.testing.assert_allclose(cubes[1], cubes[0], rtol=1e-5, atol=1e-8)
