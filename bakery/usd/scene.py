@@ -52,7 +52,7 @@ _POLE_Y_TO_Z = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  #
 #: Time at which the scene is read: authored defaults, else the first time sample.
 _T = Usd.TimeCode.EarliestTime()
 #: UsdLuxShadowAPI inputs the capture does not apply (reported per light)
-_SHADOW_UNAPPLIED = ("shadow:distance", "shadow:falloff", "shadow:falloffGamma")
+_SHADOW_UNAPPLIED = {"shadow:distance": -1.0, "shadow:falloff": -1.0, "shadow:falloffGamma": 1.0}  # and fallbacks
 
 
 @dataclass(frozen=True)
@@ -433,9 +433,14 @@ class SceneReader:
         scale = intensity * 2.0**exposure * color
         if bool(self._input(prim, "enableColorTemperature", False)):
             scale = scale * blackbody_rgb(float(self._input(prim, "colorTemperature", 6500.0)))
-        unapplied = sorted(
+        def shadow_input(name: str) -> str | None:
+            return name if name in _SHADOW_UNAPPLIED else name.split(":", 1)[-1] if name.startswith("inputs:") \
+                and name.split(":", 1)[-1] in _SHADOW_UNAPPLIED else None
+
+        unapplied = sorted(  # authored away from the schema fallback
             a.GetName() for a in prim.GetAuthoredAttributes()
-            if a.GetName().split(":", 1)[-1] in _SHADOW_UNAPPLIED or a.GetName() in _SHADOW_UNAPPLIED
+            if shadow_input(a.GetName()) and a.Get(self.time) is not None
+            and float(a.Get(self.time)) != _SHADOW_UNAPPLIED[shadow_input(a.GetName())]
         )
         if unapplied:
             self.issue("warning", prim, f"not applied by the capture: {', '.join(unapplied)}")
