@@ -64,7 +64,7 @@ def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN00
     from bakery.capture.lights import light_model
     from bakery.capture.render import CAPTURE_MODEL_VERSION
 
-    parts: list = [(mesh.name, mesh.material.__dict__, np.asarray(mesh.triangles, dtype=np.float32),
+    parts: list = [(mesh.name, _material_fields(mesh.material), np.asarray(mesh.triangles, dtype=np.float32),
                     None if getattr(mesh, "uvs", None) is None else np.asarray(mesh.uvs, dtype=np.float32))
                    # shading normals only when authored (the hash of a scene without them is unchanged)
                    + (() if getattr(mesh, "normals", None) is None else (np.asarray(mesh.normals, np.float32),))
@@ -83,6 +83,15 @@ def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN00
     parts.append((scene.meters_per_unit, scene.up_axis))
     parts.append(("capture model", CAPTURE_MODEL_VERSION))  # what the same scene captures to
     return stable_hash(*parts)
+
+
+def _material_fields(material) -> dict:  # noqa: ANN001 - bakery.capture.scene.Material
+    """A material's fields for hashing, the clearcoat only when the material has one (as :func:`_light_fields`)."""
+    fields = dict(material.__dict__)
+    if fields.get("clearcoat", 0.0) == 0.0:
+        fields.pop("clearcoat", None)
+        fields.pop("clearcoat_roughness", None)
+    return fields
 
 
 def _light_fields(light) -> dict:  # noqa: ANN001 - bakery.capture.scene.Light

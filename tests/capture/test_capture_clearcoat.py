@@ -119,3 +119,13 @@ def DistantLight "Sun"
     assert bright.sum() > 30
     ratio = cubes[0][bright][:, 0] / expected[bright]
     assert abs(float(np.median(ratio)) - 1) < 0.03 and float(np.percentile(np.abs(ratio - 1), 90)) < 0.1
+
+
+def test_materials_without_a_coat_hash_as_before():
+    """The reuse hash leaves the coat fields out of uncoated materials (their stores are not re-baked for it) and
+    keeps them for coated ones."""
+    from bakery.capture.scene import Material
+    from bakery.pipeline.dependencies import _material_fields
+
+    assert not {"clearcoat", "clearcoat_roughness"} & set(_material_fields(Material()))
+    assert {"clearcoat", "clearcoat_roughness"} <= set(_material_fields(Material(clearcoat=0.5)))
