@@ -933,6 +933,8 @@ class SceneReader:
                 if not (sub.IsA(UsdGeom.Mesh) or is_surface_gprim(sub)):
                     continue
                 local, topology = self._mesh_geometry(sub)
+                if sub.HasAPI(UsdLux.MeshLightAPI) and chosen.size:  # every instance emits (names "<path>#n")
+                    self._read_mesh_light(sub)
                 to_proto = self.world(sub) @ parent_inv  # mesh → prototype-parent space (row vectors)
                 for n in chosen:
                     instance = _matrix(transforms[int(n)])

@@ -61,3 +61,23 @@ def test_mesh_light_normalize_divides_by_its_area_in_stage_units(tmp_path):
     """normalize: L / area (40 m × 40 m = 1600 m², metersPerUnit 1)."""
     seen, _ = _seen_above(_panel(extra="    bool inputs:normalize = 1\n"), tmp_path, "normalized")
     np.testing.assert_allclose(seen, np.broadcast_to(np.array([4.0, 2.0, 1.0]) / 1600.0, seen.shape), rtol=1e-6)
+
+
+def test_point_instanced_mesh_lights_emit(tmp_path):
+    """A MeshLightAPI prototype of a PointInstancer: every instance's surface emits the light's L."""
+    text = """
+def PointInstancer "Lamps"
+{
+    int[] protoIndices = [0, 0]
+    point3f[] positions = [(0, 0, 0), (0, 0, 30)]
+    rel prototypes = [</Lamps/Prototypes/Panel>]
+    def Scope "Prototypes"
+    {
+""" + _panel().replace("\n", "\n        ") + """
+    }
+}
+"""
+    seen, reading = _seen_above(text, tmp_path, "instanced")
+    assert len(reading.scene.meshes) == 2
+    assert all(m.material.emission == pytest.approx((4.0, 2.0, 1.0)) for m in reading.scene.meshes)
+    np.testing.assert_allclose(seen, np.broadcast_to((4.0, 2.0, 1.0), seen.shape), rtol=1e-6)
