@@ -49,6 +49,15 @@ _T = Usd.TimeCode.EarliestTime()
 #: Largest texture side kept in the snapshot (larger textures are box-filtered to it).
 MAX_TEXTURE_SIZE = 1024
 
+
+def udim_tile_size(tiles: int) -> int:
+    """The side each of ``tiles`` UDIM tiles is box-filtered to: a power of two, so that a whole set holds about as
+    many texels as one texture of :data:`MAX_TEXTURE_SIZE` (4 tiles: 512, 16: 256, 100: 64; at least 64) — a
+    probe's footprint never needs more, and a set of a hundred 8k tiles would not fit a worker's memory."""
+    if tiles <= 1:
+        return MAX_TEXTURE_SIZE
+    return max(64, 1 << int(np.floor(np.log2(MAX_TEXTURE_SIZE / np.sqrt(tiles)))))
+
 #: UsdPreviewSurface fallbacks of the inputs bakery reads.
 PREVIEW_FALLBACKS = {
     "diffuseColor": (0.18, 0.18, 0.18),
@@ -261,12 +270,14 @@ class MaterialReader:
         color_space = file_input.GetAttr().GetColorSpace() if file_input else ""
         if not color_space:
             color_space = _inherited_color_space(texture.GetPrim())
-        index = self.texture_index(resolved, source_cs, path, color_space, is_color)
+        size = udim_tile_size(len(tiles)) if udim else 0
+        index = self.texture_index(resolved, source_cs, path, color_space, is_color, size)
         if index is None:
             return None, None, None
         udim_tiles, texel_mean = (), self._means[index]
         if udim:  # every tile, by its number; the mean over the tiles stands for the whole texture
-            indices = [(tile, self.texture_index(file, source_cs, path, color_space, is_color)) for tile, file in tiles]
+            indices = [(tile, self.texture_index(file, source_cs, path, color_space, is_color, size))
+                       for tile, file in tiles]
             udim_tiles = tuple((tile, i) for tile, i in indices if i is not None)
             texel_mean = np.mean([self._means[i] for _, i in udim_tiles], axis=0)
         scale = _value4(texture, "scale", (1.0, 1.0, 1.0, 1.0), self.time)
@@ -308,9 +319,11 @@ class MaterialReader:
         return found
 
     def texture_index(self, filename: str, source_cs: str, prim: str, color_space: str = "",
-                      is_color: bool = True) -> int | None:
-        """Index in :attr:`textures` of a file read as linear Rec.709 RGBA (None if unreadable)."""
-        key = (filename, f"{source_cs}|{color_space}|{int(is_color)}")
+                      is_color: bool = True, max_size: int = 0) -> int | None:
+        """Index in :attr:`textures` of a file read as linear Rec.709 RGBA (None if unreadable), box-filtered to
+        at most ``max_size`` (default :data:`MAX_TEXTURE_SIZE`) texels a side."""
+        max_size = int(max_size) or MAX_TEXTURE_SIZE
+        key = (filename, f"{source_cs}|{color_space}|{int(is_color)}|{max_size}")
         if key in self._texture_index:
             return self._texture_index[key]
         self.files.add(filename)
@@ -341,7 +354,7 @@ class MaterialReader:
             self._warn_once(prim, f"{Path(filename).name}: no colour-space information (float image, "
                             "sourceColorSpace auto); read as linear Rec.709")
         self._means[len(self.textures)] = pixels.reshape(-1, 4).mean(axis=0)
-        pixels = _downsample(pixels, MAX_TEXTURE_SIZE)
+        pixels = _downsample(pixels, max_size)
         self.textures.append(Texture(name=filename, pixels=pixels.astype(np.float32), color_space=label))
         self._texture_index[key] = len(self.textures) - 1
         return len(self.textures) - 1

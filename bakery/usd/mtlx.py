@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bakery.usd.materials import COLOR_INPUTS, Surface
+from bakery.usd.materials import COLOR_INPUTS, Surface, udim_tile_size
 
 _SUPPORTED = ("standard_surface", "open_pbr_surface", "UsdPreviewSurface", "gltf_pbr")
 #: Lobe weights the capture does not model: (input, neutral value).
@@ -273,16 +273,19 @@ def _image_map(reader, node, base_dir: Path, is_color: bool, prim: str) -> dict 
     color_space = file_input.getActiveColorSpace() or ""
     source = "raw" if not is_color else "auto"
     tiles = ()
+    size = 0
     if "<UDIM>" in filename:  # every tile 1001–1100 next to the document
         files = [(tile, Path(str(path).replace("<UDIM>", str(tile)))) for tile in range(1001, 1101)]
-        tiles = tuple((tile, reader.texture_index(str(f), source, prim, color_space, is_color))
-                      for tile, f in files if f.is_file())
+        files = [(tile, f) for tile, f in files if f.is_file()]
+        size = udim_tile_size(len(files))
+        tiles = tuple((tile, reader.texture_index(str(f), source, prim, color_space, is_color, size))
+                      for tile, f in files)
         tiles = tuple((tile, i) for tile, i in tiles if i is not None)
         path = Path(str(path).replace("<UDIM>", str(tiles[0][0]))) if tiles else path
     if not path.is_file():
         reader._warn_once(prim, f"MaterialX image {filename!r} not found; the input's default is used")
         return None
-    index = reader.texture_index(str(path), source, prim, color_space, is_color)
+    index = reader.texture_index(str(path), source, prim, color_space, is_color, size)
     if index is None:
         return None
     modes = {"periodic": "repeat", "clamp": "clamp", "mirror": "mirror", "constant": "black"}
@@ -376,17 +379,20 @@ def _usd_image_map(reader, node, is_color: bool) -> dict | None:  # noqa: ANN001
     color_space = file_input.GetAttr().GetColorSpace() or ""
     source = "raw" if not is_color else "auto"
     tiles = ()
+    size = 0
     if "<UDIM>" in asset.path:
         found = reader._udim_tiles(file_input, asset.path)
+        size = udim_tile_size(len(found))
         tiles = tuple((tile, i) for tile, i in ((t, reader.texture_index(f, source, str(node.GetPath()), color_space,
-                                                                         is_color)) for t, f in found) if i is not None)
+                                                                         is_color, size)) for t, f in found)
+                      if i is not None)
         resolved = found[0][1] if found else None
     else:
         resolved = local_asset_path(asset)
     if resolved is None:
         reader._warn_once(str(node.GetPath()), f"image {asset.path!r} not found; the input's default is used")
         return None
-    index = reader.texture_index(resolved, source, str(node.GetPath()), color_space, is_color)
+    index = reader.texture_index(resolved, source, str(node.GetPath()), color_space, is_color, size)
     if index is None:
         return None
     modes = {"periodic": "repeat", "clamp": "clamp", "mirror": "mirror", "constant": "black"}

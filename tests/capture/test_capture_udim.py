@@ -133,3 +133,21 @@ def test_materialx_udim_image_matches_its_preview_surface_twin(tmp_path):
         assert [tile for tile, _ in reading.scene.meshes[0].material.maps[0]["udim"]] == [1001, 1002]
         cubes.append(capture_probes(reading.scene, N, samples=4, bounces=0)[0][0])
     np.testing.assert_allclose(cubes[1], cubes[0], rtol=1e-5, atol=1e-8)
+
+
+def test_udim_sets_keep_one_texture_budget(tmp_path):
+    """A set of k tiles is filtered to 2^⌊log2(1024/√k)⌋ texels a side (≥ 64): about one 1024² texture in all."""
+    from bakery.usd.materials import udim_tile_size
+
+    assert [udim_tile_size(k) for k in (1, 4, 5, 16, 100)] == [1024, 512, 256, 256, 64]
+    (tmp_path / "tiles").mkdir()
+    big = np.full((600, 600, 3), 0.5, dtype=np.float32)
+    for tile in (1001, 1002, 1003, 1004, 1011):
+        out = oiio.ImageOutput.create(str(tmp_path / "tiles" / f"albedo.{tile}.exr"))
+        assert out.open(str(tmp_path / "tiles" / f"albedo.{tile}.exr"), oiio.ImageSpec(600, 600, 3, oiio.FLOAT))
+        out.write_image(big)
+        out.close()
+    reading = read_scene(write(tmp_path / "udim.usda", header() + SCENE + probe("P", (0.0, 1.5, 0.0))))
+    tiles = reading.scene.meshes[0].material.maps[0]["udim"]
+    assert [t for t, _ in tiles] == [1001, 1002, 1003, 1004, 1011]
+    assert all(max(reading.scene.textures[i].pixels.shape[:2]) <= 256 for _, i in tiles)
