@@ -38,6 +38,23 @@ def Material "{name}"
 """
 
 
+def mtlx_material(name: str, shader_id: str, inputs: str) -> str:
+    """A MaterialX surface authored in USD (a ``mtlx`` surface output of a shader ``shader_id``, e.g.
+    ``ND_standard_surface_surfaceshader``); ``inputs``: its authored inputs (usda lines)."""
+    return f"""
+def Material "{name}"
+{{
+    token outputs:mtlx:surface.connect = </{name}/Surf.outputs:out>
+    def Shader "Surf"
+    {{
+        uniform token info:id = "{shader_id}"
+        {inputs}
+        token outputs:out
+    }}
+}}
+"""
+
+
 def box_mesh(name: str, half: float, material_path: str, centre=(0.0, 0.0, 0.0)) -> str:
     """A closed axis-aligned box Mesh with shared vertices (watertight for ray tracing)."""
     cx, cy, cz = centre

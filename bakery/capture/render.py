@@ -393,11 +393,13 @@ class ProbeRenderer:
         """:meth:`trace_camera_rays` on (3, M) float32 rays of the probes ``owners``; ``filtered`` is the (3, 6·N·N)
         filtered dome."""
         m = origins.shape[1]
-        prim, t, bu, bv = self._intersect(origins, directions, owners)
+        if self.lights.surfaces:  # tints count up to the nearest light shape
+            t_light, _which, l_light = self.lights.nearest_soa(origins, directions)
+        prim, t, bu, bv, tint = self._intersect_through(origins, directions, owners,
+                                                        t_light if self.lights.surfaces else None)
         result = np.zeros((3, m), dtype=REAL)
         sees_light = np.zeros(m, dtype=bool)
         if self.lights.surfaces:
-            t_light, _which, l_light = self.lights.nearest_soa(origins, directions)
             sees_light = t_light < t
             si = np.flatnonzero(sees_light)
             if si.size:
@@ -419,6 +421,8 @@ class ProbeRenderer:
         if hit.size:
             result[:, hit] = self._shade(_take(origins, hit), _take(directions, hit), np.take(prim, hit),
                                          np.take(t, hit), np.take(bu, hit), np.take(bv, hit), owners.take(hit))
+        if tint is not None:  # what the ray found behind the tinted surfaces it passed through
+            result *= tint
         return result
 
     # ------------------------------------------------------------------------------------------------------------
@@ -427,10 +431,20 @@ class ProbeRenderer:
         """Closest hit (prim, t, u, v) of rays (3, M) that is not passed through (opacity below the material's
         opacityThreshold, or not present: u ≥ opacity on materials of partial opacity); the rays are counted for
         their probes (``owners``, in any order)."""
+        return self._intersect_through(origins, directions, owners)[:4]
+
+    def _intersect_through(self, origins: np.ndarray, directions: np.ndarray, owners: _Owners,
+                           limit: np.ndarray | None = None
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+        """:meth:`_intersect` and the transmittance (3, M) float32 of the surfaces each ray passed through nearer
+        than ``limit`` (M,) (all, if None): the product of their materials' ``transmission_tint``; None when no
+        material of the scene tints (``Surfaces.tint_soa``)."""
         prim, t, bu, bv = self.tracer.intersect_uv(origins, directions, soa=True)
         owners.traced()
         if not self.surfaces.cutout:
-            return prim, t, bu, bv
+            return prim, t, bu, bv, None
+        tints = self.surfaces.tint_soa
+        tint = None if tints is None else np.ones((3, prim.shape[0]), dtype=REAL)
         idx = np.flatnonzero(prim >= 0)  # hits not yet tested (a hit kept once stays: presence is drawn once)
         for _ in range(32):
             if idx.size == 0:
@@ -440,6 +454,9 @@ class ProbeRenderer:
             if not cut.any():
                 break
             j = idx[cut]
+            if tint is not None:
+                jt = j if limit is None else j[t[j] < limit[j]]
+                tint[:, jt] *= np.take(tints, np.take(self.surfaces.mesh_of_soa, prim[jt]), axis=1)
             dj = _take(directions, j)
             hits = _take(origins, j) + t[j] * dj
             off = self.tracer.offset_soa(hits)
@@ -448,7 +465,7 @@ class ProbeRenderer:
             prim[j], bu[j], bv[j] = p2, u2, v2
             t[j] = np.where(p2 >= 0, t2 + t[j] + off, FAR)
             idx = j[p2 >= 0]
-        return prim, t, bu, bv
+        return prim, t, bu, bv, tint
 
     @staticmethod
     def _presence_numbers(owners: _Owners, idx: np.ndarray) -> np.ndarray:
@@ -461,11 +478,13 @@ class ProbeRenderer:
         return u
 
     def _visible(self, points: np.ndarray, wi: np.ndarray, dist: np.ndarray, owners: _Owners,
-                 skip: np.ndarray | None = None) -> np.ndarray:
-        """Unoccluded segments (3, M) (by triangles and by light shapes other than ``skip``): bool (M,)."""
+                 skip: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+        """Unoccluded segments (3, M) (by triangles and by light shapes other than ``skip``): bool (M,), and the
+        transmittance (3, M) of the tinted surfaces they pass through (None when no material tints)."""
         short = np.where(dist < FAR, dist * (1.0 - SHADOW_EPSILON), FAR).astype(points.dtype, copy=False)
+        tint = None
         if self.surfaces.cutout:
-            _prim, t, _u, _v = self._intersect(points, wi, owners)
+            _prim, t, _u, _v, tint = self._intersect_through(points, wi, owners, short)
             blocked = t < short
         else:
             blocked = self.tracer.occluded(points, wi, short, soa=True)
@@ -475,7 +494,7 @@ class ProbeRenderer:
             if rest.size:
                 blocked[rest] = self.lights.occluded_soa(_take(points, rest), _take(wi, rest), short[rest],
                                                          None if skip is None else skip[rest])
-        return ~blocked
+        return ~blocked, tint
 
     def _shade(self, origins: np.ndarray, directions: np.ndarray, prim: np.ndarray, t: np.ndarray, bu: np.ndarray,
                bv: np.ndarray, owners: _Owners) -> np.ndarray:
@@ -526,8 +545,17 @@ class ProbeRenderer:
             ai = np.flatnonzero(alive)
             if ai.size:
                 pa, wa = _take(points, ai), _take(wi, ai)
-                p2, tt, uu, vv = self._intersect(pa, wa, owners.take(ai))
+                limit = self.lights.nearest_soa(pa, wa)[0] if self.lights.surfaces and \
+                    self.surfaces.tint_soa is not None else None  # tints count up to the nearest light shape
+                p2, tt, uu, vv, tint = self._intersect_through(pa, wa, owners.take(ai), limit)
                 prim2[ai], t2[ai], bu2[ai], bv2[ai] = p2, tt, uu, vv
+                if tint is not None:  # the path continues (and finds emitters) through what it passed
+                    weight = weight.copy()
+                    weight[:, ai] *= tint
+                    if self._lobes:
+                        weight_d, weight_s = weight_d.copy(), weight_s.copy()
+                        weight_d[:, ai] *= tint
+                        weight_s[:, ai] *= tint
                 found, on_light = self._emitted_along(pa, wa, tt, p2 < 0, pdf_b[ai],
                                                       None if mesh is None else mesh[ai])
                 if found is not None and self._lobes:  # (diffuse, specular) emitter sums
@@ -696,20 +724,29 @@ class ProbeRenderer:
             unblocked &= ~self.lights.occluded_soa(points, wi, short, skip)
         idx = np.flatnonzero(unblocked)
         scale = np.zeros(count * m, dtype=REAL)
+        tint = None
         if idx.size:
             sp, sw, sd = _take(points, idx % m), _take(wi.reshape(3, -1), idx), short.reshape(-1)[idx]
             if self.surfaces.cutout:
-                visible = self._intersect(sp, sw, owners.take(idx % m))[1] >= sd
+                _p, t_hit, _u, _v, tint = self._intersect_through(sp, sw, owners.take(idx % m), sd)
+                visible = t_hit >= sd
             else:
                 visible = ~self.tracer.occluded(sp, sw, sd, soa=True)
                 owners.traced(idx % m)
             scale[idx[visible]] = 1
         scale = scale.reshape(count, m)
+        transmittance = None  # (3, J, M): the tint of the surfaces visible segments pass through
+        if tint is not None:
+            transmittance = np.ones((3, count * m), dtype=REAL)
+            transmittance[:, idx] = tint
+            transmittance = transmittance.reshape(3, count, m)
         if shadowless.any():
             scale[shadowless] = valid[shadowless]
         elif idx.size == 0 and not any(self._shadow_color):
             return np.zeros((3, m), dtype=REAL)
         terms = value * radiance * (scale * weight * inv)
+        if transmittance is not None:
+            terms *= transmittance
         for j, colour in enumerate(self._shadow_color):  # ShadowAPI shadow:color: occluded segments deliver
             if any(colour):                                # that fraction, by next-event estimation alone
                 occluded = (valid[j] & (scale[j] == 0)).astype(REAL) * inv[j]
@@ -741,9 +778,11 @@ class ProbeRenderer:
         disc = 2.0 * np.pi * (1.0 - np.cos(alpha))
         return disc < cube_mean_texel_solid_angle(face_size)
 
-    def _visible_from(self, position: np.ndarray, directions: np.ndarray, probe: _Owners) -> np.ndarray:
-        """Whether the probe at ``position`` sees the dome along directions (K, 3) (or (3, K) float32): bool (K,).
-        ``probe``: the probe's (single) owner, counting the rays."""
+    def _visible_from(self, position: np.ndarray, directions: np.ndarray, probe: _Owners
+                      ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Whether the probe at ``position`` sees the dome along directions (K, 3) (or (3, K) float32): bool (K,),
+        and through which tint (3, K) (None when no material tints). ``probe``: the probe's (single) owner,
+        counting the rays."""
         d = directions if directions.dtype == REAL else np.ascontiguousarray(directions.T, dtype=REAL)
         o = np.broadcast_to(np.asarray(position, dtype=REAL).reshape(3, 1), d.shape)
         owners = _Owners(probe.rngs, np.zeros(d.shape[1], dtype=np.int64), probe.rays)
@@ -755,11 +794,13 @@ class ProbeRenderer:
             return cube
         n = cube.shape[1]
         directions, index, weight, flux = self._sun_points(n)
-        seen = self._visible_from(position, directions, probe)
+        seen, tint = self._visible_from(position, directions, probe)
         if not seen.any():
             return cube
         # splat_bilinear of the seen points: the same sums, in the same order (corner by corner, point by point)
         index, weight, flux = index[:, seen].reshape(-1), weight[:, seen], flux[seen]
+        if tint is not None:
+            flux = flux * tint[:, seen].T
         flux_cube = np.stack([np.bincount(index, (weight * flux[:, c]).reshape(-1), 6 * n * n) for c in range(3)],
                              axis=1)
         return cube + (flux_cube / self._texel_omega(n)).reshape(cube.shape)
@@ -791,9 +832,10 @@ class ProbeRenderer:
             if not self._splat_distant(light.light, n):
                 continue
             d = light.direction[None, :]
-            if not self._visible_from(position, d, probe)[0]:
+            seen, tint = self._visible_from(position, d, probe)
+            if not seen[0]:
                 continue
-            cube = self._splat(cube, d, light.illuminance[None, :])
+            cube = self._splat(cube, d, light.illuminance[None, :] * (1.0 if tint is None else tint[:, 0]))
         return cube
 
 

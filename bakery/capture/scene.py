@@ -143,6 +143,9 @@ class Material:
         opacity, opacity_threshold: cut-outs: a hit whose opacity is below the threshold (threshold > 0) is
             passed through; without a threshold, opacity is the surface's presence: a hit is passed through with
             probability 1 − opacity (stochastic alpha: a window of opacity 0.2 passes 80 % of the light).
+        transmission_tint: (3,) the colour that multiplies light passing through the surface where it is absent
+            (a passed-through hit: the thin, straight transmission of MaterialX surfaces, tinted by their
+            ``transmission_color``); 1 for UsdPreviewSurface, whose opacity is colourless.
         maps: textured inputs, each a dict {"input": name, "texture": index into CaptureScene.textures,
             "channels": "rgb" | "r" | "g" | "b" | "a", "scale": (4,), "bias": (4,), "fallback": (4,),
             "wrap": (wrapS, wrapT)}; texture coordinates come from the mesh's ``uvs``.
@@ -161,6 +164,7 @@ class Material:
     maps: tuple[dict, ...] = ()
     clearcoat: float = 0.0
     clearcoat_roughness: float = 0.01
+    transmission_tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     @property
     def emits(self) -> bool:

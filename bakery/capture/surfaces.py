@@ -265,6 +265,11 @@ class Surfaces:
             entry.get("input") == "opacity" for entry in m.maps)) for m in mats], dtype=bool)
         self.stochastic = bool(self.partial.any())
         self.cutout = bool(np.any(self.threshold > 0)) or self.stochastic
+        #: (3, materials) float32 ``transmission_tint`` of each material (what light passing through its absent part
+        #: is multiplied by), or None when no material that can be passed through tints
+        self.tint_soa = None
+        if self.cutout and any(tuple(m.transmission_tint) != (1.0, 1.0, 1.0) for m in self.materials):
+            self.tint_soa = np.ascontiguousarray(np.array([m.transmission_tint for m in mats], dtype=np.float32).T)
         self._textures: dict = {}  # MipTexture per texture index, UdimTexture per tile set
         self.scene = scene
         self.triangles = tracer.triangles

@@ -204,6 +204,7 @@ class MaterialReader:
             maps=tuple(sorted(maps, key=lambda m: m["input"])),
             clearcoat=float(np.clip(np.mean(v["clearcoat"]), 0.0, 1.0)),
             clearcoat_roughness=float(np.clip(np.mean(v["clearcoatRoughness"]), 0.0, 1.0)),
+            transmission_tint=tuple(float(x) for x in surface.values.get("transmission_tint", (1.0, 1.0, 1.0))),
         )
         return material, False, surface.primvar if maps else None
 

@@ -23,7 +23,8 @@ Mapping (metallic workflow of the capture; see ``docs/capture.md``)
     capture cannot represent (coat colour, sheen, subsurface, thin film, specular weight/colour ≠ 1, object-space
     normal maps, other node types in a graph) are reported; a tangent-space ``normalmap`` of an image is a normal
     map (2·in − 1, x and y times its ``scale``). Transmission is read as thin, straight pass-through: the
-    presence (opacity) is multiplied by 1 − transmission·(1 − metalness) (reported: no refraction or tint).
+    presence (opacity) is multiplied by 1 − transmission·(1 − metalness), and the light that passes is tinted by
+    the transmission colour (reported: no refraction, no reflection of the transmitted light).
 """
 
 from __future__ import annotations
@@ -50,6 +51,10 @@ _UNMODELLED = {
 #: presence (opacity) is multiplied by 1 − t·(1 − metalness), the share of the base that is not transmitted
 _TRANSMISSION = {"standard_surface": ("transmission", "metalness"),
                  "open_pbr_surface": ("transmission_weight", "base_metalness"), "gltf_pbr": ("transmission", "metallic")}
+#: (colour that tints the transmitted light, Beer's-law depth input or None): MaterialX's ``dielectric_bsdf`` tint of
+#: each surface's transmission lobe (``gltf_pbr``: ``base_color``, as KHR_materials_transmission)
+_TRANSMISSION_TINT = {"standard_surface": ("transmission_color", "transmission_depth"),
+                      "open_pbr_surface": ("transmission_color", "transmission_depth"), "gltf_pbr": ("base_color", None)}
 
 
 class MaterialXError(ValueError):
@@ -164,22 +169,40 @@ def _to_surface(category: str, values: dict[str, object], maps: dict[str, dict],
 
 def _transmission_as_presence(category: str, values: dict[str, object], maps: dict[str, dict],
                               surface: Surface) -> None:
-    """Transmission weight t (textured: its mean) → presence ×(1 − t·(1 − metalness)) (:data:`_TRANSMISSION`):
-    a window of t = 1 lets all light through unrefracted and untinted; reported when t > 0."""
+    """Transmission weight t (textured: its mean) → presence ×(1 − t·(1 − metalness)) (:data:`_TRANSMISSION`),
+    the transmitted light tinted by the surface's transmission colour C (:data:`_TRANSMISSION_TINT`; textured:
+    its mean): a window of t = 1 lets all light through unrefracted, times C. With a geometry opacity o < 1 as well,
+    a passed-through hit is the absent part (1 − o, untinted) or the transmitted one (o·t·(1 − m), tinted), so a
+    pass is tinted by their mixture ((1 − o) + o·t·(1 − m)·C) / ((1 − o) + o·t·(1 − m)). Reported when t > 0."""
     weight_input, metal_input = _TRANSMISSION[category]
     weight = min(max(_mean(values.get(weight_input, 0.0)), 0.0), 1.0)
     if weight_input in maps:
         weight = min(max(_mean(maps[weight_input].get("_mean", weight)), 0.0), 1.0)
     if weight <= 0:
         return
-    keep = 1.0 - weight * (1.0 - min(max(_mean(values.get(metal_input, 0.0)), 0.0), 1.0))
-    surface.values["opacity"] = float(surface.values.get("opacity", 1.0)) * keep
+    transmitted = weight * (1.0 - min(max(_mean(values.get(metal_input, 0.0)), 0.0), 1.0))
+    keep = 1.0 - transmitted
+    opacity = min(max(float(surface.values.get("opacity", 1.0)), 0.0), 1.0)
+    surface.values["opacity"] = opacity * keep
     if "opacity" in surface.maps:
         entry = surface.maps["opacity"]
         entry["scale"] = tuple(float(x) * keep for x in entry.get("scale", (1.0, 1.0, 1.0, 1.0)))
         entry["bias"] = tuple(float(x) * keep for x in entry.get("bias", (0.0, 0.0, 0.0, 0.0)))
+    tint_input, depth_input = _TRANSMISSION_TINT[category]
+    colour = values.get(tint_input, (1.0, 1.0, 1.0))
+    if tint_input in maps:
+        colour = maps[tint_input].get("_mean", colour)
+        surface.notes.append(f"{category} {tint_input} is textured; its mean tints the transmitted light")
+    colour = np.clip(np.broadcast_to(np.asarray(colour, dtype=np.float64), 3), 0.0, 1.0)
+    passed = (1.0 - opacity) + opacity * transmitted
+    if passed > 0 and np.any(colour != 1.0):
+        tint = ((1.0 - opacity) + opacity * transmitted * colour) / passed
+        surface.values["transmission_tint"] = tuple(float(x) for x in tint)
+    if depth_input and _mean(values.get(depth_input, 0.0)) > 0:
+        surface.notes.append(f"{category} {depth_input} {_mean(values[depth_input]):g}: the absorption over that "
+                             f"depth is read as the tint {tint_input} at the surface (thin transmission)")
     surface.notes.append(f"{category} {weight_input} {weight:g} is modelled as straight pass-through (presence "
-                         f"×{keep:g}): no refraction, tint or reflection of the transmitted light")
+                         f"×{keep:g}, tinted by {tint_input}): no refraction or reflection of the transmitted light")
 
 
 # ----------------------------------------------------------------------------------------------------------------

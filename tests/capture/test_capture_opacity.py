@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 import pytest
-from usd_scenes import header, material, plane_mesh, probe, write
+from usd_scenes import header, material, mtlx_material, plane_mesh, probe, write
 
 from bakery.capture import capture_probes
 from bakery.sphere.cubemap import cube_texel_directions, cube_texel_solid_angles
@@ -76,18 +76,7 @@ def test_a_cut_out_keeps_its_threshold(tmp_path):
 
 def _glass(category_id: str, inputs: str) -> str:
     """A MaterialX surface authored in USD (a ``mtlx`` surface output) on the ceiling."""
-    return f"""
-def Material "Glass"
-{{
-    token outputs:mtlx:surface.connect = </Glass/Surf.outputs:out>
-    def Shader "Surf"
-    {{
-        uniform token info:id = "{category_id}"
-        {inputs}
-        token outputs:out
-    }}
-}}
-""" + plane_mesh("Ceiling", 1e4, "/Glass", height=2.0)
+    return mtlx_material("Glass", category_id, inputs) + plane_mesh("Ceiling", 1e4, "/Glass", height=2.0)
 
 
 @pytest.mark.parametrize(("category_id", "inputs", "presence"), [
