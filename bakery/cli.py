@@ -267,6 +267,8 @@ def inspect(store: Path, as_json: bool, pattern: str | None, region: str | None)
                          "baked": bake.get("time_utc", ""), "bakery_version": bake.get("bakery_version", "")})
             if "capture/sh_noise" in s.diagnostics:  # achieved relative SH noise of the capture (issue 11)
                 rows[-1]["sh_noise"] = float(np.asarray(s.diagnostics["capture/sh_noise"])[i])
+            if "capture/backface_fraction" in s.diagnostics:  # share of camera rays that saw back faces
+                rows[-1]["backface_fraction"] = float(np.asarray(s.diagnostics["capture/backface_fraction"])[i])
         if as_json:
             out.print_json(json.dumps(rows))
             return
@@ -317,6 +319,14 @@ def inspect(store: Path, as_json: bool, pattern: str | None, region: str | None)
             out.print(f"capture: {a.get('capture_samples')} rays/texel, ≤ {a.get('capture_bounces')} bounces, target "
                       f"noise {a.get('capture_target_noise', 0)}; SH noise median {np.median(noise):.3g}, "
                       f"max {noise.max():.3g} ({noise.size} rendered probes)")
+    if "capture/backface_fraction" in s.diagnostics:  # probe validity
+        from bakery.pipeline.merge import INSIDE_BACKFACE_FRACTION, inside_geometry
+
+        threshold = float(s.attributes.get("inside_geometry_backface_fraction", INSIDE_BACKFACE_FRACTION))
+        inside = inside_geometry(s.diagnostics, threshold)
+        names = ", ".join(s.probe_names[i] for i in inside[:5]) + (" …" if inside.size > 5 else "")
+        out.print(f"validity: {inside.size} probe(s) likely inside geometry (≥ {threshold:.0%} of their rays see "
+                  f"back faces){': ' + names if inside.size else ''}")
 
 
 @main.group()

@@ -37,13 +37,15 @@ __all__ = [
 @dataclass(frozen=True)
 class CaptureReport:
     """Totals of one capture run: rays traced, seconds spent rendering, probes rendered and loaded from images, and
-    each rendered probe's achieved SH noise (NaN for loaded probes)."""
+    each rendered probe's achieved SH noise and share of camera rays that see back faces (NaN for loaded probes;
+    :class:`~bakery.capture.render.CaptureStats`)."""
 
     rays: int
     seconds: float
     rendered: int
     loaded: int
     sh_noise: tuple[float, ...] = ()
+    backface_fraction: tuple[float, ...] = ()
 
     @property
     def rays_per_second(self) -> float:
@@ -61,12 +63,14 @@ def capture_probes(
     renderer: ProbeRenderer | None = None
     rays, seconds, rendered, loaded = 0, 0.0, 0, 0
     noise: list[float] = []
+    backfaces: list[float] = []
     for i, probe in enumerate(scene.probes):
         n = probe.resolution or face_size
         if probe.image:
             cubes[i] = resample_cube(load_captured_cube(probe.image, np.asarray(probe.rotation), n), face_size)
             loaded += 1
             noise.append(float("nan"))
+            backfaces.append(float("nan"))
             continue
         if renderer is None:
             start = time.perf_counter()
@@ -79,4 +83,6 @@ def capture_probes(
         seconds += stats.seconds
         rendered += 1
         noise.append(stats.sh_noise)
-    return cubes, CaptureReport(rays=rays, seconds=seconds, rendered=rendered, loaded=loaded, sh_noise=tuple(noise))
+        backfaces.append(stats.backface_fraction)
+    return cubes, CaptureReport(rays=rays, seconds=seconds, rendered=rendered, loaded=loaded, sh_noise=tuple(noise),
+                                backface_fraction=tuple(backfaces))

@@ -108,12 +108,17 @@ def probe_seed(name: str, base_seed: int = 0) -> int:
 
 @dataclass(frozen=True)
 class CaptureStats:
-    """Work done by one capture: rays traced, wall time (seconds), rays per texel spent and the achieved SH noise."""
+    """Work done by one capture: rays traced, wall time (seconds), rays per texel spent, the achieved SH noise, and
+    the share of the probe's camera rays whose first hit is the back of a single-sided surface (``Mesh.front``):
+    near 0 in open space, 1 inside a closed mesh — the measure of probe validity in Majercik et al., "Scaling
+    Probe-Based Real-Time Dynamic Global Illumination for Production" (JCGT 10(2), 2021), Sec. 4 (backface
+    fraction, threshold 25 %), and Unity's probe validity."""
 
     rays: int
     seconds: float
     samples: int = 0
     sh_noise: float = 0.0
+    backface_fraction: float = 0.0
 
     @property
     def rays_per_second(self) -> float:
@@ -241,6 +246,9 @@ class ProbeRenderer:
         self.max_samples = int(max_samples) if max_samples else max(samples, 64 * samples if target_noise else samples)
         self.tracer = SceneTracer(scene)
         self.surfaces = Surfaces(scene, self.tracer)
+        #: per triangle: +1 / −1 the side of its winding normal that is the front, 0 double-sided (``Mesh.front``)
+        fronts = np.array([getattr(m, "front", 1) for m in scene.meshes] or [1], dtype=REAL)
+        self._front_soa = np.take(fronts, self.surfaces.mesh_of_soa)
         self.dome = DomeSampler(scene.dome)
         self.lights = LightSet(scene.lights, scene.textures)
         self.distant = self.lights.distant
@@ -326,6 +334,7 @@ class ProbeRenderer:
         basis = self._sh_basis(n)
         rngs = [np.random.default_rng(probe_seed(name, self.base_seed)) for name in names]
         rays = np.zeros(count, dtype=np.int64)
+        backfaces = np.zeros(count, dtype=np.int64)  # camera rays whose first hit is a back face, per probe
         origins = [np.asarray(p, dtype=np.float64).reshape(3) for p in positions]
         extras = []
         for p, origin in enumerate(origins):
@@ -340,7 +349,7 @@ class ProbeRenderer:
         noise = [0.0] * count
         active = list(range(count))
         while active:
-            radiance = self._trace_pass(active, origins, rngs, rays, n, filtered)
+            radiance = self._trace_pass(active, origins, rngs, rays, n, filtered, backfaces)
             for p in active:
                 per_sample = radiance[p].reshape(3, self.samples, texels)
                 totals[p] += per_sample.sum(axis=1, dtype=np.float64)
@@ -353,12 +362,15 @@ class ProbeRenderer:
         seconds = time.perf_counter() - start_time
         share = rays / max(int(rays.sum()), 1)
         return [(((totals[p] / spent[p]).T.reshape(6, n, n, 3) + extras[p]).astype(np.float32),
-                 CaptureStats(int(rays[p]), seconds * float(share[p]), spent[p], noise[p])) for p in range(count)]
+                 CaptureStats(int(rays[p]), seconds * float(share[p]), spent[p], noise[p],
+                              float(backfaces[p]) / (spent[p] * texels))) for p in range(count)]
 
     def _trace_pass(self, probes: list[int], origins: list[np.ndarray], rngs: list[np.random.Generator],
-                    rays: np.ndarray, n: int, filtered: np.ndarray | None) -> dict[int, np.ndarray]:
+                    rays: np.ndarray, n: int, filtered: np.ndarray | None,
+                    backfaces: np.ndarray) -> dict[int, np.ndarray]:
         """One pass (``samples`` rays per texel) of each of ``probes`` (indices into ``origins``, ``rngs`` and the
-        ray counters ``rays``, which it adds to): radiance (3, S·6·N·N) float32 per probe, sample-major."""
+        counters ``rays`` and ``backfaces``, which it adds to): radiance (3, S·6·N·N) float32 per probe,
+        sample-major."""
         texels = 6 * n * n
         directions = {p: _jittered_texel_directions(n, self.samples, rngs[p]).reshape(3, -1) for p in probes}
         radiance = {p: np.empty(d.shape, dtype=REAL) for p, d in directions.items()}
@@ -368,11 +380,13 @@ class ProbeRenderer:
             d = np.concatenate([directions[p][:, start:stop] for p, start, stop in call], axis=1)
             o = np.repeat(np.asarray([origins[p] for p, _, _ in call], dtype=REAL).T, sizes, axis=1)
             texel = np.concatenate([np.arange(start, stop) % texels for _, start, stop in call])
-            result = self._camera(o, d, owners, n, filtered, texel)
+            back = np.zeros(len(call), dtype=np.int64)
+            result = self._camera(o, d, owners, n, filtered, texel, back)
             offsets = np.cumsum([0] + sizes)
             for k, (p, start, stop) in enumerate(call):
                 radiance[p][:, start:stop] = result[:, offsets[k]:offsets[k + 1]]
                 rays[p] += owners.rays[k]
+                backfaces[p] += back[k]
         return radiance
 
     def trace_camera_rays(self, origins: np.ndarray, directions: np.ndarray, rng: np.random.Generator,
@@ -389,9 +403,11 @@ class ProbeRenderer:
         return np.ascontiguousarray(result.T, dtype=np.float64)
 
     def _camera(self, origins: np.ndarray, directions: np.ndarray, owners: _Owners, face_size: int,
-                filtered: np.ndarray | None, texel: np.ndarray | None) -> np.ndarray:
+                filtered: np.ndarray | None, texel: np.ndarray | None,
+                backfaces: np.ndarray | None = None) -> np.ndarray:
         """:meth:`trace_camera_rays` on (3, M) float32 rays of the probes ``owners``; ``filtered`` is the (3, 6·N·N)
-        filtered dome."""
+        filtered dome. ``backfaces`` (one counter per owner), if given, is added the number of each owner's rays
+        whose first hit (past what they pass through, before any light shape) is a back face."""
         m = origins.shape[1]
         if self.lights.surfaces:  # tints count up to the nearest light shape
             t_light, _which, l_light = self.lights.nearest_soa(origins, directions)
@@ -418,6 +434,11 @@ class ProbeRenderer:
                     seen += light.escaped_soa(d)
             result[:, miss] = seen
         hit = np.flatnonzero((prim >= 0) & ~sees_light)
+        if backfaces is not None and hit.size:
+            hp = np.take(prim, hit)
+            facing = dot(np.take(self.tracer.normals_soa, hp, axis=1), _take(directions, hit))
+            back = hit[np.take(self._front_soa, hp) * facing > 0]
+            backfaces += np.bincount(np.take(owners.owner, back), minlength=backfaces.size)
         if hit.size:
             result[:, hit] = self._shade(_take(origins, hit), _take(directions, hit), np.take(prim, hit),
                                          np.take(t, hit), np.take(bu, hit), np.take(bv, hit), owners.take(hit))

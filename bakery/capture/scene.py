@@ -214,6 +214,10 @@ class Mesh:
             read), or None.
         normals: (T, 3, 3) float32 unit shading normals per triangle corner in the bake frame (the mesh's authored
             ``normals``), interpolated with the hit's barycentrics; None: the geometric normal is the shading normal.
+        front: which side of each triangle is the surface's front (outside) in the bake frame: 1 the side its
+            winding normal (v1 − v0) × (v2 − v0) points to, −1 the other (UsdGeom ``orientation`` leftHanded, or a
+            mirroring transform), 0 both (``doubleSided``). Shading is two-sided either way; the side tells a probe
+            inside geometry (rays that see back faces, ``CaptureStats.backface_fraction``).
     """
 
     name: str
@@ -221,6 +225,7 @@ class Mesh:
     material: Material = field(default_factory=Material)
     uvs: np.ndarray | None = None
     normals: np.ndarray | None = None
+    front: int = 1
 
 
 @dataclass(frozen=True)

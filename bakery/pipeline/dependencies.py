@@ -1,8 +1,8 @@
 """What each scene probe's result depends on, for incremental bakes (conservative, no ``pxr``).
 
-Global part (affects every probe): meshes (triangles, materials and shading normals), the dome (texture content,
-scale, rotation), distant lights, every referenced asset's bytes and the capture's model version
-(:data:`bakery.capture.render.CAPTURE_MODEL_VERSION`). Any change there re-bakes all probes — geometry anywhere can
+Global part (affects every probe): meshes (triangles, materials, shading normals and a front side other than the
+winding's), the dome (texture content, scale, rotation), distant lights, every referenced asset's bytes and the
+capture's model version (:data:`bakery.capture.render.CAPTURE_MODEL_VERSION`). Any change there re-bakes all probes — geometry anywhere can
 occlude, reflect or emit towards any probe.
 
 Per-probe part: the probe's own prim data (kind, position, rotation, resolution, encodings, influence) and the
@@ -68,6 +68,8 @@ def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN00
                     None if getattr(mesh, "uvs", None) is None else np.asarray(mesh.uvs, dtype=np.float32))
                    # shading normals only when authored (the hash of a scene without them is unchanged)
                    + (() if getattr(mesh, "normals", None) is None else (np.asarray(mesh.normals, np.float32),))
+                   # the front side only when not the winding's (USD's fallback): it changes a probe's diagnostics
+                   + (() if getattr(mesh, "front", 1) == 1 else (("front", int(mesh.front)),))
                    for mesh in scene.meshes]
     if scene.dome is not None:
         dome = scene.dome

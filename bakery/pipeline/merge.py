@@ -4,6 +4,7 @@ that carry no energy, and finalize encodings over every probe.
     merged = merge_batches(batches + [extract_probes(previous, reused)], order)
     skipped = apply_band_skips(merged, tolerance)          # seed 003 §5.1, seed 002 §4.4 (bakery.pipeline.skip)
     encodings = finalize_encodings(merged, settings)       # e.g. the hallucination curve fitted over all probes
+    inside = inside_geometry_warning(merged)               # probes whose rays see back faces (validity)
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from bakery.encodings import Encoding, get_encoding
 from bakery.errors import ConfigError
 from bakery.pipeline.encode import (
     REFERENCE_IRRADIANCE,
+    BakeWarning,
     EncodedBatch,
     aux_key,
     full_length,
@@ -24,6 +26,36 @@ from bakery.pipeline.settings import DEFAULT_BAND_TOLERANCE, BakeSettings, build
 from bakery.pipeline.skip import band_skip_decisions
 from bakery.probe import Probe
 from bakery.sphere.fibonacci import fibonacci_directions
+
+
+#: A probe whose camera rays see back faces of single-sided surfaces this often or more is reported as inside
+#: geometry (Majercik et al. 2021, Sec. 4: 25 % of a probe's rays; ``CaptureStats.backface_fraction``).
+INSIDE_BACKFACE_FRACTION = 0.25
+#: Per-probe diagnostics key of the backface fraction (rendered probes; NaN for loaded images and older stores).
+BACKFACE_KEY = "capture/backface_fraction"
+
+
+def inside_geometry(diagnostics: dict[str, np.ndarray], threshold: float = INSIDE_BACKFACE_FRACTION) -> np.ndarray:
+    """Indices of the probes whose backface fraction (``diagnostics`` of a merged batch or a store) is ≥
+    ``threshold``, in store order (NaN — loaded images, stores from before the diagnostic — never)."""
+    fraction = diagnostics.get(BACKFACE_KEY)
+    if fraction is None:
+        return np.zeros(0, dtype=np.int64)
+    with np.errstate(invalid="ignore"):
+        return np.flatnonzero(np.asarray(fraction, dtype=np.float64) >= threshold)
+
+
+def inside_geometry_warning(merged: EncodedBatch, shown: int = 3) -> BakeWarning | None:
+    """One warning naming the probes that are likely inside geometry (:func:`inside_geometry`), or None."""
+    names = [merged.probes[i].name for i in inside_geometry(merged.diagnostics)]
+    if not names:
+        return None
+    listed = ", ".join(names[:shown]) + (f" and {len(names) - shown} more" if len(names) > shown else "")
+    return BakeWarning("SceneWarning", (
+        f"{len(names)} of {len(merged.probes)} probes are likely inside geometry: ≥ "
+        f"{INSIDE_BACKFACE_FRACTION:.0%} of their camera rays see the back of single-sided surfaces ({listed}); "
+        f"what they store is the inside. Move them, or author doubleSided = true on open sheets seen from both "
+        f"sides (per probe: /diagnostics/{BACKFACE_KEY})"))
 
 
 def merge_batches(batches: list[EncodedBatch], order: list[str] | None = None, *,

@@ -63,10 +63,13 @@ from bakery.pipeline.encode import EncodedBatch
 from bakery.pipeline.executors import Executor, SerialExecutor
 from bakery.pipeline.journal import Journal
 from bakery.pipeline.merge import (
+    BACKFACE_KEY,
     DEFAULT_BAND_TOLERANCE,
+    INSIDE_BACKFACE_FRACTION,
     apply_band_skips,
     extract_probes,
     finalize_encodings,
+    inside_geometry_warning,
     merge_batches,
     remap_history,
 )
@@ -304,6 +307,10 @@ def finalize_and_write(request: BakeRequest, source: Source, plan: Plan, batches
     # Warnings about this machine rather than the results (a rebuilt operator cache) are shown, not stored: the
     # store must not depend on the state of the machine that baked it.
     merged.warnings = [w for w in merged.warnings if w.category not in MACHINE_WARNINGS]
+    inside = inside_geometry_warning(merged)  # probe validity: recorded in the store's warnings, shown
+    if inside is not None:
+        merged.warnings.append(inside)
+        warnings.warn(inside.message, bakery.errors.SceneWarning, stacklevel=2)
     skipped = list(plan.skipped) + apply_band_skips(merged, request.band_energy_tolerance)
     encodings = finalize_encodings(merged, settings)
     hash_of = {t.probe.name: t.content_hash for t in plan.tasks}
@@ -314,6 +321,8 @@ def finalize_and_write(request: BakeRequest, source: Source, plan: Plan, batches
         "band_energy_tolerance": request.band_energy_tolerance or DEFAULT_BAND_TOLERANCE,
         "band_skipping": request.band_energy_tolerance is not None,
     }
+    if BACKFACE_KEY in merged.diagnostics:  # the validity threshold the warning and inspect apply
+        attributes["inside_geometry_backface_fraction"] = INSIDE_BACKFACE_FRACTION
     contents = store_contents(merged, settings, encodings, attributes,
                               probe_hashes=[hash_of[p.name] for p in merged.probes], history=history,
                               bake_ids=bake_ids, layers=plan.layers)

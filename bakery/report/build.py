@@ -89,6 +89,7 @@ def build_report(store_path: str | os.PathLike[str], environment: str | os.PathL
                              if "input/sanitized_texels" in store.diagnostics else None),
         # issue 11: the relative SH noise each rendered probe's capture achieved (NaN: loaded from an image)
         "capture_sh_noise": _capture_noise(store),
+        "capture_validity": _capture_validity(store),
         "warnings": json.loads(store.attributes.get("warnings", "[]") or "[]"),
     }
     plots: dict[str, str] = {}
@@ -234,6 +235,21 @@ def write_report(store: str | os.PathLike[str], out_dir: str | os.PathLike[str],
     except OSError as error:
         raise OutputError(f"{out}: cannot write the report: {os_error_message(error)}") from None
     return {"html": html_path, "json": json_path, "data": data}
+
+
+def _capture_validity(store: Any, listed: int = 20) -> dict[str, Any] | None:
+    """The threshold, count and (up to ``listed``) names of the probes likely inside geometry, with the summary of
+    every rendered probe's backface fraction (``capture/backface_fraction``), or None when the store has none."""
+    from bakery.pipeline.merge import BACKFACE_KEY, INSIDE_BACKFACE_FRACTION, inside_geometry
+
+    if BACKFACE_KEY not in store.diagnostics:
+        return None
+    fraction = np.asarray(store.diagnostics[BACKFACE_KEY], dtype=np.float64)
+    threshold = float(store.attributes.get("inside_geometry_backface_fraction", INSIDE_BACKFACE_FRACTION))
+    inside = inside_geometry(store.diagnostics, threshold)
+    return {"threshold": threshold, "summary": quality.summarise(fraction), "inside_count": int(inside.size),
+            "inside": [{"probe": store.probe_names[i], "backface_fraction": float(fraction[i])}
+                       for i in inside[:listed]]}
 
 
 def _capture_noise(store: Any) -> dict[str, Any] | None:

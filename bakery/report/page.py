@@ -150,6 +150,20 @@ def render_page(data: dict[str, Any], plots: dict[str, str], previews: dict[str,
         parts.append('<p class="note">Relative Monte Carlo standard error of each rendered capture\'s radiance SH '
                      "(bands 0–2, luminance), estimated from independent sample passes; with a target the capture "
                      "adds passes until it is reached or <code>max_samples</code> is spent.</p>")
+    validity = data.get("capture_validity")
+    if validity and validity["summary"].get("count"):
+        parts.append("<h3>Probe validity</h3>")
+        parts.append(_table(["rendered probes", f"likely inside geometry (≥ {validity['threshold']:.0%})",
+                             "mean backface fraction", "max"],
+                            [[validity["summary"]["count"], validity["inside_count"], validity["summary"]["mean"],
+                              validity["summary"]["max"]]], left=0))
+        if validity["inside"]:
+            parts.append(_table(["probe inside geometry (prim path)", "backface fraction"],
+                                [[w["probe"], w["backface_fraction"]] for w in validity["inside"]]))
+        parts.append('<p class="note">Share of each probe\'s camera rays whose first hit is the back of a '
+                     "single-sided surface (inside closed geometry, or a surface wound away from the probe); such a "
+                     "probe stores what the inside looks like. Move it, or author <code>doubleSided</code> on open "
+                     "sheets seen from both sides.</p>")
     if data["quantization"]:
         parts.append("<h3>Quantization error</h3>")
         rows = [[n, q["source"], q["summary"].get("mean"), q["summary"].get("max")]

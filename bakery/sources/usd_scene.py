@@ -223,7 +223,9 @@ class UsdSceneSource(Source):
                 for field_name, array in ENCODINGS[encoding].layer_fields(prim_values).items():
                     fields[attribute_name(kind, encoding, field_name)] = array
                 names.append(encoding)
-            baked.append(BakedPrim(prim, len(rows), tuple(names), fields))
+            fraction = merged.diagnostics.get("capture/backface_fraction")
+            baked.append(BakedPrim(prim, len(rows), tuple(names), fields,
+                                   None if fraction is None else np.asarray(fraction, dtype=np.float32)[rows]))
         write_bake_layer(
             layer_path, baked, request.output, str(contents.attributes.get("settings_hash", "")), self.path,
             up_axis=self._reading.up_axis, meters_per_unit=self._reading.meters_per_unit, protected=self._protected,
@@ -305,11 +307,12 @@ def _loaded(probe: ProbeSpec, face_size: int) -> Capture:
 
 def _rendered(cube: np.ndarray, render_stats: CaptureStats, face_size: int) -> Capture:
     """The capture of a rendered probe (its cube (6, n, n, 3) at its own resolution n): stats and per-probe
-    diagnostics (achieved SH noise, rays per texel)."""
+    diagnostics (achieved SH noise, rays per texel, share of camera rays that see back faces)."""
     stats = {"capture_rays": float(render_stats.rays), "capture_seconds": float(render_stats.seconds),
              "capture_rendered": 1.0}
     diagnostics = {"capture/sh_noise": np.asarray(render_stats.sh_noise, dtype=np.float32),
-                   "capture/samples": np.asarray(render_stats.samples, dtype=np.float32)}
+                   "capture/samples": np.asarray(render_stats.samples, dtype=np.float32),
+                   "capture/backface_fraction": np.asarray(render_stats.backface_fraction, dtype=np.float32)}
     return _on_grid(cube, face_size, stats, diagnostics)
 
 

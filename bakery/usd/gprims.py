@@ -15,13 +15,15 @@ Capsule        a cylinder of radius r and height h (the caps excluded, UsdGeomCa
                r centred on each end (``Capsule_1`` with radiusBottom ≠ radiusTop: hemispheres of each radius joined by
                the frustum between their equators, which is the capsule's shape only when the radii are equal)
 Plane          ``width`` × ``length`` rectangle: axis X → width along z, length along y; Y → x, z; Z → x, y
-               (UsdGeomPlane's table); two triangles (the capture shades both sides of every triangle)
+               (UsdGeomPlane's table); two triangles wound towards +axis (the capture shades both sides of every
+               triangle; UsdGeomPlane is ``doubleSided`` by default)
 =============  ======================================================================================================
 
 Round surfaces use :data:`SEGMENTS` (24) facets around the spine, as :func:`uv_sphere`: vertices on the surface,
 enclosed volumes 1.1 % (inscribed 24-gon) to 1.8 % (capsule caps) below the closed forms. The surfaces of revolution
-are watertight (every edge shared by exactly two triangles, the seam closing on the same vertices) and wound
-counter-clockwise seen from outside; tests/usd/test_gprims.py checks both, and the extents against USD's own.
+are watertight (every edge shared by exactly two triangles, the seam closing on the same vertices) and, as the
+sphere and the cube, wound counter-clockwise seen from outside (the winding tells a probe inside a gprim:
+``Mesh.front``); tests/usd/test_gprims.py checks both, and the extents against USD's own.
 """
 
 from __future__ import annotations
@@ -50,9 +52,9 @@ def uv_sphere(radius: float, rings: int = RINGS, segments: int = SEGMENTS) -> Te
     t, p = np.meshgrid(theta, phi, indexing="ij")
     unit = np.stack([np.sin(t) * np.cos(p), np.cos(t), np.sin(t) * np.sin(p)], axis=-1)
 
-    def corners(v: np.ndarray) -> np.ndarray:
+    def corners(v: np.ndarray) -> np.ndarray:  # counter-clockwise seen from outside (a → d is +φ, a → b +θ)
         a, b, c, d = v[:-1, :-1], v[1:, :-1], v[1:, 1:], v[:-1, 1:]
-        return np.concatenate([np.stack([a, b, c], -2).reshape(-1, 3, 3), np.stack([a, c, d], -2).reshape(-1, 3, 3)])
+        return np.concatenate([np.stack([a, c, b], -2).reshape(-1, 3, 3), np.stack([a, d, c], -2).reshape(-1, 3, 3)])
 
     return Tessellation(corners(radius * unit), corners(unit) if radius > 0 else None)
 
@@ -97,7 +99,8 @@ def plane(width: float, length: float, axis: str = "Z") -> Tessellation:
     corners = np.zeros((4, 3))
     corners[:, along[0]] = (-w, w, w, -w)
     corners[:, along[1]] = (-ln, -ln, ln, ln)
-    return Tessellation(corners[np.array([(0, 1, 2), (0, 2, 3)])])
+    order = [(0, 1, 2), (0, 2, 3)] if axis == "Z" else [(0, 2, 1), (0, 3, 2)]  # wound towards +axis
+    return Tessellation(corners[np.array(order)])
 
 
 def _sphere_profile(radius: float, centre: float, polar_from: float, polar_to: float, steps: int

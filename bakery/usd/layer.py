@@ -21,6 +21,9 @@ attribute                                   value
 ``bakery:baked:settingsHash``               the bake's settings hash
 ``bakery:baked:encodings``                  token[] of encodings written on this prim
 ``bakery:baked:probeCount``                 1, or the number of probes of a probe volume
+``bakery:baked:backfaceFraction``           float[] (probeCount): each probe's share of capture rays that saw back
+                                            faces (≥ 0.25: likely inside geometry; store
+                                            ``capture/backface_fraction``), when the bake measured it
 ``bakery:baked:storeOnlyFields``            ``<encoding>:<field>`` of fields too large for the layer
                                             (> :data:`MAX_VALUES_PER_PROBE` values per probe): store only
 ``bakery:baked:conventions``                JSON of :data:`bakery.conventions.CONVENTIONS`
@@ -64,6 +67,8 @@ class BakedPrim:
     probe_count: int
     encodings: tuple[str, ...]
     fields: dict[str, np.ndarray] = field(default_factory=dict)
+    #: (probeCount,) float32 share of each probe's capture rays that saw back faces, or None (not measured)
+    backface_fraction: np.ndarray | None = None
 
     def split_by_size(self) -> tuple[dict[str, np.ndarray], list[str]]:
         """(fields small enough for the layer, ``<encoding>:<field>`` names of the others)."""
@@ -272,6 +277,11 @@ def write_bake_layer(
             attr.default = value
             attr.customData = {"shape": _shape_array(data.shape[1:]), "probeCount": baked.probe_count}
             written[name] = data
+        if baked.backface_fraction is not None:
+            fraction = np.asarray(baked.backface_fraction, dtype=np.float32).reshape(baked.probe_count)
+            attr = Sdf.AttributeSpec(spec, "bakery:baked:backfaceFraction", Sdf.ValueTypeNames.FloatArray,
+                                     Sdf.VariabilityVarying)
+            attr.default = Vt.FloatArray.FromNumpy(fraction)  # a diagnostic: not part of the content hash
         for encoding in baked.encodings:
             if encoding_settings is None or encoding not in encoding_settings:
                 continue

@@ -877,7 +877,7 @@ class SceneReader:
                 return array if array is None or part is None else array[part]
 
             self.meshes.append(Mesh(name if label is None else f"{name}#{label}", take(tris), material, take(uvs),
-                                    take(normals)))
+                                    take(normals), front=_front_side(prim, matrix, self.time)))
 
     def _material_parts(self, prim: Usd.Prim, topology, triangles: int):  # noqa: ANN001, ANN202
         """(triangle indices or None for all, material, primvar, subset label or None) per material of the mesh:
@@ -1000,6 +1000,19 @@ def catmull_clark(points: np.ndarray, counts: np.ndarray, indices: np.ndarray, l
         counts = np.full(indices.size // 4, 4, dtype=np.int64)
         parent = parent[face_of]  # one quad per face-vertex of the previous level
     return (points, counts, indices, parent) if with_faces else (points, counts, indices)
+
+
+def _front_side(prim: Usd.Prim, matrix: np.ndarray, time: Usd.TimeCode = _T) -> int:
+    """:attr:`Mesh.front` of a gprim placed by the world ``matrix``: 0 when ``doubleSided``, else +1 for a
+    right-handed ``orientation`` (USD's fallback; implicit surfaces: normals outward), −1 for left-handed, the sign
+    flipped by a mirroring world transform (det < 0) as Hydra flips the winding; the bake frame is a rotation."""
+    gprim = UsdGeom.Gprim(prim)
+    double_sided = gprim.GetDoubleSidedAttr().Get(time)
+    if double_sided:
+        return 0
+    orientation = gprim.GetOrientationAttr().Get(time)
+    side = -1 if orientation == UsdGeom.Tokens.leftHanded else 1
+    return side if np.linalg.det(np.asarray(matrix, dtype=np.float64)[:3, :3]) >= 0 else -side
 
 
 def _at_corners(values: np.ndarray, interpolation: str, topology) -> np.ndarray | None:  # noqa: ANN001

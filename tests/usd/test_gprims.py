@@ -90,12 +90,29 @@ def test_surfaces_of_revolution_are_watertight_outward_and_close_to_the_closed_f
     assert volume * (inscribed - 0.01) < _volume(tris) <= volume * 1.000001
 
 
+@pytest.mark.parametrize(("name", "build", "volume"), [
+    ("sphere", lambda: gprims.uv_sphere(0.8), 4 / 3 * math.pi * 0.8**3),
+    ("cube", lambda: gprims.cube(1.3), 1.3**3),
+])
+def test_sphere_and_cube_are_wound_outward(name, build, volume):
+    """Counter-clockwise seen from outside: the signed volume is positive (a probe inside sees back faces); every
+    non-degenerate sphere facet's winding normal points away from the centre."""
+    tris = build().triangles
+    assert volume * 0.95 < _volume(tris) <= volume * 1.000001
+    cross = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    facets = np.linalg.norm(cross, axis=1) > 1e-12
+    assert np.all(np.einsum("ij,ij->i", cross, tris.mean(axis=1))[facets] > 0)
+
+
 def test_plane_axes_follow_usdgeomplane():
     """axis X: width along z, length along y; Y: x, z; Z: x, y (UsdGeomPlane)."""
     for axis, (w_axis, l_axis, n_axis) in {"X": (2, 1, 0), "Y": (0, 2, 1), "Z": (0, 1, 2)}.items():
         points = gprims.plane(2.0, 4.0, axis).triangles.reshape(-1, 3)
         span = points.max(axis=0) - points.min(axis=0)
         assert span[w_axis] == 2.0 and span[l_axis] == 4.0 and span[n_axis] == 0.0
+        tris = gprims.plane(2.0, 4.0, axis).triangles
+        winding = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+        assert np.all(winding[:, n_axis] > 0)  # wound towards +axis
     with pytest.raises(ValueError, match="axis"):
         gprims.plane(1.0, 1.0, "W")
 

@@ -1,0 +1,112 @@
+"""Probe validity: the share of a probe's camera rays whose first hit is the back of a single-sided surface
+(``CaptureStats.backface_fraction``; Majercik et al. 2021, Sec. 4). Closed forms: 1 inside a closed, outward-wound
+mesh or gprim (also under a mirroring transform, which USD's winding rule follows); 0 outside it, inside a
+``doubleSided`` one, or inside a left-handed one; 5/6 exactly at the centre of a box without one face (each cube
+face of the probe sees one box face); a bake names the probes ≥ 25 % in one warning and stores the fractions."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+from usd_scenes import box_mesh, header, material, probe, write
+
+import bakery
+from bakery.capture import capture_probes
+from bakery.errors import SceneWarning
+from bakery.usd.scene import read_scene
+
+DOME = 'def DomeLight "Sky"\n{\n    float inputs:intensity = 1\n}\n'
+GREY = material("Grey", diffuse=(0.5, 0.5, 0.5), diffuse_only=True)
+
+
+def _fractions(tmp_path, text: str) -> tuple[float, ...]:
+    reading = read_scene(write(tmp_path / "scene.usda", text))
+    assert not reading.errors, reading.errors
+    _cubes, report = capture_probes(reading.scene, 8, samples=2, bounces=0)
+    return report.backface_fraction
+
+
+def _gprim(kind: str, extra: str = "", scale: str = "(1, 1, 1)") -> str:
+    size = "double radius = 1" if kind == "Sphere" else "double size = 2"
+    return f"""
+def {kind} "Shape" (
+    prepend apiSchemas = ["MaterialBindingAPI"]
+)
+{{
+    {size}
+    {extra}
+    rel material:binding = </Grey>
+    float3 xformOp:scale = {scale}
+    uniform token[] xformOpOrder = ["xformOp:scale"]
+}}
+"""
+
+
+@pytest.mark.parametrize("kind", ["Cube", "Sphere"])
+def test_inside_a_closed_gprim_every_ray_sees_a_back_face(tmp_path, kind):
+    inside, outside = _fractions(tmp_path, header() + DOME + GREY + _gprim(kind)
+                                 + probe("In", (0.1, 0.2, -0.1)) + probe("Out", (0.0, 0.0, 3.0)))
+    assert inside == 1.0
+    assert outside == 0.0  # it sees the shape's front and the sky
+
+
+def test_a_mirroring_transform_keeps_the_outside_the_front(tmp_path):
+    """scale (−1, 1, 1) reverses the winding in world space; USD (and Hydra) flip the orientation with it."""
+    (inside,) = _fractions(tmp_path, header() + DOME + GREY + _gprim("Cube", scale="(-1, 1, 1)")
+                           + probe("In", (0.1, 0.2, -0.1)))
+    assert inside == 1.0
+
+
+@pytest.mark.parametrize("extra", ["uniform bool doubleSided = 1", 'uniform token orientation = "leftHanded"'])
+def test_double_sided_and_left_handed_gprims_have_no_back_face_inside(tmp_path, extra):
+    (inside,) = _fractions(tmp_path, header() + DOME + GREY + _gprim("Cube", extra) + probe("In", (0.1, 0.2, -0.1)))
+    assert inside == 0.0
+
+
+def test_a_box_without_one_face_gives_five_sixths(tmp_path):
+    """An outward-wound box Mesh without its +Y face, the probe at its centre: the probe's −X, +X, −Y, ±Z cube
+    faces see box faces from behind, the +Y face the sky: 5/6 of the rays, exactly."""
+    box = box_mesh("Box", 1.0, "/Grey")
+    open_top = box.replace("[4, 4, 4, 4, 4, 4]", "[4, 4, 4, 4, 4]").replace("2, 3, 7, 6,  ", "")
+    assert open_top != box
+    (centre,) = _fractions(tmp_path, header() + DOME + GREY + open_top + probe("P", (0.0, 0.0, 0.0)))
+    assert centre == pytest.approx(5 / 6, abs=1e-12)
+
+
+def test_a_bake_names_the_probes_inside_geometry_and_stores_the_fractions(tmp_path):
+    text = (header() + DOME + GREY + _gprim("Cube") + probe("Inside", (0.1, 0.2, -0.1))
+            + probe("Outside", (0.0, 0.0, 3.0)))
+    scene = write(tmp_path / "scene.usda", text)
+    with pytest.warns(SceneWarning, match=r"1 of 2 probes are likely inside geometry.*/Inside\b"):
+        bakery.bake(scene, tmp_path / "scene.h5", encodings=("sh2",), face_size=8, samples=1)
+    store = bakery.open_store(tmp_path / "scene.h5")
+    fraction = dict(zip(store.probe_names, store.diagnostics["capture/backface_fraction"].tolist()))
+    assert fraction == {"/Inside": 1.0, "/Outside": 0.0}
+    assert any("inside geometry" in w for w in json.loads(store.attributes["warnings"]))
+    from pxr import Usd  # the baked layer carries the fractions for engines (bakery:baked:backfaceFraction)
+
+    layer = Usd.Stage.Open(str(tmp_path / "scene.bake.usda"))
+    for name, expected in fraction.items():
+        assert list(layer.GetPrimAtPath(name).GetAttribute("bakery:baked:backfaceFraction").Get()) == [expected]
+
+
+def test_inspect_and_report_list_the_probes_inside_geometry(tmp_path):
+    from bakery.report.build import build_report
+
+    text = (header() + DOME + GREY + _gprim("Cube") + probe("Inside", (0.1, 0.2, -0.1))
+            + probe("Outside", (0.0, 0.0, 3.0)))
+    scene = write(tmp_path / "scene.usda", text)
+    with pytest.warns(SceneWarning):
+        bakery.bake(scene, tmp_path / "scene.h5", encodings=("sh2",), face_size=8, samples=1)
+    data, html = build_report(tmp_path / "scene.h5", previews=False)
+    validity = data["capture_validity"]
+    assert validity["threshold"] == 0.25 and validity["inside_count"] == 1
+    assert validity["inside"] == [{"probe": "/Inside", "backface_fraction": 1.0}]
+    assert "Probe validity" in html and "/Inside" in html
+    result = subprocess.run([sys.executable, "-m", "bakery.cli", "inspect", str(tmp_path / "scene.h5")],
+                            capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert "validity: 1 probe(s) likely inside geometry" in result.stdout and "/Inside" in result.stdout
