@@ -327,6 +327,12 @@ def inspect(store: Path, as_json: bool, pattern: str | None, region: str | None)
         names = ", ".join(s.probe_names[i] for i in inside[:5]) + (" …" if inside.size > 5 else "")
         out.print(f"validity: {inside.size} probe(s) likely inside geometry (≥ {threshold:.0%} of their rays see "
                   f"back faces){': ' + names if inside.size else ''}")
+        if "capture/offset" in s.diagnostics:
+            offset = np.linalg.norm(np.asarray(s.diagnostics["capture/offset"], dtype=np.float64), axis=-1)
+            moved = np.flatnonzero(offset > 0)
+            if moved.size:
+                out.print(f"relocated: {moved.size} probe(s) captured from outside the geometry they were in "
+                          f"(bakery:volume:relocate; largest offset {offset[moved].max():.3g} m)")
 
 
 @main.group()

@@ -35,6 +35,10 @@ import numpy as np
 
 #: Rec.709 luminance weights for linear RGB.
 LUMINANCE_WEIGHTS = np.array([0.2126, 0.7152, 0.0722])
+#: A probe whose capture rays see the back of single-sided surfaces this often or more is inside geometry
+#: (Majercik et al. 2021, "Scaling Probe-Based Real-Time Dynamic Global Illumination for Production", Sec. 4);
+#: stores record it as ``inside_geometry_backface_fraction``.
+INSIDE_BACKFACE_FRACTION = 0.25
 
 #: The table above as data, recorded in every store (root attribute ``conventions``, a JSON object).
 CONVENTIONS: dict[str, str] = {

@@ -77,7 +77,7 @@ def capture_probes(
             renderer = ProbeRenderer(scene, samples=samples, bounces=bounces, base_seed=base_seed,
                                      target_noise=target_noise)
             seconds += time.perf_counter() - start
-        cube, stats = renderer.render(np.asarray(probe.position), n, probe.name)
+        cube, stats = renderer.render(np.asarray(probe.position), n, probe.name, probe.relocate)
         cubes[i] = resample_cube(cube, face_size)
         rays += stats.rays
         seconds += stats.seconds

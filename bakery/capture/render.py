@@ -71,6 +71,7 @@ from bakery.capture.lights import (
 from bakery.capture.scene import CaptureScene, Light
 from bakery.capture.surfaces import BOUNCE_SPREAD, Surfaces
 from bakery.capture.tracer import FAR, SceneTracer
+from bakery.capture.validity import Relocator, back_facing
 from bakery.capture.vec import REAL, TINY, dot, dotc, luminance, power, vmax
 from bakery.conventions import LUMINANCE_WEIGHTS
 from bakery.files import sha256_bytes
@@ -119,6 +120,9 @@ class CaptureStats:
     samples: int = 0
     sh_noise: float = 0.0
     backface_fraction: float = 0.0
+    #: capture position − probe position (metres, bake frame): non-zero for a probe relocated out of geometry
+    #: (:mod:`bakery.capture.validity`)
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     @property
     def rays_per_second(self) -> float:
@@ -249,6 +253,7 @@ class ProbeRenderer:
         #: per triangle: +1 / −1 the side of its winding normal that is the front, 0 double-sided (``Mesh.front``)
         fronts = np.array([getattr(m, "front", 1) for m in scene.meshes] or [1], dtype=REAL)
         self._front_soa = np.take(fronts, self.surfaces.mesh_of_soa)
+        self.relocator = Relocator(self.tracer, self._front_soa)
         self.dome = DomeSampler(scene.dome)
         self.lights = LightSet(scene.lights, scene.textures)
         self.distant = self.lights.distant
@@ -303,15 +308,18 @@ class ProbeRenderer:
                 cube_texel_solid_angles(n).reshape(-1, 1)
         return basis
 
-    def render(self, position: np.ndarray, face_size: int, name: str) -> tuple[np.ndarray, CaptureStats]:
+    def render(self, position: np.ndarray, face_size: int, name: str, search_radius: float = 0.0
+               ) -> tuple[np.ndarray, CaptureStats]:
         """Radiance cube (6, N, N, 3) float32 seen from ``position`` (bake frame, metres), and its stats: the one
         probe of :meth:`render_many`."""
-        return self.render_many([position], face_size, [name])[0]
+        return self.render_many([position], face_size, [name], [search_radius])[0]
 
-    def render_many(self, positions: Sequence[np.ndarray], face_size: int, names: Sequence[str]
-                    ) -> list[tuple[np.ndarray, CaptureStats]]:
+    def render_many(self, positions: Sequence[np.ndarray], face_size: int, names: Sequence[str],
+                    search_radii: Sequence[float] | None = None) -> list[tuple[np.ndarray, CaptureStats]]:
         """Radiance cubes (6, N, N, 3) float32 seen from ``positions`` (each (3,), bake frame, metres) of the probes
-        ``names``, and each probe's stats, in order.
+        ``names``, and each probe's stats, in order. A probe with a search radius > 0 (``search_radii``) that is
+        inside geometry is captured from its relocated position (:meth:`Relocator.capture_position`; the offset
+        is in its stats).
 
         The probes' paths are traced and shaded together (module docstring, "Batching"): each pass of each probe is
         cut into chunks of at most :data:`BATCH` camera rays, and chunks of different probes share a call of the
@@ -335,7 +343,11 @@ class ProbeRenderer:
         rngs = [np.random.default_rng(probe_seed(name, self.base_seed)) for name in names]
         rays = np.zeros(count, dtype=np.int64)
         backfaces = np.zeros(count, dtype=np.int64)  # camera rays whose first hit is a back face, per probe
-        origins = [np.asarray(p, dtype=np.float64).reshape(3) for p in positions]
+        given = [np.asarray(p, dtype=np.float64).reshape(3) for p in positions]
+        radii = list(search_radii) if search_radii is not None else [0.0] * count
+        searched = [self.relocator.capture_position(p, float(r)) for p, r in zip(given, radii)]
+        origins = [position for position, _rays in searched]
+        rays += np.array([cast for _position, cast in searched], dtype=np.int64)  # relocation searches
         extras = []
         for p, origin in enumerate(origins):
             owners = _Owners.single(rngs[p])
@@ -363,7 +375,8 @@ class ProbeRenderer:
         share = rays / max(int(rays.sum()), 1)
         return [(((totals[p] / spent[p]).T.reshape(6, n, n, 3) + extras[p]).astype(np.float32),
                  CaptureStats(int(rays[p]), seconds * float(share[p]), spent[p], noise[p],
-                              float(backfaces[p]) / (spent[p] * texels))) for p in range(count)]
+                              float(backfaces[p]) / (spent[p] * texels),
+                              tuple(float(x) for x in origins[p] - given[p]))) for p in range(count)]
 
     def _trace_pass(self, probes: list[int], origins: list[np.ndarray], rngs: list[np.random.Generator],
                     rays: np.ndarray, n: int, filtered: np.ndarray | None,
@@ -435,9 +448,8 @@ class ProbeRenderer:
             result[:, miss] = seen
         hit = np.flatnonzero((prim >= 0) & ~sees_light)
         if backfaces is not None and hit.size:
-            hp = np.take(prim, hit)
-            facing = dot(np.take(self.tracer.normals_soa, hp, axis=1), _take(directions, hit))
-            back = hit[np.take(self._front_soa, hp) * facing > 0]
+            back = hit[back_facing(self.tracer.normals_soa, self._front_soa, np.take(prim, hit),
+                                   _take(directions, hit))]
             backfaces += np.bincount(np.take(owners.owner, back), minlength=backfaces.size)
         if hit.size:
             result[:, hit] = self._shade(_take(origins, hit), _take(directions, hit), np.take(prim, hit),

@@ -243,6 +243,9 @@ class ProbeSpec:
         volume: prim path of the owning probe volume, or "".
         volume_index: (i, j, k) within the volume.
         influence: JSON-able influence description (shape, radius/extent in metres).
+        relocate: search radius (metres) of the relocation of a probe inside geometry
+            (:mod:`bakery.capture.validity`; a volume's ``bakery:volume:relocate``: half its smallest spacing);
+            0: captured where it is.
     """
 
     name: str
@@ -255,6 +258,7 @@ class ProbeSpec:
     volume: str = ""
     volume_index: tuple[int, int, int] = (0, 0, 0)
     influence: dict = field(default_factory=dict)
+    relocate: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from bakery.conventions import INSIDE_BACKFACE_FRACTION
 from bakery.encodings import Encoding, get_encoding
 from bakery.errors import ConfigError
 from bakery.pipeline.encode import (
@@ -28,9 +29,6 @@ from bakery.probe import Probe
 from bakery.sphere.fibonacci import fibonacci_directions
 
 
-#: A probe whose camera rays see back faces of single-sided surfaces this often or more is reported as inside
-#: geometry (Majercik et al. 2021, Sec. 4: 25 % of a probe's rays; ``CaptureStats.backface_fraction``).
-INSIDE_BACKFACE_FRACTION = 0.25
 #: Per-probe diagnostics key of the backface fraction (rendered probes; NaN for loaded images and older stores).
 BACKFACE_KEY = "capture/backface_fraction"
 
@@ -54,8 +52,8 @@ def inside_geometry_warning(merged: EncodedBatch, shown: int = 3) -> BakeWarning
     return BakeWarning("SceneWarning", (
         f"{len(names)} of {len(merged.probes)} probes are likely inside geometry: ≥ "
         f"{INSIDE_BACKFACE_FRACTION:.0%} of their camera rays see the back of single-sided surfaces ({listed}); "
-        f"what they store is the inside. Move them, or author doubleSided = true on open sheets seen from both "
-        f"sides (per probe: /diagnostics/{BACKFACE_KEY})"))
+        f"what they store is the inside. Move them, set bakery:volume:relocate on their volume, or "
+        f"author doubleSided = true on open sheets seen from both sides (per probe: /diagnostics/{BACKFACE_KEY})"))
 
 
 def merge_batches(batches: list[EncodedBatch], order: list[str] | None = None, *,

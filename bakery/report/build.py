@@ -247,9 +247,13 @@ def _capture_validity(store: Any, listed: int = 20) -> dict[str, Any] | None:
     fraction = np.asarray(store.diagnostics[BACKFACE_KEY], dtype=np.float64)
     threshold = float(store.attributes.get("inside_geometry_backface_fraction", INSIDE_BACKFACE_FRACTION))
     inside = inside_geometry(store.diagnostics, threshold)
+    offset = np.linalg.norm(np.asarray(store.diagnostics.get("capture/offset", np.zeros((len(fraction), 3))),
+                                       dtype=np.float64), axis=-1)
+    moved = np.flatnonzero(offset > 0)
     return {"threshold": threshold, "summary": quality.summarise(fraction), "inside_count": int(inside.size),
             "inside": [{"probe": store.probe_names[i], "backface_fraction": float(fraction[i])}
-                       for i in inside[:listed]]}
+                       for i in inside[:listed]],
+            "relocated_count": int(moved.size), "largest_offset_m": float(offset[moved].max()) if moved.size else 0.0}
 
 
 def _capture_noise(store: Any) -> dict[str, Any] | None:

@@ -154,9 +154,10 @@ def render_page(data: dict[str, Any], plots: dict[str, str], previews: dict[str,
     if validity and validity["summary"].get("count"):
         parts.append("<h3>Probe validity</h3>")
         parts.append(_table(["rendered probes", f"likely inside geometry (≥ {validity['threshold']:.0%})",
-                             "mean backface fraction", "max"],
+                             "mean backface fraction", "max", "relocated", "largest offset (m)"],
                             [[validity["summary"]["count"], validity["inside_count"], validity["summary"]["mean"],
-                              validity["summary"]["max"]]], left=0))
+                              validity["summary"]["max"], validity["relocated_count"],
+                              validity["largest_offset_m"]]], left=0))
         if validity["inside"]:
             parts.append(_table(["probe inside geometry (prim path)", "backface fraction"],
                                 [[w["probe"], w["backface_fraction"]] for w in validity["inside"]]))

@@ -129,6 +129,8 @@ class UsdSceneSource(Source):
             probe_settings: dict[str, Any] = {"encodings": list(spec.encodings)} if spec.encodings else {}
             if spec.influence:
                 probe_settings["influence"] = spec.influence
+            if spec.relocate > 0:  # where it is captured depends on the search radius
+                probe_settings["relocate"] = spec.relocate
             if spec.kind == "reflection" and ranged:
                 if bounds is None:
                     bounds = TriangleBounds.of(reading.scene.meshes)
@@ -241,7 +243,7 @@ class UsdSceneSource(Source):
         if probe.image:
             return _loaded(probe, face_size)
         n = probe.resolution or face_size
-        return _rendered(*renderer.render(np.asarray(probe.position), n, probe.name), face_size)
+        return _rendered(*renderer.render(np.asarray(probe.position), n, probe.name, probe.relocate), face_size)
 
     @classmethod
     def capture_many(cls, handle: SourceHandle, specs: Sequence[SceneProbeCapture], face_size: int
@@ -266,7 +268,7 @@ class UsdSceneSource(Source):
                 try:
                     probes, renderer = zip(*(_probe(handle, specs[i]) for i in group))
                     rendered = renderer[0].render_many([np.asarray(p.position) for p in probes], n,
-                                                       [p.name for p in probes])
+                                                       [p.name for p in probes], [p.relocate for p in probes])
                     for i, (cube, stats) in zip(group, rendered):
                         results[i] = _rendered(cube, stats, face_size)
                 except Exception:  # noqa: BLE001 - find the probe that fails: one by one
@@ -312,7 +314,8 @@ def _rendered(cube: np.ndarray, render_stats: CaptureStats, face_size: int) -> C
              "capture_rendered": 1.0}
     diagnostics = {"capture/sh_noise": np.asarray(render_stats.sh_noise, dtype=np.float32),
                    "capture/samples": np.asarray(render_stats.samples, dtype=np.float32),
-                   "capture/backface_fraction": np.asarray(render_stats.backface_fraction, dtype=np.float32)}
+                   "capture/backface_fraction": np.asarray(render_stats.backface_fraction, dtype=np.float32),
+                   "capture/offset": np.asarray(render_stats.offset, dtype=np.float32)}
     return _on_grid(cube, face_size, stats, diagnostics)
 
 

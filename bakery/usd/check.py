@@ -7,17 +7,22 @@ Outcomes
                      where a mesh has no texture coordinates, unreadable or missing textures, float textures without
                      colour-space information, unmodelled material lobes and normal maps,
                      subdivision surfaces baked as their cage, unsupported gprims, light types and light inputs,
-                     unauthored metersPerUnit, ...).
+                     unauthored metersPerUnit, probes inside geometry, ...).
 
 Checks are those of the scene reader (:mod:`bakery.usd.scene`) — the same code the bake runs, so ``check`` and
 ``bake`` never disagree — including the stage's composition errors (a sublayer that fails to parse, an
-unresolvable reference or payload), which are errors: their contents would silently be missing from the bake.
+unresolvable reference or payload), which are errors: their contents would silently be missing from the bake —
+and a pre-flight of probe validity: each rendered probe's share of :data:`SEARCH_DIRECTIONS` rays that see back
+faces (:mod:`bakery.capture.validity`, the measure the bake's capture reports), a warning per probe (per volume:
+how many, the first ones) at or above :data:`bakery.conventions.INSIDE_BACKFACE_FRACTION`.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
+from bakery.capture.scene import CaptureScene
+from bakery.conventions import INSIDE_BACKFACE_FRACTION
 from bakery.errors import CHECK_FAILED_EXIT_CODE, SceneError
 from bakery.usd.scene import Issue, SceneReader, open_stage
 
@@ -30,9 +35,43 @@ def check_scene(path: str | Path) -> list[Issue]:
         stage = open_stage(path)
     except SceneError as exc:
         return [Issue("error", "/", str(exc))]
-    issues: list[Issue] = list(SceneReader(stage, load_textures=True).read().issues)
+    reading = SceneReader(stage, load_textures=True).read()
+    issues: list[Issue] = list(reading.issues) + inside_geometry_issues(reading.scene)
     order = {"error": 0, "warning": 1}
     return sorted(dict.fromkeys(issues), key=lambda i: (order.get(i.severity, 2), i.prim))
+
+
+def inside_geometry_issues(scene: CaptureScene, shown: int = 3) -> list[Issue]:
+    """Warnings for the rendered probes of ``scene`` whose backface fraction over the relocation search's rays is
+    ≥ the threshold: one per probe prim, one per volume (count and first members); volumes that relocate say so."""
+    from bakery.capture.render import ProbeRenderer  # Embree: only when there are probes and geometry
+    from bakery.capture.validity import SEARCH_DIRECTIONS
+
+    probes = [p for p in scene.probes if not p.image]
+    if not probes or not scene.meshes:
+        return []
+    relocator = ProbeRenderer(scene, samples=1, bounces=0).relocator
+    inside: dict[str, list[tuple[str, float]]] = {}
+    relocating: dict[str, bool] = {}
+    for spec in probes:
+        fraction = relocator.backface_fraction(spec.position)
+        if fraction >= INSIDE_BACKFACE_FRACTION:
+            inside.setdefault(spec.volume or spec.name, []).append((spec.name, fraction))
+            relocating[spec.volume or spec.name] = spec.relocate > 0
+    issues = []
+    rule = f"≥ {INSIDE_BACKFACE_FRACTION:.0%} of {SEARCH_DIRECTIONS} rays see the back of single-sided surfaces"
+    for prim, members in inside.items():
+        if members[0][0] == prim:  # a probe prim
+            issues.append(Issue("warning", prim, f"the probe is likely inside geometry ({members[0][1]:.0%}: {rule}); "
+                                "move it, or author doubleSided on open sheets seen from both sides"))
+            continue
+        names = ", ".join(f"{name} {fraction:.0%}" for name, fraction in members[:shown])
+        more = f" and {len(members) - shown} more" if len(members) > shown else ""
+        fix = ("the bake relocates them (bakery:volume:relocate)" if relocating[prim] else
+               "set bakery:volume:relocate, move the volume, or author doubleSided on open sheets")
+        issues.append(Issue("warning", prim, f"{len(members)} of its probes are likely inside geometry ({rule}: "
+                            f"{names}{more}); {fix}"))
+    return issues
 
 
 def check_exit_code(issues: list[Issue]) -> int:

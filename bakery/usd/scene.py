@@ -400,6 +400,15 @@ class SceneReader:
         fraction = np.where(counts > 1, ijk / np.maximum(counts - 1, 1), 0.5)
         local = -extent + 2.0 * extent * fraction
         positions = self.frame.points(local, matrix)
+        relocate = 0.0
+        if bool(self._attr(prim, "bakery:volume:relocate")):  # half the smallest spacing (bake frame, metres)
+            steps = [self.frame.vectors(np.eye(3)[a] * 2.0 * extent[a] / (counts[a] - 1), matrix)
+                     for a in range(3) if counts[a] > 1]
+            spacings = [float(np.linalg.norm(step)) for step in steps if np.linalg.norm(step) > 0]
+            relocate = 0.5 * min(spacings) if spacings else 0.0
+            if relocate == 0.0:
+                self.issue("warning", prim, "bakery:volume:relocate needs two probes or more along an axis of "
+                           "non-zero extent (the search radius is half the spacing); the probes are not relocated")
         for (a, b, c), position in zip(ijk.tolist(), positions):
             self.probes.append(
                 ProbeSpec(
@@ -411,6 +420,7 @@ class SceneReader:
                     encodings=encodings,
                     volume=path,
                     volume_index=(a, b, c),
+                    relocate=relocate,
                 )
             )
 

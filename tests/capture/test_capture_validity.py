@@ -9,7 +9,9 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import warnings
 
+import numpy as np
 import pytest
 from usd_scenes import box_mesh, header, material, probe, write
 
@@ -110,3 +112,67 @@ def test_inspect_and_report_list_the_probes_inside_geometry(tmp_path):
                             capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
     assert "validity: 1 probe(s) likely inside geometry" in result.stdout and "/Inside" in result.stdout
+
+
+def _hall(relocate: str = "") -> str:
+    """Three probes 2 m apart along X (a volume), the middle one inside a closed 1 m cube under a uniform sky."""
+    return header() + DOME + GREY + _gprim("Cube").replace("double size = 2", "double size = 1") + f"""
+def BakeryIrradianceProbeVolume "Row"
+{{
+    float3 bakery:volume:extent = (2, 0, 0)
+    int3 bakery:volume:counts = (3, 1, 1)
+    {relocate}
+}}
+"""
+
+
+def test_relocation_captures_a_probe_inside_geometry_from_just_outside_it(tmp_path):
+    """bakery:volume:relocate: the middle probe (inside the cube) is captured from past the nearest face it sees
+    from behind — within the search radius (half the 2 m spacing) plus the margin — where nothing is a back face;
+    the capture is the one a probe placed there gets. The others do not move."""
+    from bakery.capture import ProbeRenderer
+    from bakery.capture.validity import RELOCATION_MARGIN
+
+    reading = read_scene(write(tmp_path / "scene.usda", _hall("bool bakery:volume:relocate = 1")))
+    assert not reading.errors, reading.errors
+    assert [p.relocate for p in reading.scene.probes] == [1.0, 1.0, 1.0]
+    renderer = ProbeRenderer(reading.scene, samples=2, bounces=1)
+    positions = [np.asarray(p.position) for p in reading.scene.probes]
+    names = [p.name for p in reading.scene.probes]
+    rendered = renderer.render_many(positions, 8, names, [1.0] * 3)
+    offsets = [np.asarray(stats.offset) for _cube, stats in rendered]
+    assert np.all(offsets[0] == 0) and np.all(offsets[2] == 0)
+    moved = positions[1] + offsets[1]
+    assert np.max(np.abs(moved)) > 0.5  # outside the cube
+    assert 0.5 < np.linalg.norm(offsets[1]) <= 0.5 * np.sqrt(3) + RELOCATION_MARGIN * 1.0 + 1e-6
+    assert [stats.backface_fraction for _cube, stats in rendered] == [0.0, 0.0, 0.0]
+    cube, _stats = ProbeRenderer(reading.scene, samples=2, bounces=1).render(moved, 8, names[1])
+    np.testing.assert_array_equal(rendered[1][0], cube)
+
+
+def test_without_relocation_the_probe_inside_is_reported_and_a_bake_records_offsets(tmp_path):
+    scene = write(tmp_path / "plain.usda", _hall())
+    with pytest.warns(SceneWarning, match=r"1 of 3 probes are likely inside geometry.*/Row\[1,0,0\]"):
+        bakery.bake(scene, tmp_path / "plain.h5", encodings=("sh2",), face_size=8, samples=1)
+    moved = write(tmp_path / "moved.usda", _hall("bool bakery:volume:relocate = 1"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", SceneWarning)  # relocated: nothing is inside geometry any more
+        bakery.bake(moved, tmp_path / "moved.h5", encodings=("sh2",), face_size=8, samples=1)
+    store = bakery.open_store(tmp_path / "moved.h5")
+    offset = np.asarray(store.diagnostics["capture/offset"])
+    assert offset.shape == (3, 3) and np.all(offset[[0, 2]] == 0) and np.linalg.norm(offset[1]) > 0.5
+    assert np.all(np.asarray(store.diagnostics["capture/backface_fraction"]) == 0)
+
+
+def test_check_reports_probes_inside_geometry_before_a_bake(tmp_path):
+    from bakery.usd.check import check_exit_code, check_scene
+
+    text = _hall() + probe("Inside", (0.1, 0.2, -0.1)) + probe("Outside", (0.0, 0.0, 3.0))
+    issues = [i for i in check_scene(write(tmp_path / "scene.usda", text)) if "inside geometry" in i.message]
+    assert {i.prim for i in issues} == {"/Inside", "/Row"}
+    assert all(i.severity == "warning" for i in issues) and check_exit_code(issues) == 0
+    assert "1 of its probes" in next(i.message for i in issues if i.prim == "/Row") and "/Row[1,0,0]" in \
+        next(i.message for i in issues if i.prim == "/Row")
+    relocating = write(tmp_path / "relocating.usda", _hall("bool bakery:volume:relocate = 1"))
+    (row,) = [i for i in check_scene(relocating) if "inside geometry" in i.message]
+    assert "the bake relocates them" in row.message
