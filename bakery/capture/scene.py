@@ -148,7 +148,9 @@ class Material:
             ``transmission_color``); 1 for UsdPreviewSurface, whose opacity is colourless.
         maps: textured inputs, each a dict {"input": name, "texture": index into CaptureScene.textures,
             "channels": "rgb" | "r" | "g" | "b" | "a", "scale": (4,), "bias": (4,), "fallback": (4,),
-            "wrap": (wrapS, wrapT)}; texture coordinates come from the mesh's ``uvs``.
+            "wrap": (wrapS, wrapT)}; texture coordinates come from the mesh's ``uvs``. Colour inputs read per
+            vertex are {"input": name, "primvar": primvar name, "scale": (4,), "bias": (4,)}: the mesh's
+            ``colors`` at the hit.
     """
 
     name: str = "<default>"
@@ -214,6 +216,9 @@ class Mesh:
             read), or None.
         normals: (T, 3, 3) float32 unit shading normals per triangle corner in the bake frame (the mesh's authored
             ``normals``), interpolated with the hit's barycentrics; None: the geometric normal is the shading normal.
+        colors: (T, 3, 3) float32 per-corner colours of the colour primvar that the material's per-hit colour
+            entries read (``Material.maps`` entries with a ``primvar``: ``displayColor``, or the ``varname`` of a
+            ``UsdPrimvarReader_float3``), interpolated with the hit's barycentrics; None: none.
         front: which side of each triangle is the surface's front (outside) in the bake frame: 1 the side its
             winding normal (v1 − v0) × (v2 − v0) points to, −1 the other (UsdGeom ``orientation`` leftHanded, or a
             mirroring transform), 0 both (``doubleSided``). Shading is two-sided either way; the side tells a probe
@@ -226,6 +231,7 @@ class Mesh:
     uvs: np.ndarray | None = None
     normals: np.ndarray | None = None
     front: int = 1
+    colors: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

@@ -6,6 +6,7 @@ Layout of a snapshot directory::
     triangles.npy    (T, 3, 3) all meshes' triangles concatenated (mesh i is rows offsets[i]:offsets[i+1])
     uvs.npy          (U, 3, 2) texture coordinates of the meshes that have them, concatenated (only if any)
     normals.npy      (S, 3, 3) shading normals of the meshes that have them, concatenated (only if any)
+    colors.npy       (C, 3, 3) per-corner colours of the meshes that read them, concatenated (only if any)
     dome.npy         (H, W, 3) dome pixels (only when the dome has a texture)
     texture_<i>.npy  (H, W, 4) pixels of CaptureScene.textures[i] (linear, float32)
 
@@ -55,9 +56,10 @@ __all__ = ["SNAPSHOT_FORMAT", "SNAPSHOT_VERSION", "read_capture_scene", "scene_c
 SNAPSHOT_FORMAT = "bakery.capture-scene"
 SNAPSHOT_VERSION = 2
 SCENE_JSON = "scene.json"
-_ARRAY_FILES = {"triangles": "triangles.npy", "dome": "dome.npy", "uvs": "uvs.npy", "normals": "normals.npy"}
+_ARRAY_FILES = {"triangles": "triangles.npy", "dome": "dome.npy", "uvs": "uvs.npy", "normals": "normals.npy",
+                "colors": "colors.npy"}
 #: Mesh fields stored as slices of the concatenated arrays (or, for the material, as its own record).
-_MESH_ARRAYS = ("triangles", "material", "uvs", "normals")
+_MESH_ARRAYS = ("triangles", "material", "uvs", "normals", "colors")
 
 
 def _array_file(name: str) -> str | None:
@@ -253,6 +255,9 @@ def _snapshot_body(scene: CaptureScene) -> tuple[dict[str, Any], dict[str, np.nd
     normals, normal_records = _concatenated(scene.meshes, "normals")
     if normals is not None:
         arrays["normals"] = normals
+    colors, color_records = _concatenated(scene.meshes, "colors")
+    if colors is not None:
+        arrays["colors"] = colors
     textures = []
     for i, texture in enumerate(scene.textures):
         arrays[f"texture_{i}"] = _little(texture.pixels)
@@ -265,8 +270,8 @@ def _snapshot_body(scene: CaptureScene) -> tuple[dict[str, Any], dict[str, np.nd
         entry["file"] = _array_file(name)
         manifest[name] = entry
     meshes = []
-    for mesh, start, stop, uv_record, normal_record in zip(scene.meshes, offsets[:-1], offsets[1:], uv_records,
-                                                           normal_records):
+    for mesh, start, stop, uv_record, normal_record, color_record in zip(
+            scene.meshes, offsets[:-1], offsets[1:], uv_records, normal_records, color_records):
         tris = np.asarray(mesh.triangles)
         record = _fields(mesh, skip=_MESH_ARRAYS)
         record["material"] = _fields(mesh.material)
@@ -274,6 +279,8 @@ def _snapshot_body(scene: CaptureScene) -> tuple[dict[str, Any], dict[str, np.nd
         record["uvs"] = uv_record
         if normal_record is not None:  # only when authored: a scene without normals hashes as before
             record["normals"] = normal_record
+        if color_record is not None:  # likewise per-vertex colours
+            record["colors"] = color_record
         meshes.append(record)
     dome = None
     if scene.dome is not None:
@@ -476,7 +483,7 @@ def read_capture_scene(directory: str | os.PathLike[str], mmap: bool = True, ver
         for record in body["meshes"]:
             view = _slice(triangles, record["triangles"])
             slices = {name: _slice(arrays[name], record[name]) if record.get(name) is not None else None
-                      for name in ("uvs", "normals")}
+                      for name in ("uvs", "normals", "colors")}
             material = _build(Material, record["material"])
             meshes.append(_build(Mesh, {k: v for k, v in record.items() if k not in _MESH_ARRAYS},
                                  triangles=view, material=material, **slices))

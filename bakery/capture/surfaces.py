@@ -285,6 +285,15 @@ class Surfaces:
             e1, e2 = self.uvs[:, 1] - self.uvs[:, 0], self.uvs[:, 2] - self.uvs[:, 0]
             area_uv = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
             self.uv_density = np.sqrt(area_uv / np.maximum(area_w, 1e-300))  # uv units per metre
+        #: per-corner colours (T, 3, 3) of every triangle (zeros on meshes without them) for the colour inputs read
+        #: per vertex (``Material.maps`` entries with a ``primvar``), and as float32 (9, T) rows, or None
+        self.colors = self._colors_soa = None
+        if any("primvar" in entry for m in self.materials for entry in m.maps):
+            self.colors = np.concatenate([np.asarray(m.colors, dtype=np.float64).reshape(-1, 3, 3)
+                                          if m.colors is not None else
+                                          np.zeros((np.asarray(m.triangles).reshape(-1, 3, 3).shape[0], 3, 3))
+                                          for m in scene.meshes])
+            self._colors_soa = np.ascontiguousarray(self.colors.reshape(-1, 9).T, dtype=np.float32)
 
         # per-material BSDF parameters (rows: albedo rgb, F0 rgb, roughness, emission rgb) for the renderer's
         # structure-of-arrays gathers; textured materials are re-evaluated per hit on top
@@ -398,11 +407,16 @@ class Surfaces:
             name = entry["input"]
             if name not in self.base:
                 continue
-            texture = self.entry_texture(entry)
-            lod = np.log2(np.maximum(density * max(texture.width, texture.height), 1))
-            channels = entry.get("channels", "rgb")
-            index = {"r": (0,), "g": (1,), "b": (2,), "a": (3,)}.get(channels, (0, 1, 2))
-            texels = texture.lookup_soa(s, tt, lod, tuple(entry.get("wrap", ("repeat", "repeat"))), index)
+            if "primvar" in entry:  # a colour read per vertex: the corners' colours at the hit's barycentrics
+                index = (0, 1, 2)
+                texels = [w0 * np.take(self._colors_soa[c], prim) + bu * np.take(self._colors_soa[3 + c], prim)
+                          + bv * np.take(self._colors_soa[6 + c], prim) for c in index]
+            else:
+                texture = self.entry_texture(entry)
+                lod = np.log2(np.maximum(density * max(texture.width, texture.height), 1))
+                channels = entry.get("channels", "rgb")
+                index = {"r": (0,), "g": (1,), "b": (2,), "a": (3,)}.get(channels, (0, 1, 2))
+                texels = texture.lookup_soa(s, tt, lod, tuple(entry.get("wrap", ("repeat", "repeat"))), index)
             scale = entry.get("scale", (1.0, 1.0, 1.0, 1.0))
             bias = entry.get("bias", (0.0, 0.0, 0.0, 0.0))
             texels = [x * float(scale[c]) + float(bias[c]) for x, c in zip(texels, index)]
@@ -485,14 +499,19 @@ class Surfaces:
             name = entry["input"]
             if name not in values:
                 continue
-            texture = self.entry_texture(entry)
-            size = max(texture.width, texture.height)
-            if t is None:
-                lod = np.zeros(sel.size)
+            if "primvar" in entry:  # a colour read per vertex (RGB, alpha 1)
+                corners = self.colors[prim]
+                rgb = (1.0 - bu - bv)[:, None] * corners[:, 0] + bu[:, None] * corners[:, 1] + bv[:, None] * corners[:, 2]
+                rgba = np.concatenate([rgb, np.ones((rgb.shape[0], 1))], axis=1)
             else:
-                footprint = np.maximum(t * spread * self.uv_density[prim] * size, 1e-12)
-                lod = np.log2(np.maximum(footprint, 1.0))
-            rgba = texture.lookup(st, lod, tuple(entry.get("wrap", ("repeat", "repeat"))))
+                texture = self.entry_texture(entry)
+                size = max(texture.width, texture.height)
+                if t is None:
+                    lod = np.zeros(sel.size)
+                else:
+                    footprint = np.maximum(t * spread * self.uv_density[prim] * size, 1e-12)
+                    lod = np.log2(np.maximum(footprint, 1.0))
+                rgba = texture.lookup(st, lod, tuple(entry.get("wrap", ("repeat", "repeat"))))
             rgba = rgba * np.asarray(entry.get("scale", (1.0, 1.0, 1.0, 1.0))) + np.asarray(
                 entry.get("bias", (0.0, 0.0, 0.0, 0.0)))
             value = _channels(rgba, entry.get("channels", "rgb"))

@@ -68,6 +68,7 @@ def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN00
                     None if getattr(mesh, "uvs", None) is None else np.asarray(mesh.uvs, dtype=np.float32))
                    # shading normals only when authored (the hash of a scene without them is unchanged)
                    + (() if getattr(mesh, "normals", None) is None else (np.asarray(mesh.normals, np.float32),))
+                   + (() if getattr(mesh, "colors", None) is None else (("colors", np.asarray(mesh.colors, np.float32)),))
                    # the front side only when not the winding's (USD's fallback): it changes a probe's diagnostics
                    + (() if getattr(mesh, "front", 1) == 1 else (("front", int(mesh.front)),))
                    for mesh in scene.meshes]

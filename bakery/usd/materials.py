@@ -13,7 +13,9 @@ Surfaces, in order of preference
     3. the universal ``UsdPreviewSurface``.
     All map onto the capture's one model (diffuse, emission, metallic, roughness, specular workflow, ior,
     opacity/opacityThreshold, normal maps); what does not fit (clearcoat, transmission, sheen, …) is reported per
-    prim. A gprim with no usable material uses its ``displayColor`` (else UsdPreviewSurface's 0.18 grey).
+    prim. A gprim with no usable material uses its ``displayColor`` (else UsdPreviewSurface's 0.18 grey), read
+    per hit when it varies over a Mesh (uniform, vertex, varying or faceVarying interpolation), as Hydra's fallback
+    surface does.
 
 Inputs
     Authored values, else the shader's fallbacks. An input connected to a ``UsdUVTexture`` becomes a texture map
@@ -21,7 +23,10 @@ Inputs
     (``useMetadata`` = repeat: image files carry no wrap metadata we read), ``fallback``, the output's channels,
     and texture coordinates from the ``UsdPrimvarReader_float2`` on its ``st`` input (any ``varname``; default
     ``st``). The material's constant value for such an input is the texture's mean (used where a mesh has no
-    texture coordinates, and for reports). Inputs connected to a ``UsdPrimvarReader`` use the gprim's primvar mean.
+    texture coordinates, and for reports). Colour inputs connected to a ``UsdPrimvarReader_float3`` read the
+    primvar per hit (a map entry with a ``primvar``: the mesh's corner colours, ``Mesh.colors``, interpolated
+    with the hit's barycentrics; the reader's fallback where the mesh lacks it); other primvar readers give their
+    fallback (reported).
 
 Colour
     ``sourceColorSpace`` "sRGB" decodes sRGB; "raw" leaves data alone; "auto" decodes 8-bit images as sRGB and
@@ -106,7 +111,7 @@ class MaterialReader:
 
     def material_for(self, gprim: Usd.Prim) -> tuple[Material, str | None]:
         """The gprim's material and the name of the primvar its textures read (None if untextured)."""
-        display = _display_color(gprim, self.time)
+        display, varying = _display_color(gprim, self.time)
         binding = UsdShade.MaterialBindingAPI(gprim)
         material, _rel = binding.ComputeBoundMaterial(UsdShade.Tokens.full)
         if not material:
@@ -118,15 +123,16 @@ class MaterialReader:
                     if key not in self._materials:
                         self._materials[key] = self._read_mtlx_document(key, *mtlx)
                     result, use_display, primvar = self._materials[key]
-                    return (_default_material(display, name=result.name), None) if use_display else (result, primvar)
+                    return (_default_material(display, result.name, varying), None) if use_display else \
+                        (result, primvar)
             if targets:
                 self._warn_once(str(targets[0]), f"bound material {targets[0]} does not exist; using defaults")
-            return _default_material(display), None
+            return _default_material(display, varying=varying), None
         key = str(material.GetPath())
         if key not in self._materials:
             self._materials[key] = self._read_material(material)
         result, use_display, primvar = self._materials[key]
-        return (_default_material(display, name=result.name), None) if use_display else (result, primvar)
+        return (_default_material(display, result.name, varying), None) if use_display else (result, primvar)
 
     # ------------------------------------------------------------------------------------------------------------
     def _warn_once(self, prim: str, message: str, severity: str = "warning") -> None:
@@ -249,6 +255,15 @@ class MaterialReader:
             fb_value = fb.Get(self.time) if fb else None
             if fb_value is not None:
                 surface.values[name] = fb_value
+            varname = upstream.GetInput("varname")
+            primvar = self._producer(varname)[0] if varname else None
+            if name in COLOR_INPUTS and upstream_id in ("UsdPrimvarReader_float3", "UsdPrimvarReader_normal",
+                                                         "UsdPrimvarReader_point", "UsdPrimvarReader_vector") \
+                    and primvar:  # per-vertex colours: read at every hit (the fallback where the mesh lacks them)
+                surface.maps[name] = vertex_color_entry(str(primvar))
+            else:
+                surface.notes.append(f"input {name} reads primvar {primvar!r} through {upstream_id}; the reader's "
+                                     "fallback is used (only colour inputs read float3 primvars per hit)")
             return
         self._warn_once(str(shader.GetPath()), f"input {name} is connected to {upstream_id or 'an untyped shader'}, "
                         "which the capture does not evaluate; its value is used")
@@ -444,20 +459,35 @@ def _inherited_color_space(prim: Usd.Prim) -> str:
     return ""
 
 
-def _display_color(gprim: Usd.Prim, time: Usd.TimeCode = _T) -> tuple[float, float, float] | None:
+def _display_color(gprim: Usd.Prim, time: Usd.TimeCode = _T) -> tuple[tuple[float, float, float] | None, bool]:
+    """The mean of the gprim's ``displayColor`` (None if not authored) and whether it varies over a Mesh (more
+    than one distinct value, not constant interpolation)."""
     primvar = UsdGeom.PrimvarsAPI(gprim).GetPrimvar("displayColor")
     if not primvar or not primvar.HasAuthoredValue():
-        return None
+        return None, False
     value = primvar.ComputeFlattened(time)
     if value is None or len(value) == 0:
-        return None
-    return tuple(float(x) for x in np.asarray(value, dtype=np.float64).reshape(-1, 3).mean(axis=0))
+        return None, False
+    colours = np.asarray(value, dtype=np.float64).reshape(-1, 3)
+    varying = (gprim.IsA(UsdGeom.Mesh) and primvar.GetInterpolation() != UsdGeom.Tokens.constant
+               and bool(np.any(colours != colours[0])))
+    return tuple(float(x) for x in colours.mean(axis=0)), varying
 
 
-def _default_material(display: tuple[float, float, float] | None, name: str = "<default>") -> Material:
+def vertex_color_entry(primvar: str) -> dict:
+    """A map entry (``Material.maps``) that reads the colour primvar ``primvar`` at each hit: the mesh's
+    ``colors`` interpolated with the hit's barycentrics, times ``scale`` plus ``bias``."""
+    return {"primvar": primvar, "scale": (1.0, 1.0, 1.0, 1.0), "bias": (0.0, 0.0, 0.0, 0.0)}
+
+
+def _default_material(display: tuple[float, float, float] | None, name: str = "<default>",
+                      varying: bool = False) -> Material:
+    """Hydra's fallback surface: the gprim's ``displayColor`` (its mean; read per hit when it varies over the
+    gprim, ``varying``), else UsdPreviewSurface's grey."""
     if display is None:
         return Material(name=name)
-    return Material(name=name, diffuse=display)
+    maps = (dict(vertex_color_entry("displayColor"), input="diffuseColor"),) if varying else ()
+    return Material(name=name, diffuse=display, maps=maps)
 
 
 def _binding_targets(gprim: Usd.Prim) -> list[Sdf.Path]:

@@ -272,12 +272,14 @@ class SceneReader:
     def _used_textures(self) -> tuple:
         """The textures some mesh map or light uses (others, e.g. of meshes without texture coordinates, are dropped
         from the snapshot), with the indices in materials and lights renumbered."""
-        used = sorted({int(e["texture"]) for m in self.meshes for e in m.material.maps}
+        used = sorted({int(e["texture"]) for m in self.meshes for e in m.material.maps if "texture" in e}
                       | {int(i) for m in self.meshes for e in m.material.maps for _tile, i in e.get("udim", ())}
                       | {light.texture for light in self.lights if light.texture >= 0})
         index = {old: new for new, old in enumerate(used)}
 
         def renumbered(entry: dict) -> dict:
+            if "texture" not in entry:  # a colour read per vertex
+                return entry
             entry = dict(entry, texture=index[int(entry["texture"])])
             if entry.get("udim"):
                 entry["udim"] = tuple((tile, index[int(i)]) for tile, i in entry["udim"])
@@ -805,22 +807,25 @@ class SceneReader:
 
     _read_gprim = _read_mesh
 
-    def _corner_primvar(self, prim: Usd.Prim, name: str, topology) -> np.ndarray | None:  # noqa: ANN001
-        """A float2 primvar at every triangle corner (T, 3, 2), or None (reported) if it cannot be read."""
+    def _corner_primvar(self, prim: Usd.Prim, name: str, topology, components: int = 2  # noqa: ANN001
+                        ) -> np.ndarray | None:
+        """A float2 (texture coordinates) or float3 (``components`` = 3: colours) primvar at every triangle corner
+        (T, 3, components), or None (reported) if it cannot be read."""
+        what = "textures read" if components == 2 else "colour inputs read"
+        fallback = "the textures' mean values are used" if components == 2 else "their fallback values are used"
         primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar(name)
         if not primvar or not primvar.HasValue():
-            self.issue("warning", prim, f"textures read primvar {name!r}, which the mesh does not have; the "
-                       "textures' mean values are used")
+            self.issue("warning", prim, f"{what} primvar {name!r}, which the mesh does not have; {fallback}")
             return None
         values = np.asarray(primvar.ComputeFlattened(self.time), dtype=np.float64)
-        if values.ndim != 2 or values.shape[1] < 2:
-            self.issue("warning", prim, f"primvar {name!r} is not float2; the textures' mean values are used")
+        if values.ndim != 2 or values.shape[1] < components or not np.all(np.isfinite(values)):
+            self.issue("warning", prim, f"primvar {name!r} is not float{components} or not finite; {fallback}")
             return None
         interpolation = primvar.GetInterpolation()
-        at_corners = _at_corners(values[:, :2], interpolation, topology)
+        at_corners = _at_corners(values[:, :components], interpolation, topology)
         if at_corners is None:
             self.issue("warning", prim, f"primvar {name!r} has too few values for its {interpolation} "
-                       "interpolation; the textures' mean values are used")
+                       f"interpolation; {fallback}")
         return at_corners
 
     def _corner_normals(self, prim: Usd.Prim, topology) -> np.ndarray | None:  # noqa: ANN001
@@ -880,14 +885,35 @@ class SceneReader:
                 else:
                     corner = self._corner_primvar(prim, primvar, topology)
                     uvs = None if corner is None else corner.astype(np.float32)
-            if uvs is None and material.maps:
-                material = dataclasses.replace(material, maps=())
+            if uvs is None and any("primvar" not in entry for entry in material.maps):  # textures: their means
+                material = dataclasses.replace(material, maps=tuple(e for e in material.maps if "primvar" in e))
+            colors, material = self._vertex_colors(prim, material, topology)
 
             def take(array: np.ndarray | None) -> np.ndarray | None:
                 return array if array is None or part is None else array[part]
 
             self.meshes.append(Mesh(name if label is None else f"{name}#{label}", take(tris), material, take(uvs),
-                                    take(normals), front=_front_side(prim, matrix, self.time)))
+                                    take(normals), front=_front_side(prim, matrix, self.time), colors=take(colors)))
+
+    def _vertex_colors(self, prim: Usd.Prim, material: Material, topology) -> tuple[np.ndarray | None, Material]:  # noqa: ANN001
+        """The corner colours (T, 3, 3) float32 of the colour primvar the material's per-hit colour entries read
+        (``displayColor`` of Hydra's fallback surface, or a ``UsdPrimvarReader_float3``'s ``varname``), and the
+        material — without those entries (their fallback values stand) where the primvar cannot be read."""
+        names = list(dict.fromkeys(entry["primvar"] for entry in material.maps if "primvar" in entry))
+        if not names:
+            return None, material
+        if len(names) > 1:
+            self.issue("warning", prim, f"colour inputs read different primvars ({', '.join(names)}); {names[0]} is "
+                       "read for all")
+        corner = None
+        if topology is None:
+            self.issue("warning", prim, f"{prim.GetTypeName()} gprims have no per-vertex primvars; the colour "
+                       f"primvar {names[0]!r} is read as its fallback")
+        else:
+            corner = self._corner_primvar(prim, names[0], topology, components=3)
+        if corner is None:
+            return None, dataclasses.replace(material, maps=tuple(e for e in material.maps if "primvar" not in e))
+        return corner.astype(np.float32), material
 
     def _material_parts(self, prim: Usd.Prim, topology, triangles: int):  # noqa: ANN001, ANN202
         """(triangle indices or None for all, material, primvar, subset label or None) per material of the mesh:
