@@ -148,7 +148,9 @@ class Material:
             ``transmission_color``); 1 for UsdPreviewSurface, whose opacity is colourless.
         maps: textured inputs, each a dict {"input": name, "texture": index into CaptureScene.textures,
             "channels": "rgb" | "r" | "g" | "b" | "a", "scale": (4,), "bias": (4,), "fallback": (4,),
-            "wrap": (wrapS, wrapT)}; texture coordinates come from the mesh's ``uvs``. Colour inputs read per
+            "wrap": (wrapS, wrapT)} and optionally "st_transform": ((a, b, tx), (c, d, ty)), the affine map
+            applied to the coordinates first (UsdTransform2d, MaterialX place2d/tiledimage); texture coordinates
+            come from the mesh's ``uvs``. Colour inputs read per
             vertex are {"input": name, "primvar": primvar name, "scale": (4,), "bias": (4,)}: the mesh's
             ``colors`` at the hit.
     """

@@ -46,6 +46,19 @@ class SurfacePoint:
     threshold: np.ndarray
 
 
+def transformed_st(entry: dict, s: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """A map entry's texture coordinates after its ``st_transform`` ((a, b, tx), (c, d, ty)): s' = a·s + b·t + tx,
+    t' = c·s + d·t + ty (UsdTransform2d, MaterialX ``place2d`` and ``tiledimage`` tiling, composed at read time),
+    and the factor √|ad − bc| by which it scales a footprint's size in texture space (the level of detail)."""
+    transform = entry.get("st_transform")
+    if transform is None:
+        return s, t, 1.0
+    (a, b, tx), (c, d, ty) = transform
+    dtype = s.dtype.type
+    return (dtype(a) * s + dtype(b) * t + dtype(tx), dtype(c) * s + dtype(d) * t + dtype(ty),
+            float(np.sqrt(abs(a * d - b * c))))
+
+
 class MipTexture:
     """A texture as a mip pyramid of (H, W, 4) float64 levels with wrap modes, looked up trilinearly."""
 
@@ -342,9 +355,9 @@ class Surfaces:
             texture = self.entry_texture(entry)
             uv = [np.take(self._uvs_soa_f32()[i], p) for i in range(6)]
             w0 = 1 - u - v
-            s_ = w0 * uv[0] + u * uv[2] + v * uv[4]
-            t_ = w0 * uv[1] + u * uv[3] + v * uv[5]
-            density = np.take(self._uv_density32, p) * (np.take(t, sel) * spread)
+            s_, t_, stretch = transformed_st(entry, w0 * uv[0] + u * uv[2] + v * uv[4],
+                                             w0 * uv[1] + u * uv[3] + v * uv[5])
+            density = np.take(self._uv_density32, p) * (np.take(t, sel) * (spread * stretch))
             lod = np.log2(np.maximum(density * max(texture.width, texture.height), 1))
             texels = texture.lookup_soa(s_, t_, lod, tuple(entry.get("wrap", ("repeat", "repeat"))), (0, 1, 2))
             scale, bias = entry.get("scale", (1.0,) * 4), entry.get("bias", (0.0,) * 4)
@@ -413,10 +426,11 @@ class Surfaces:
                           + bv * np.take(self._colors_soa[6 + c], prim) for c in index]
             else:
                 texture = self.entry_texture(entry)
-                lod = np.log2(np.maximum(density * max(texture.width, texture.height), 1))
+                s_, t_, stretch = transformed_st(entry, s, tt)
+                lod = np.log2(np.maximum(density * (stretch * max(texture.width, texture.height)), 1))
                 channels = entry.get("channels", "rgb")
                 index = {"r": (0,), "g": (1,), "b": (2,), "a": (3,)}.get(channels, (0, 1, 2))
-                texels = texture.lookup_soa(s, tt, lod, tuple(entry.get("wrap", ("repeat", "repeat"))), index)
+                texels = texture.lookup_soa(s_, t_, lod, tuple(entry.get("wrap", ("repeat", "repeat"))), index)
             scale = entry.get("scale", (1.0, 1.0, 1.0, 1.0))
             bias = entry.get("bias", (0.0, 0.0, 0.0, 0.0))
             texels = [x * float(scale[c]) + float(bias[c]) for x, c in zip(texels, index)]
@@ -501,17 +515,19 @@ class Surfaces:
                 continue
             if "primvar" in entry:  # a colour read per vertex (RGB, alpha 1)
                 corners = self.colors[prim]
-                rgb = (1.0 - bu - bv)[:, None] * corners[:, 0] + bu[:, None] * corners[:, 1] + bv[:, None] * corners[:, 2]
+                rgb = ((1.0 - bu - bv)[:, None] * corners[:, 0] + bu[:, None] * corners[:, 1]
+                       + bv[:, None] * corners[:, 2])
                 rgba = np.concatenate([rgb, np.ones((rgb.shape[0], 1))], axis=1)
             else:
                 texture = self.entry_texture(entry)
-                size = max(texture.width, texture.height)
+                s_, t_, stretch = transformed_st(entry, st[:, 0], st[:, 1])
+                size = max(texture.width, texture.height) * stretch
                 if t is None:
                     lod = np.zeros(sel.size)
                 else:
                     footprint = np.maximum(t * spread * self.uv_density[prim] * size, 1e-12)
                     lod = np.log2(np.maximum(footprint, 1.0))
-                rgba = texture.lookup(st, lod, tuple(entry.get("wrap", ("repeat", "repeat"))))
+                rgba = texture.lookup(np.stack([s_, t_], axis=-1), lod, tuple(entry.get("wrap", ("repeat", "repeat"))))
             rgba = rgba * np.asarray(entry.get("scale", (1.0, 1.0, 1.0, 1.0))) + np.asarray(
                 entry.get("bias", (0.0, 0.0, 0.0, 0.0)))
             value = _channels(rgba, entry.get("channels", "rgb"))

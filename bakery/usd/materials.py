@@ -23,10 +23,11 @@ Inputs
     (``useMetadata`` = repeat: image files carry no wrap metadata we read), ``fallback``, the output's channels,
     and texture coordinates from the ``UsdPrimvarReader_float2`` on its ``st`` input (any ``varname``; default
     ``st``). The material's constant value for such an input is the texture's mean (used where a mesh has no
-    texture coordinates, and for reports). Colour inputs connected to a ``UsdPrimvarReader_float3`` read the
-    primvar per hit (a map entry with a ``primvar``: the mesh's corner colours, ``Mesh.colors``, interpolated
-    with the hit's barycentrics; the reader's fallback where the mesh lacks it); other primvar readers give their
-    fallback (reported).
+    texture coordinates, and for reports). UsdTransform2d nodes between the reader and the texture are composed
+    into the entry's ``st_transform`` (st' = R(rotation)·(scale ⊙ st) + translation, R counter-clockwise). Colour
+    inputs connected to a ``UsdPrimvarReader_float3`` read the primvar per hit (a map entry with a ``primvar``: the
+    mesh's corner colours, ``Mesh.colors``, interpolated with the hit's barycentrics; the reader's fallback where
+    the mesh lacks it); other primvar readers give their fallback (reported).
 
 Colour
     ``sourceColorSpace`` "sRGB" decodes sRGB; "raw" leaves data alone; "auto" decodes 8-bit images as sRGB and
@@ -179,6 +180,11 @@ class MaterialReader:
                 surface.notes.append(f"{name} is not modelled by the capture")
         self._preview_input(shader, "normal", (0.0, 0.0, 1.0), surface)  # a tangent-space normal map
         entry = surface.maps.get("normal")
+        if entry is not None and "st_transform" in entry:
+            (a, b, _tx), (c, d, _ty) = entry["st_transform"]
+            if b != 0 or c != 0 or a <= 0 or d <= 0:
+                surface.notes.append("the normal map's texture coordinates are rotated or mirrored (UsdTransform2d); "
+                                     "its tangent frame is that of the untransformed coordinates")
         index = -1 if entry is None else int(entry["texture"])
         if 0 <= index < len(self.textures) and self.textures[index].color_space == "srgb_texture":
             surface.notes.append("normal map decoded as sRGB (sourceColorSpace sRGB, or auto on an 8-bit file, as "
@@ -225,6 +231,13 @@ class MaterialReader:
             output = UsdShade.Output(attr)
             return None, UsdShade.Shader(output.GetPrim()), output.GetBaseName()
         return attr.Get(self.time), None, None
+
+    def _input_value(self, shader: UsdShade.Shader, name: str, fallback):  # noqa: ANN001, ANN202
+        """An input's value through its connections to interface inputs (not computed by a shader), else
+        ``fallback``."""
+        shader_input = shader.GetInput(name)
+        value = self._producer(shader_input)[0] if shader_input else None
+        return fallback if value is None else value
 
     def _preview_input(self, shader: UsdShade.Shader, name: str, fallback, surface: Surface) -> None:  # noqa: ANN001
         shader_input = shader.GetInput(name)
@@ -305,15 +318,32 @@ class MaterialReader:
         mean_out = float(mean[{"r": 0, "g": 1, "b": 2, "a": 3}[channels]]) if channels != "rgb" else mean[:3]
         primvar = "st"
         st_input = texture.GetInput("st")
-        if st_input:
+        transform = None  # UsdTransform2d nodes between the reader and the texture, composed
+        for _ in range(8):
+            if not st_input:
+                break
             _value, reader, _out = self._producer(st_input)
-            if reader is not None and (reader.GetShaderId() or "").startswith("UsdPrimvarReader"):
+            reader_id = (reader.GetShaderId() or "") if reader is not None else ""
+            if reader_id == "UsdTransform2d":
+                inner = transform2d_affine(self._input_value(reader, "scale", (1.0, 1.0)),
+                                           float(self._input_value(reader, "rotation", 0.0)),
+                                           self._input_value(reader, "translation", (0.0, 0.0)))
+                transform = inner if transform is None else compose_affine(transform, inner)
+                st_input = reader.GetInput("in")
+                continue
+            if reader_id.startswith("UsdPrimvarReader"):
                 varname = reader.GetInput("varname")
                 name = self._producer(varname)[0] if varname else None
                 if name:
                     primvar = str(name)
+            elif reader is not None:
+                self._warn_once(path, f"st is computed by {reader_id or 'an untyped shader'}, which the capture does "
+                                "not evaluate; the primvar st is read")
+            break
         entry = {"texture": index, "channels": channels, "scale": tuple(map(float, scale)),
                  "bias": tuple(map(float, bias)), "fallback": tuple(map(float, fallback)), "wrap": wrap}
+        if transform is not None and transform != IDENTITY_AFFINE:
+            entry["st_transform"] = transform
         if udim_tiles:
             entry["udim"] = udim_tiles
         return entry, mean_out, primvar
@@ -472,6 +502,27 @@ def _display_color(gprim: Usd.Prim, time: Usd.TimeCode = _T) -> tuple[tuple[floa
     varying = (gprim.IsA(UsdGeom.Mesh) and primvar.GetInterpolation() != UsdGeom.Tokens.constant
                and bool(np.any(colours != colours[0])))
     return tuple(float(x) for x in colours.mean(axis=0)), varying
+
+
+#: The identity of :func:`transform2d_affine` and :func:`compose_affine`: ((a, b, tx), (c, d, ty)).
+IDENTITY_AFFINE = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
+
+
+def transform2d_affine(scale, rotation: float, translation) -> tuple[tuple[float, float, float], ...]:  # noqa: ANN001
+    """UsdTransform2d as an affine map of texture coordinates: st' = R(rotation)·(scale ⊙ st) + translation, R
+    counter-clockwise by ``rotation`` degrees about the origin (UsdPreviewSurface specification: "in * scale *
+    rotate + translation")."""
+    sx, sy = (float(x) for x in scale)
+    c, s = np.cos(np.radians(rotation)), np.sin(np.radians(rotation))
+    tx, ty = (float(x) for x in translation)
+    return ((float(c * sx), float(-s * sy), tx), (float(s * sx), float(c * sy), ty))
+
+
+def compose_affine(outer, inner) -> tuple[tuple[float, float, float], ...]:  # noqa: ANN001
+    """outer ∘ inner of two affine maps ((a, b, tx), (c, d, ty)) (inner applied first)."""
+    m = np.vstack([np.asarray(outer, dtype=np.float64), [0.0, 0.0, 1.0]]) @ np.vstack(
+        [np.asarray(inner, dtype=np.float64), [0.0, 0.0, 1.0]])
+    return tuple(tuple(float(x) for x in row) for row in m[:2])
 
 
 def vertex_color_entry(primvar: str) -> dict:

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bakery.usd.materials import COLOR_INPUTS, Surface, udim_tile_size
+from bakery.usd.materials import COLOR_INPUTS, IDENTITY_AFFINE, Surface, compose_affine, udim_tile_size
 
 _SUPPORTED = ("standard_surface", "open_pbr_surface", "UsdPreviewSurface", "gltf_pbr")
 #: Lobe weights the capture does not model: (input, neutral value).
@@ -54,7 +54,8 @@ _TRANSMISSION = {"standard_surface": ("transmission", "metalness"),
 #: (colour that tints the transmitted light, Beer's-law depth input or None): MaterialX's ``dielectric_bsdf`` tint of
 #: each surface's transmission lobe (``gltf_pbr``: ``base_color``, as KHR_materials_transmission)
 _TRANSMISSION_TINT = {"standard_surface": ("transmission_color", "transmission_depth"),
-                      "open_pbr_surface": ("transmission_color", "transmission_depth"), "gltf_pbr": ("base_color", None)}
+                      "open_pbr_surface": ("transmission_color", "transmission_depth"),
+                      "gltf_pbr": ("base_color", None)}
 
 
 class MaterialXError(ValueError):
@@ -315,12 +316,73 @@ def _image_map(reader, node, base_dir: Path, is_color: bool, prim: str) -> dict 
     wrap = tuple(modes.get((node.getInputValue(a) or "periodic"), "repeat") for a in ("uaddressmode", "vaddressmode"))
     default = node.getInputValue("default")
     mean = reader.texture_mean(index)
-    return {"texture": index, "channels": "rgb" if node.getType() in ("color3", "color4", "vector3") else "r",
+    entry = {"texture": index, "channels": "rgb" if node.getType() in ("color3", "color4", "vector3") else "r",
             "scale": (1.0, 1.0, 1.0, 1.0), "bias": (0.0, 0.0, 0.0, 0.0),
             "fallback": tuple(np.broadcast_to(np.asarray(_py(default) if default is not None else 0.0, dtype=float),
                                               4).tolist()) if default is not None and np.ndim(_py(default)) <= 1
             and np.size(_py(default)) in (1, 4) else (0.0, 0.0, 0.0, 1.0),
             "wrap": wrap, "_mean": tuple(mean[:3].tolist()), **_udim_fields(reader, tiles)}
+    return _with_transform(entry, _document_st_transform(node, lambda message: reader._warn_once(prim, message)))
+
+
+def place2d_affine(pivot, scale, rotate: float, offset, order: int = 0) -> tuple[tuple[float, float, float], ...]:  # noqa: ANN001
+    """MaterialX ``place2d`` (stdlib NG_place2d_vector2) as an affine map of texture coordinates, R the
+    ``rotate2d`` matrix [[c, s], [−s, c]] of ``rotate`` degrees: order 0 (SRT) out = R·((tc − pivot)/scale) −
+    offset + pivot; order 1 (TRS) out = R·((tc − pivot) − offset)/scale + pivot."""
+    p, o = np.asarray(pivot, dtype=np.float64), np.asarray(offset, dtype=np.float64)
+    inverse_scale = np.diag(1.0 / np.asarray(scale, dtype=np.float64))
+    c, s = np.cos(np.radians(rotate)), np.sin(np.radians(rotate))
+    rotation = np.array([[c, s], [-s, c]])
+    if int(order) == 1:
+        linear = inverse_scale @ rotation
+        shift = -linear @ (p + o) + p
+    else:
+        linear = rotation @ inverse_scale
+        shift = -linear @ p - o + p
+    return tuple(tuple(float(x) for x in (*linear[k], shift[k])) for k in range(2))
+
+
+def tiled_affine(uvtiling, uvoffset, image_size=(1.0, 1.0), tile_size=(1.0, 1.0)  # noqa: ANN001
+                 ) -> tuple[tuple[float, float, float], ...]:
+    """MaterialX ``tiledimage`` (stdlib NG_tiledimage): tc' = (tc·uvtiling − uvoffset) / realworldimagesize ·
+    realworldtilesize, as an affine map."""
+    k = np.asarray(tile_size, dtype=np.float64) / np.asarray(image_size, dtype=np.float64)
+    a, d = np.asarray(uvtiling, dtype=np.float64) * k
+    tx, ty = -np.asarray(uvoffset, dtype=np.float64) * k
+    return ((float(a), 0.0, float(tx)), (0.0, float(d), float(ty)))
+
+
+def _with_transform(entry: dict, transform) -> dict:  # noqa: ANN001
+    """``entry`` with its texture-coordinate transform (None or the identity: none)."""
+    if transform is not None and transform != IDENTITY_AFFINE:
+        entry["st_transform"] = transform
+    return entry
+
+
+def _document_st_transform(node, warn):  # noqa: ANN001, ANN202
+    """The affine texture-coordinate transform of a document's ``image``/``tiledimage`` node: its tiling, after a
+    ``place2d`` on its ``texcoord`` (whose own texcoord is the geometry's), or None."""
+    def value(n, name: str, fallback):  # noqa: ANN001, ANN202
+        v = n.getInputValue(name)
+        return fallback if v is None else _py(v)
+
+    transform = None
+    if node.getCategory() == "tiledimage":
+        transform = tiled_affine(value(node, "uvtiling", (1.0, 1.0)), value(node, "uvoffset", (0.0, 0.0)),
+                                 value(node, "realworldimagesize", (1.0, 1.0)),
+                                 value(node, "realworldtilesize", (1.0, 1.0)))
+    texcoord = node.getInput("texcoord")
+    upstream = texcoord.getConnectedNode() if texcoord is not None else None
+    if upstream is not None and upstream.getCategory() == "place2d":
+        place = place2d_affine(value(upstream, "pivot", (0.0, 0.0)), value(upstream, "scale", (1.0, 1.0)),
+                               float(value(upstream, "rotate", 0.0)), value(upstream, "offset", (0.0, 0.0)),
+                               int(value(upstream, "operationorder", 0)))
+        transform = place if transform is None else compose_affine(transform, place)
+        inner = upstream.getInput("texcoord")
+        upstream = inner.getConnectedNode() if inner is not None else None
+    if upstream is not None and upstream.getCategory() != "texcoord":
+        warn(f"texture coordinates computed by a {upstream.getCategory()} node are read as the mesh's")
+    return transform
 
 
 def _udim_fields(reader, tiles: tuple[tuple[int, int], ...]) -> dict:  # noqa: ANN001
@@ -423,6 +485,28 @@ def _usd_image_map(reader, node, is_color: bool) -> dict | None:  # noqa: ANN001
     for a in ("uaddressmode", "vaddressmode"):
         inp = node.GetInput(a)
         wrap.append(modes.get(str(inp.Get(reader.time)) if inp and inp.Get(reader.time) else "periodic", "repeat"))
-    return {"texture": index, "channels": "rgb" if is_color else "r", "scale": (1.0, 1.0, 1.0, 1.0),
+    entry = {"texture": index, "channels": "rgb" if is_color else "r", "scale": (1.0, 1.0, 1.0, 1.0),
             "bias": (0.0, 0.0, 0.0, 0.0), "fallback": (0.0, 0.0, 0.0, 1.0), "wrap": tuple(wrap),
             "_mean": tuple(reader.texture_mean(index)[:3].tolist()), **_udim_fields(reader, tiles)}
+    return _with_transform(entry, _usd_st_transform(reader, node))
+
+
+def _usd_st_transform(reader, node):  # noqa: ANN001, ANN202
+    """:func:`_document_st_transform` for ``ND_image``/``ND_tiledimage`` shaders authored in USD (a
+    ``ND_place2d_vector2`` shader on their ``texcoord``)."""
+    transform = None
+    if (node.GetShaderId() or "").startswith("ND_tiledimage_"):
+        transform = tiled_affine(reader._input_value(node, "uvtiling", (1.0, 1.0)),
+                                 reader._input_value(node, "uvoffset", (0.0, 0.0)),
+                                 reader._input_value(node, "realworldimagesize", (1.0, 1.0)),
+                                 reader._input_value(node, "realworldtilesize", (1.0, 1.0)))
+    texcoord = node.GetInput("texcoord")
+    upstream = reader._producer(texcoord)[1] if texcoord else None
+    if upstream is not None and (upstream.GetShaderId() or "").startswith("ND_place2d_"):
+        place = place2d_affine(reader._input_value(upstream, "pivot", (0.0, 0.0)),
+                               reader._input_value(upstream, "scale", (1.0, 1.0)),
+                               float(reader._input_value(upstream, "rotate", 0.0)),
+                               reader._input_value(upstream, "offset", (0.0, 0.0)),
+                               int(reader._input_value(upstream, "operationorder", 0)))
+        transform = place if transform is None else compose_affine(transform, place)
+    return transform

@@ -1,0 +1,190 @@
+"""Texture-coordinate transforms: UsdTransform2d between the primvar reader and a UsdUVTexture (specification:
+st' = R(rotation, counter-clockwise)·(scale ⊙ st) + translation), MaterialX ``tiledimage`` tiling and ``place2d``
+(stdlib: R = rotate2d's [[c, s], [−s, c]], out = R·((tc − pivot)/scale) − offset + pivot). Closed forms on an
+emissive floor whose texture is red for s < ½ and blue for s > ½ (repeat): the colour straight below a probe is the
+texture at the transformed coordinates of the point it looks at."""
+
+from __future__ import annotations
+
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+from usd_scenes import header, probe, write
+
+from bakery.capture import capture_probes
+from bakery.sphere.cubemap import cube_texel_directions
+from bakery.usd.mtlx import place2d_affine
+from bakery.usd.scene import read_scene
+
+RED, BLUE = (1.0, 0.0, 0.0), (0.0, 0.0, 1.0)
+
+
+def _halves(path) -> str:
+    pixels = np.zeros((64, 64, 3), dtype=np.float32)
+    pixels[:, :32] = RED
+    pixels[:, 32:] = BLUE
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), oiio.ImageSpec(64, 64, 3, oiio.FLOAT))
+    out.write_image(pixels)
+    out.close()
+    return path.name
+
+
+def _floor(material: str) -> str:
+    """A 2 m square floor at y = 0, st = ((x + 1)/2, (1 − z)/2) (t grows towards −z), emitting its texture."""
+    return material + """
+def Mesh "Floor" (
+    prepend apiSchemas = ["MaterialBindingAPI"]
+)
+{
+    int[] faceVertexCounts = [4]
+    int[] faceVertexIndices = [0, 1, 2, 3]
+    point3f[] points = [(-1, 0, 1), (1, 0, 1), (1, 0, -1), (-1, 0, -1)]
+    texCoord2f[] primvars:st = [(0, 0), (1, 0), (1, 1), (0, 1)] (
+        interpolation = "vertex"
+    )
+    rel material:binding = </Glow>
+}
+"""
+
+
+def _preview(file: str, transform: str) -> str:
+    st = "float2 inputs:st.connect = </Glow/Transform.outputs:result>" if transform else \
+        "float2 inputs:st.connect = </Glow/Reader.outputs:result>"
+    transform_shader = f"""
+    def Shader "Transform"
+    {{
+        uniform token info:id = "UsdTransform2d"
+        float2 inputs:in.connect = </Glow/Reader.outputs:result>
+        {transform}
+        float2 outputs:result
+    }}""" if transform else ""
+    return f"""
+def Material "Glow"
+{{
+    token outputs:surface.connect = </Glow/Surface.outputs:surface>
+    def Shader "Surface"
+    {{
+        uniform token info:id = "UsdPreviewSurface"
+        color3f inputs:diffuseColor = (0, 0, 0)
+        int inputs:useSpecularWorkflow = 1
+        color3f inputs:specularColor = (0, 0, 0)
+        color3f inputs:emissiveColor.connect = </Glow/Texture.outputs:rgb>
+        token outputs:surface
+    }}
+    def Shader "Texture"
+    {{
+        uniform token info:id = "UsdUVTexture"
+        asset inputs:file = @{file}@
+        token inputs:sourceColorSpace = "raw"
+        {st}
+        float3 outputs:rgb
+    }}
+    def Shader "Reader"
+    {{
+        uniform token info:id = "UsdPrimvarReader_float2"
+        string inputs:varname = "st"
+        float2 outputs:result
+    }}{transform_shader}
+}}
+"""
+
+
+def _materialx(file: str, image: str, place: str = "") -> str:
+    """standard_surface emission from an ND_image / ND_tiledimage (``image``: its id and inputs), optionally
+    through an ND_place2d_vector2 on its texcoord."""
+    texcoord = "float2 inputs:texcoord.connect = </Glow/Place.outputs:out>" if place else ""
+    place_shader = f"""
+    def Shader "Place"
+    {{
+        uniform token info:id = "ND_place2d_vector2"
+        {place}
+        float2 outputs:out
+    }}""" if place else ""
+    image_id, image_inputs = image
+    return f"""
+def Material "Glow"
+{{
+    token outputs:mtlx:surface.connect = </Glow/Surf.outputs:out>
+    def Shader "Surf"
+    {{
+        uniform token info:id = "ND_standard_surface_surfaceshader"
+        float inputs:base = 0
+        float inputs:specular = 0
+        float inputs:emission = 1
+        color3f inputs:emission_color.connect = </Glow/Image.outputs:out>
+        token outputs:out
+    }}
+    def Shader "Image"
+    {{
+        uniform token info:id = "{image_id}"
+        asset inputs:file = @{file}@
+        {image_inputs}
+        {texcoord}
+        color3f outputs:out
+    }}{place_shader}
+}}
+"""
+
+
+#: probes above floor points (x, z) ↔ st = ((x + 1)/2, (1 − z)/2)
+POINTS = [(-0.4, 0.5), (0.4, 0.5), (-0.4, -0.5), (0.4, -0.5)]
+
+
+def _seen(tmp_path, material: str) -> list[np.ndarray]:
+    text = header() + _floor(material) + "".join(probe(f"P{k}", (x, 0.05, z)) for k, (x, z) in enumerate(POINTS))
+    reading = read_scene(write(tmp_path / "scene.usda", text))
+    assert not reading.errors, reading.errors
+    cubes, _ = capture_probes(reading.scene, 16, samples=4, bounces=0)
+    d = cube_texel_directions(16)
+    down = np.unravel_index(np.argmin(d[..., 1]), d.shape[:3])
+    return [cube[down].astype(np.float64) for cube in cubes]
+
+
+def _expected(transform) -> list[tuple[float, float, float]]:  # noqa: ANN001 - st → st'
+    colours = []
+    for x, z in POINTS:
+        s, _t = transform((x + 1) / 2, (1 - z) / 2)
+        colours.append(RED if (s % 1.0) < 0.5 else BLUE)
+    return colours
+
+
+@pytest.mark.parametrize(("inputs", "transform"), [
+    ("", lambda s, t: (s, t)),
+    ("float2 inputs:translation = (0.5, 0)", lambda s, t: (s + 0.5, t)),
+    ("float2 inputs:scale = (2, 1)", lambda s, t: (2 * s, t)),
+    ("float inputs:rotation = 90", lambda s, t: (-t, s)),  # counter-clockwise: (s, t) ↦ (−t, s)
+])
+def test_usd_transform2d(tmp_path, inputs, transform):
+    file = _halves(tmp_path / "halves.exr")
+    seen = _seen(tmp_path, _preview(file, inputs))
+    np.testing.assert_allclose(seen, _expected(transform), atol=1e-3)
+
+
+@pytest.mark.parametrize(("image", "place", "transform"), [
+    (("ND_tiledimage_color3", "float2 inputs:uvtiling = (2, 1)"), "", lambda s, t: (2 * s, t)),
+    (("ND_tiledimage_color3", "float2 inputs:uvoffset = (0.5, 0)"), "", lambda s, t: (s - 0.5, t)),
+    (("ND_image_color3", ""), "float2 inputs:offset = (0.5, 0)", lambda s, t: (s - 0.5, t)),
+    (("ND_image_color3", ""), "float inputs:rotate = 90", lambda s, t: (t, -s)),  # rotate2d: (s, t) ↦ (t, −s)
+    (("ND_image_color3", ""), "float2 inputs:scale = (0.5, 1)", lambda s, t: (2 * s, t)),
+])
+def test_materialx_tiling_and_place2d(tmp_path, image, place, transform):
+    file = _halves(tmp_path / "halves.exr")
+    seen = _seen(tmp_path, _materialx(file, image, place))
+    np.testing.assert_allclose(seen, _expected(transform), atol=1e-3)
+
+
+def test_place2d_pivot_and_order_follow_the_stdlib_graph():
+    """The affine map against the stdlib node graph evaluated step by step (subtract pivot, divide by scale,
+    rotate2d, subtract offset, add pivot; TRS: offset before rotate and scale)."""
+    def rotate2d(v, degrees):  # noqa: ANN001, ANN202 - mx_rotate_vector2
+        c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
+        return np.array([c * v[0] + s * v[1], -s * v[0] + c * v[1]])
+
+    pivot, scale, rotate, offset = np.array([0.3, 0.6]), np.array([2.0, 0.5]), 30.0, np.array([0.1, -0.2])
+    tc = np.array([0.7, 0.2])
+    srt = rotate2d((tc - pivot) / scale, rotate) - offset + pivot
+    trs = rotate2d((tc - pivot) - offset, rotate) / scale + pivot
+    for order, expected in ((0, srt), (1, trs)):
+        (a, b, tx), (c, d, ty) = place2d_affine(pivot, scale, rotate, offset, order)
+        np.testing.assert_allclose([a * tc[0] + b * tc[1] + tx, c * tc[0] + d * tc[1] + ty], expected, atol=1e-12)
