@@ -38,6 +38,27 @@ def Material "{name}"
 """
 
 
+def glowing_material(name: str, emission_source: str, shaders: str) -> str:
+    """A black, specular-free UsdPreviewSurface (the probe sees exactly its emission) whose emissiveColor is
+    connected to ``emission_source`` (e.g. ``</Glow/Texture.outputs:rgb>``), with the upstream ``shaders`` (usda
+    text of the material's other Shader prims)."""
+    return f"""
+def Material "{name}"
+{{
+    token outputs:surface.connect = </{name}/Surface.outputs:surface>
+    def Shader "Surface"
+    {{
+        uniform token info:id = "UsdPreviewSurface"
+        color3f inputs:diffuseColor = (0, 0, 0)
+        int inputs:useSpecularWorkflow = 1
+        color3f inputs:specularColor = (0, 0, 0)
+        color3f inputs:emissiveColor.connect = {emission_source}
+        token outputs:surface
+    }}{shaders}
+}}
+"""
+
+
 def mtlx_material(name: str, shader_id: str, inputs: str) -> str:
     """A MaterialX surface authored in USD (a ``mtlx`` surface output of a shader ``shader_id``, e.g.
     ``ND_standard_surface_surfaceshader``); ``inputs``: its authored inputs (usda lines)."""

@@ -21,7 +21,8 @@ Mapping (metallic workflow of the capture; see ``docs/capture.md``)
     with the node's file, ``colorspace`` (colour inputs are converted with OpenColorIO), address modes and default;
     a scalar weight multiplying a textured colour (base · base_color) folds into the map's scale. Lobes the
     capture cannot represent (coat colour, sheen, subsurface, thin film, specular weight/colour ≠ 1, object-space
-    normal maps, other node types in a graph) are reported; a tangent-space ``normalmap`` of an image is a normal
+    normal maps, other node types in a graph) are reported; a colour input fed by ``geompropvalue`` reads that
+    primvar per hit (vertex colours); image coordinates follow ``tiledimage`` tiling and a ``place2d``; a tangent-space ``normalmap`` of an image is a normal
     map (2·in − 1, x and y times its ``scale``). Transmission is read as thin, straight pass-through: the
     presence (opacity) is multiplied by 1 − transmission·(1 − metalness), and the light that passes is tinted by
     the transmission colour (reported: no refraction, no reflection of the transmitted light).
@@ -34,7 +35,14 @@ from pathlib import Path
 
 import numpy as np
 
-from bakery.usd.materials import COLOR_INPUTS, IDENTITY_AFFINE, Surface, compose_affine, udim_tile_size
+from bakery.usd.materials import (
+    COLOR_INPUTS,
+    IDENTITY_AFFINE,
+    Surface,
+    compose_affine,
+    udim_tile_size,
+    vertex_color_entry,
+)
 
 _SUPPORTED = ("standard_surface", "open_pbr_surface", "UsdPreviewSurface", "gltf_pbr")
 #: Lobe weights the capture does not model: (input, neutral value).
@@ -164,7 +172,7 @@ def _to_surface(category: str, values: dict[str, object], maps: dict[str, dict],
         put(target, colour_input, weight_input, scalar)
     if category in _TRANSMISSION:
         _transmission_as_presence(category, d, maps, surface)
-    surface.primvar = "st" if surface.maps else None
+    surface.primvar = "st" if any("primvar" not in entry for entry in surface.maps.values()) else None
     return surface
 
 
@@ -246,6 +254,10 @@ def surface_from_document(reader, document: str, material_name: str, prim: str) 
             entry = _document_normal_map(reader, upstream, base_dir, prim, notes)
             if entry is not None:
                 maps[name] = entry
+            continue
+        if upstream.getCategory() == "geompropvalue" and upstream.getType() in ("color3", "vector3") \
+                and upstream.getInputValue("geomprop"):  # a colour primvar read per hit
+            maps[name] = vertex_color_entry(str(upstream.getInputValue("geomprop")))
             continue
         if upstream.getCategory() not in ("image", "tiledimage"):
             notes.append(f"input {name} is computed by a {upstream.getCategory()} node, which the capture does not "
@@ -424,6 +436,11 @@ def surface_from_usd_shader(reader, shader, shader_id: str) -> Surface | None:  
             if entry is not None:
                 maps[name] = entry
             continue
+        if upstream_id in ("ND_geompropvalue_color3", "ND_geompropvalue_vector3"):  # a colour primvar per hit
+            primvar = reader._input_value(upstream, "geomprop", "")
+            if primvar:
+                maps[name] = vertex_color_entry(str(primvar))
+                continue
         notes.append(f"input {name} is computed by {upstream_id or 'an untyped shader'}, which the capture does not "
                      "evaluate; its default is used")
     return _to_surface(category, values, maps, notes)

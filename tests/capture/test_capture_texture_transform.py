@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import OpenImageIO as oiio
 import pytest
-from usd_scenes import header, probe, write
+from usd_scenes import glowing_material, header, probe, write
 
 from bakery.capture import capture_probes
 from bakery.sphere.cubemap import cube_texel_directions
@@ -59,19 +59,7 @@ def _preview(file: str, transform: str) -> str:
         {transform}
         float2 outputs:result
     }}""" if transform else ""
-    return f"""
-def Material "Glow"
-{{
-    token outputs:surface.connect = </Glow/Surface.outputs:surface>
-    def Shader "Surface"
-    {{
-        uniform token info:id = "UsdPreviewSurface"
-        color3f inputs:diffuseColor = (0, 0, 0)
-        int inputs:useSpecularWorkflow = 1
-        color3f inputs:specularColor = (0, 0, 0)
-        color3f inputs:emissiveColor.connect = </Glow/Texture.outputs:rgb>
-        token outputs:surface
-    }}
+    return glowing_material("Glow", "</Glow/Texture.outputs:rgb>", f"""
     def Shader "Texture"
     {{
         uniform token info:id = "UsdUVTexture"
@@ -85,9 +73,7 @@ def Material "Glow"
         uniform token info:id = "UsdPrimvarReader_float2"
         string inputs:varname = "st"
         float2 outputs:result
-    }}{transform_shader}
-}}
-"""
+    }}{transform_shader}""")
 
 
 def _materialx(file: str, image: str, place: str = "") -> str:

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from usd_scenes import header, probe, write
+from usd_scenes import glowing_material, header, probe, write
 
 from bakery.capture import capture_probes
 from bakery.capture.snapshot import read_capture_scene, write_capture_scene
@@ -19,28 +19,14 @@ N = 16
 
 def _glowing(primvar: str = "Cd", fallback=(0.3, 0.3, 0.3)) -> str:
     """A black, specular-free surface whose emission reads the colour primvar ``primvar``."""
-    return f"""
-def Material "Glow"
-{{
-    token outputs:surface.connect = </Glow/Surface.outputs:surface>
-    def Shader "Surface"
-    {{
-        uniform token info:id = "UsdPreviewSurface"
-        color3f inputs:diffuseColor = (0, 0, 0)
-        int inputs:useSpecularWorkflow = 1
-        color3f inputs:specularColor = (0, 0, 0)
-        color3f inputs:emissiveColor.connect = </Glow/Reader.outputs:result>
-        token outputs:surface
-    }}
+    return glowing_material("Glow", "</Glow/Reader.outputs:result>", f"""
     def Shader "Reader"
     {{
         uniform token info:id = "UsdPrimvarReader_float3"
         string inputs:varname = "{primvar}"
         float3 inputs:fallback = {fallback}
         float3 outputs:result
-    }}
-}}
-"""
+    }}""")
 
 
 def _floor(colours: str, interpolation: str, material: str = "/Glow", primvar: str = "Cd") -> str:
@@ -142,3 +128,64 @@ def test_colours_survive_the_worker_snapshot(tmp_path):
     (mesh,) = read_capture_scene(tmp_path / "snapshot").meshes
     np.testing.assert_array_equal(mesh.colors, reading.scene.meshes[0].colors)
     assert mesh.material == reading.scene.meshes[0].material
+
+
+GEOMPROP_MTLX = """<?xml version="1.0"?>
+<materialx version="1.39">
+  <geompropvalue name="cd" type="color3">
+    <input name="geomprop" type="string" value="Cd" />
+  </geompropvalue>
+  <standard_surface name="SR_glow" type="surfaceshader">
+    <input name="base" type="float" value="0" />
+    <input name="specular" type="float" value="0" />
+    <input name="emission" type="float" value="1" />
+    <input name="emission_color" type="color3" nodename="cd" />
+  </standard_surface>
+  <surfacematerial name="Glow" type="material">
+    <input name="surfaceshader" type="surfaceshader" nodename="SR_glow" />
+  </surfacematerial>
+</materialx>
+"""
+
+
+@pytest.mark.parametrize("authored", ["usd", "document"])
+def test_materialx_geompropvalue_reads_the_primvar_per_hit(tmp_path, authored):
+    """MaterialX's geompropvalue (color3) of a primvar: the same per-face colours as UsdPrimvarReader_float3, for
+    a standard_surface authored in USD and one in a .mtlx document."""
+    left, right = (0.9, 0.2, 0.1), (0.1, 0.3, 0.8)
+    if authored == "usd":
+        material = """
+def Material "Glow"
+{
+    token outputs:mtlx:surface.connect = </Glow/Surf.outputs:out>
+    def Shader "Surf"
+    {
+        uniform token info:id = "ND_standard_surface_surfaceshader"
+        float inputs:base = 0
+        float inputs:specular = 0
+        float inputs:emission = 1
+        color3f inputs:emission_color.connect = </Glow/Cd.outputs:out>
+        token outputs:out
+    }
+    def Shader "Cd"
+    {
+        uniform token info:id = "ND_geompropvalue_color3"
+        string inputs:geomprop = "Cd"
+        color3f outputs:out
+    }
+}
+"""
+        binding = "/Glow"
+    else:
+        (tmp_path / "glow.mtlx").write_text(GEOMPROP_MTLX)
+        material = 'def Scope "Looks" (\n    references = @./glow.mtlx@</MaterialX>\n)\n{\n}\n'
+        binding = "/Looks/Materials/Glow"
+    text = header() + material + _floor(f"{left}, {right}", "uniform", material=binding) + probe("P", (0.0, 1.0, 0.0))
+    cube, reading = _capture(tmp_path, text)
+    assert [e.get("primvar") for e in reading.scene.meshes[0].material.maps] == ["Cd"]
+    assert not [i for i in reading.issues if "'st'" in i.message], reading.issues
+    d = cube_texel_directions(N)
+    x_at_floor = d[..., 0] / np.maximum(-d[..., 1], 1e-9)
+    down = d[..., 1] < -0.5
+    for side, colour in ((x_at_floor < -0.15, left), (x_at_floor > 0.15, right)):
+        np.testing.assert_allclose(cube[down & side], np.broadcast_to(colour, ((down & side).sum(), 3)), rtol=1e-5)
