@@ -21,9 +21,11 @@ Mapping (metallic workflow of the capture; see ``docs/capture.md``)
     with the node's file, ``colorspace`` (colour inputs are converted with OpenColorIO), address modes and default;
     a scalar weight multiplying a textured colour (base · base_color) folds into the map's scale. Lobes the
     capture cannot represent (coat colour, sheen, subsurface, thin film, specular weight/colour ≠ 1, object-space
-    normal maps, other node types in a graph) are reported; a colour input fed by ``geompropvalue`` reads that
-    primvar per hit (vertex colours); image coordinates follow ``tiledimage`` tiling and a ``place2d``; a tangent-space ``normalmap`` of an image is a normal
-    map (2·in − 1, x and y times its ``scale``). Transmission is read as thin, straight pass-through: the
+    normal maps, other node types in a graph) are reported; chains of ``multiply``/``add``/``subtract``/``mix``
+    with constant operands over one image (or ``geompropvalue``) fold into the map's scale and bias
+    (:func:`fold_affine`); a colour input fed by ``geompropvalue`` reads that primvar per hit (vertex colours);
+    image coordinates follow ``tiledimage`` tiling and a ``place2d``; a tangent-space ``normalmap`` of an image is
+    a normal map (2·in − 1, x and y times its ``scale``). Transmission is read as thin, straight pass-through: the
     presence (opacity) is multiplied by 1 − transmission·(1 − metalness), and the light that passes is tinted by
     the transmission colour (reported: no refraction, no reflection of the transmitted light).
 """
@@ -58,7 +60,8 @@ _UNMODELLED = {
 #: (transmission weight, metalness) inputs: transmission is modelled as thin, straight pass-through — the surface's
 #: presence (opacity) is multiplied by 1 − t·(1 − metalness), the share of the base that is not transmitted
 _TRANSMISSION = {"standard_surface": ("transmission", "metalness"),
-                 "open_pbr_surface": ("transmission_weight", "base_metalness"), "gltf_pbr": ("transmission", "metallic")}
+                 "open_pbr_surface": ("transmission_weight", "base_metalness"),
+                 "gltf_pbr": ("transmission", "metallic")}
 #: (colour that tints the transmitted light, Beer's-law depth input or None): MaterialX's ``dielectric_bsdf`` tint of
 #: each surface's transmission lobe (``gltf_pbr``: ``base_color``, as KHR_materials_transmission)
 _TRANSMISSION_TINT = {"standard_surface": ("transmission_color", "transmission_depth"),
@@ -255,18 +258,22 @@ def surface_from_document(reader, document: str, material_name: str, prim: str) 
             if entry is not None:
                 maps[name] = entry
             continue
-        if upstream.getCategory() == "geompropvalue" and upstream.getType() in ("color3", "vector3") \
-                and upstream.getInputValue("geomprop"):  # a colour primvar read per hit
-            maps[name] = vertex_color_entry(str(upstream.getInputValue("geomprop")))
-            continue
-        if upstream.getCategory() not in ("image", "tiledimage"):
+        folded = fold_affine(upstream, lambda node: node.getCategory(), _document_operand)
+        if folded is None:
             notes.append(f"input {name} is computed by a {upstream.getCategory()} node, which the capture does not "
                          "evaluate; its default is used")
             continue
-        entry = _image_map(reader, upstream, base_dir, name in ("base_color", "emission_color", "diffuseColor",
-                                                               "emissiveColor", "specularColor", "emissive"), prim)
+        leaf, scale, bias = folded  # an image or a colour primvar, through constant multiply/add/subtract/mix
+        if leaf.getCategory() == "geompropvalue":  # a colour primvar read per hit
+            entry = vertex_color_entry(str(leaf.getInputValue("geomprop"))) if leaf.getType() in (
+                "color3", "vector3") and leaf.getInputValue("geomprop") else None
+        else:
+            entry = _image_map(reader, leaf, base_dir, name in ("base_color", "emission_color", "diffuseColor",
+                                                                "emissiveColor", "specularColor", "emissive"), prim)
         if entry is not None:
-            maps[name] = entry
+            maps[name] = _folded_entry(entry, scale, bias)
+        elif leaf.getCategory() == "geompropvalue":
+            notes.append(f"input {name}: its geompropvalue names no colour primvar; its default is used")
     return _to_surface(category, values, maps, notes)
 
 
@@ -397,6 +404,113 @@ def _document_st_transform(node, warn):  # noqa: ANN001, ANN202
     return transform
 
 
+# ----------------------------------------------------------------------------------------------------------------
+#: Nodes folded into a map entry's scale and bias when one operand is a constant (out = scale ⊙ leaf + bias).
+_AFFINE_NODES = ("multiply", "add", "subtract", "mix")
+#: Leaves of a folded chain: images (texture maps) and colour primvars (vertex colours).
+_LEAVES = ("image", "tiledimage", "geompropvalue")
+
+
+def _rgb(value) -> np.ndarray:  # noqa: ANN001
+    """A MaterialX float or colour constant as RGB (3,) (a float broadcasts)."""
+    array = np.asarray(_py(value), dtype=np.float64).reshape(-1)
+    return np.broadcast_to(array[:3] if array.size >= 3 else array[:1], 3).copy()
+
+
+def fold_affine(node, category_of, operand, depth: int = 0):  # noqa: ANN001, ANN201
+    """(leaf node, scale (4,), bias (4,)) with out = scale ⊙ leaf + bias for a chain of ``multiply`` / ``add`` /
+    ``subtract`` / ``mix`` nodes over one image or ``geompropvalue`` leaf whose other operands are constants (a
+    ``constant`` node, an authored or a nodedef default value), or None (anything else: two computed operands, a
+    textured mix amount, other nodes). ``category_of(node)`` names a node's category; ``operand(node, name)`` gives
+    ("node", upstream), ("value", v) or None. Alpha passes unchanged."""
+    one, zero = np.ones(4), np.zeros(4)
+    category = category_of(node)
+    if category in _LEAVES:
+        return node, one, zero
+    if category not in _AFFINE_NODES or depth > 16:
+        return None
+    names = ("fg", "bg") if category == "mix" else ("in1", "in2")
+    a, b = operand(node, names[0]), operand(node, names[1])
+    if a is None or b is None or (a[0] == "node") == (b[0] == "node"):
+        return None
+    computed_first = a[0] == "node"
+    inner = fold_affine(a[1] if computed_first else b[1], category_of, operand, depth + 1)
+    if inner is None:
+        return None
+    leaf, scale, bias = inner
+    rgb = _rgb(b[1] if computed_first else a[1])
+    c_scale, c_bias = np.r_[rgb, 1.0], np.r_[rgb, 0.0]  # alpha passes
+    if category == "multiply":
+        return leaf, scale * c_scale, bias * c_scale
+    if category == "add":
+        return leaf, scale, bias + c_bias
+    if category == "subtract":  # X − c, or c − X
+        negate = np.r_[-1.0, -1.0, -1.0, 1.0]
+        return (leaf, scale, bias - c_bias) if computed_first else (leaf, scale * negate, c_bias + bias * negate)
+    amount = operand(node, "mix")
+    if amount is None or amount[0] != "value":
+        return None
+    m = float(np.asarray(_py(amount[1]), dtype=np.float64).reshape(-1)[0])
+    w = m if computed_first else 1.0 - m  # the computed operand's weight: fg weighs mix, bg 1 − mix
+    weight = np.r_[w, w, w, 1.0]
+    return leaf, scale * weight, bias * weight + (1.0 - w) * c_bias
+
+
+def _folded_entry(entry: dict, scale: np.ndarray, bias: np.ndarray) -> dict:
+    """A map entry with a folded chain's scale and bias applied after its own: value' = scale ⊙ value + bias."""
+    own_scale = np.asarray(entry.get("scale", (1.0,) * 4), dtype=np.float64)
+    own_bias = np.asarray(entry.get("bias", (0.0,) * 4), dtype=np.float64)
+    folded = dict(entry, scale=tuple(float(x) for x in own_scale * scale),
+                  bias=tuple(float(x) for x in own_bias * scale + bias))
+    if "_mean" in entry:
+        folded["_mean"] = tuple(float(x) for x in np.asarray(entry["_mean"], dtype=np.float64) * scale[:3] + bias[:3])
+    return folded
+
+
+def _document_operand(node, name: str):  # noqa: ANN001, ANN202
+    """:func:`fold_affine`'s operand of a document node: its connected node (a ``constant`` node: its value), its
+    value, the value of the node graph's interface input it is bound to, or its nodedef's default."""
+    inp = node.getInput(name)
+    if inp is not None:
+        upstream = inp.getConnectedNode()
+        if upstream is not None:
+            if upstream.getCategory() == "constant":
+                value = upstream.getInputValue("value")
+                return None if value is None else ("value", value)
+            return "node", upstream
+        interface = inp.getInterfaceInput() if inp.hasInterfaceName() else None
+        if interface is not None:
+            return None if interface.getValue() is None else ("value", interface.getValue())
+        if inp.getValue() is not None:
+            return "value", inp.getValue()
+    node_def = node.getNodeDef()
+    default = node_def.getInput(name) if node_def is not None else None
+    return None if default is None or default.getValue() is None else ("value", default.getValue())
+
+
+def _usd_node_category(shader) -> str:  # noqa: ANN001
+    """The MaterialX category of a shader authored in USD (its ``ND_…`` node definition's node), or ""."""
+    node_def = _library().getNodeDef(shader.GetShaderId() or "")
+    return node_def.getNodeString() if node_def is not None else ""
+
+
+def _usd_operand(reader, shader, name: str):  # noqa: ANN001, ANN202
+    """:func:`_document_operand` for a shader authored in USD (interface inputs followed by the reader)."""
+    shader_input = shader.GetInput(name)
+    if shader_input:
+        value, upstream, _output = reader._producer(shader_input)
+        if upstream is not None:
+            if _usd_node_category(upstream) == "constant":
+                constant = reader._input_value(upstream, "value", None)
+                return None if constant is None else ("value", constant)
+            return "node", upstream
+        if value is not None:
+            return "value", value
+    node_def = _library().getNodeDef(shader.GetShaderId() or "")
+    default = node_def.getInput(name) if node_def is not None else None
+    return None if default is None or default.getValue() is None else ("value", default.getValue())
+
+
 def _udim_fields(reader, tiles: tuple[tuple[int, int], ...]) -> dict:  # noqa: ANN001
     """A map entry's UDIM tiles ((number, texture index), …) and their mean, or nothing for a single image."""
     if not tiles:
@@ -431,15 +545,18 @@ def surface_from_usd_shader(reader, shader, shader_id: str) -> Surface | None:  
             if entry is not None:
                 maps[name] = dict(entry, _mean=mean)
             continue
-        if upstream_id.startswith("ND_image_") or upstream_id.startswith("ND_tiledimage_"):
-            entry = _usd_image_map(reader, upstream, "color" in name or name == "emissive")
+        folded = fold_affine(upstream, _usd_node_category, lambda node, n: _usd_operand(reader, node, n))
+        if folded is not None:  # an image or a colour primvar, through constant multiply/add/subtract/mix
+            leaf, scale, bias = folded
+            leaf_id = leaf.GetShaderId() or ""
+            entry = None
+            if leaf_id.startswith("ND_image_") or leaf_id.startswith("ND_tiledimage_"):
+                entry = _usd_image_map(reader, leaf, "color" in name or name == "emissive")
+            elif leaf_id in ("ND_geompropvalue_color3", "ND_geompropvalue_vector3"):  # a colour primvar per hit
+                primvar = reader._input_value(leaf, "geomprop", "")
+                entry = vertex_color_entry(str(primvar)) if primvar else None
             if entry is not None:
-                maps[name] = entry
-            continue
-        if upstream_id in ("ND_geompropvalue_color3", "ND_geompropvalue_vector3"):  # a colour primvar per hit
-            primvar = reader._input_value(upstream, "geomprop", "")
-            if primvar:
-                maps[name] = vertex_color_entry(str(primvar))
+                maps[name] = _folded_entry(entry, scale, bias)
                 continue
         notes.append(f"input {name} is computed by {upstream_id or 'an untyped shader'}, which the capture does not "
                      "evaluate; its default is used")

@@ -2,7 +2,8 @@
 st' = R(rotation, counter-clockwise)·(scale ⊙ st) + translation), MaterialX ``tiledimage`` tiling and ``place2d``
 (stdlib: R = rotate2d's [[c, s], [−s, c]], out = R·((tc − pivot)/scale) − offset + pivot). Closed forms on an
 emissive floor whose texture is red for s < ½ and blue for s > ½ (repeat): the colour straight below a probe is the
-texture at the transformed coordinates of the point it looks at."""
+texture at the transformed coordinates of the point it looks at. And MaterialX graphs of constant arithmetic
+(multiply, add, subtract, mix) over an image: the texel through the same arithmetic."""
 
 from __future__ import annotations
 
@@ -174,3 +175,70 @@ def test_place2d_pivot_and_order_follow_the_stdlib_graph():
     for order, expected in ((0, srt), (1, trs)):
         (a, b, tx), (c, d, ty) = place2d_affine(pivot, scale, rotate, offset, order)
         np.testing.assert_allclose([a * tc[0] + b * tc[1] + tx, c * tc[0] + d * tc[1] + ty], expected, atol=1e-12)
+
+
+# --- MaterialX graphs of constant arithmetic over an image, folded into the map's scale and bias ------------------
+def _document(file: str, graph: str, output: str) -> str:
+    return f"""<?xml version="1.0"?>
+<materialx version="1.39">
+  <image name="halves" type="color3">
+    <input name="file" type="filename" value="{file}" />
+  </image>
+  {graph}
+  <standard_surface name="SR_glow" type="surfaceshader">
+    <input name="base" type="float" value="0" />
+    <input name="specular" type="float" value="0" />
+    <input name="emission" type="float" value="1" />
+    <input name="emission_color" type="color3" nodename="{output}" />
+  </standard_surface>
+  <surfacematerial name="Glow" type="material">
+    <input name="surfaceshader" type="surfaceshader" nodename="SR_glow" />
+  </surfacematerial>
+</materialx>
+"""
+
+
+GRAPHS = [  # (nodes, output node, colour as a function of the texel c (RGB))
+    ('<multiply name="tint" type="color3"><input name="in1" type="color3" nodename="halves" />'
+     '<input name="in2" type="color3" value="0.5, 1, 2" /></multiply>', "tint",
+     lambda c: c * np.array([0.5, 1.0, 2.0])),
+    ('<constant name="green" type="color3"><input name="value" type="color3" value="0, 1, 0" /></constant>'
+     '<mix name="blend" type="color3"><input name="fg" type="color3" nodename="halves" />'
+     '<input name="bg" type="color3" nodename="green" /><input name="mix" type="float" value="0.25" /></mix>',
+     "blend", lambda c: 0.25 * c + 0.75 * np.array([0.0, 1.0, 0.0])),
+    ('<subtract name="invert" type="color3"><input name="in1" type="color3" value="1, 1, 1" />'
+     '<input name="in2" type="color3" nodename="halves" /></subtract>', "invert", lambda c: 1.0 - c),
+    ('<multiply name="twice" type="color3"><input name="in1" type="color3" nodename="halves" />'
+     '<input name="in2" type="float" value="2" /></multiply>'
+     '<add name="lift" type="color3"><input name="in1" type="color3" nodename="twice" />'
+     '<input name="in2" type="color3" value="0.1, 0.1, 0.1" /></add>', "lift", lambda c: 2.0 * c + 0.1),
+]
+
+
+@pytest.mark.parametrize(("graph", "output", "colour"), GRAPHS, ids=["multiply", "mix", "subtract", "chain"])
+def test_materialx_constant_arithmetic_over_an_image_is_folded(tmp_path, graph, output, colour):
+    """multiply / mix / subtract / add with constant operands (a value, a constant node, a float broadcast) over
+    an image: the texel through the same arithmetic, at every hit (before: the input's default)."""
+    file = _halves(tmp_path / "halves.exr")
+    (tmp_path / "glow.mtlx").write_text(_document(file, graph, output))
+    text = header() + 'def Scope "Looks" (\n    references = @./glow.mtlx@</MaterialX>\n)\n{\n}\n' + _floor("").replace(
+        "</Glow>", "</Looks/Materials/Glow>") + "".join(probe(f"P{k}", (x, 0.05, z)) for k, (x, z) in enumerate(POINTS))
+    reading = read_scene(write(tmp_path / "scene.usda", text))
+    assert not [i for i in reading.issues if "does not evaluate" in i.message], reading.issues
+    cubes, _ = capture_probes(reading.scene, 16, samples=4, bounces=0)
+    d = cube_texel_directions(16)
+    down = np.unravel_index(np.argmin(d[..., 1]), d.shape[:3])
+    expected = [colour(np.asarray(c)) for c in _expected(lambda s, t: (s, t))]
+    np.testing.assert_allclose([cube[down] for cube in cubes], expected, atol=2e-3)
+
+
+def test_an_image_times_an_image_is_still_reported(tmp_path):
+    file = _halves(tmp_path / "halves.exr")
+    graph = ('<image name="other" type="color3"><input name="file" type="filename" value="' + file + '" /></image>'
+             '<multiply name="both" type="color3"><input name="in1" type="color3" nodename="halves" />'
+             '<input name="in2" type="color3" nodename="other" /></multiply>')
+    (tmp_path / "glow.mtlx").write_text(_document(file, graph, "both"))
+    text = header() + 'def Scope "Looks" (\n    references = @./glow.mtlx@</MaterialX>\n)\n{\n}\n' + _floor("").replace(
+        "</Glow>", "</Looks/Materials/Glow>")
+    reading = read_scene(write(tmp_path / "scene.usda", text))
+    assert [i for i in reading.issues if "multiply node, which the capture does not evaluate" in i.message]
