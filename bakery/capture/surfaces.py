@@ -326,6 +326,14 @@ class Surfaces:
         self._tangents = None
         if self.normal_maps:  # and which triangles have texture coordinates (no tangent frame without them)
             self._tangents = _tangent_frames(self.triangles, self.uvs)
+            for k, entry in self.normal_maps.items():  # a transformed map's frame: that of its coordinates
+                if entry.get("st_transform") is not None:
+                    rows = np.flatnonzero(np.asarray(self.mesh_of) == k)
+                    (a, b, tx), (c, d, ty) = entry["st_transform"]
+                    uv = self.uvs[rows]
+                    moved = np.stack([a * uv[..., 0] + b * uv[..., 1] + tx, c * uv[..., 0] + d * uv[..., 1] + ty],
+                                     axis=-1)
+                    self._tangents[:, rows] = _tangent_frames(self.triangles[rows], moved)
             self._has_uv = np.concatenate([np.full(np.asarray(m.triangles).reshape(-1, 3, 3).shape[0],
                                                    m.uvs is not None) for m in scene.meshes])
 

@@ -180,11 +180,6 @@ class MaterialReader:
                 surface.notes.append(f"{name} is not modelled by the capture")
         self._preview_input(shader, "normal", (0.0, 0.0, 1.0), surface)  # a tangent-space normal map
         entry = surface.maps.get("normal")
-        if entry is not None and "st_transform" in entry:
-            (a, b, _tx), (c, d, _ty) = entry["st_transform"]
-            if b != 0 or c != 0 or a <= 0 or d <= 0:
-                surface.notes.append("the normal map's texture coordinates are rotated or mirrored (UsdTransform2d); "
-                                     "its tangent frame is that of the untransformed coordinates")
         index = -1 if entry is None else int(entry["texture"])
         if 0 <= index < len(self.textures) and self.textures[index].color_space == "srgb_texture":
             surface.notes.append("normal map decoded as sRGB (sourceColorSpace sRGB, or auto on an 8-bit file, as "

@@ -246,3 +246,29 @@ def Material "Floor"
     in_usd, reading = _capture(tmp_path, authored, "authored")
     assert not [i for i in reading.issues if "normal" in i.message], reading.issues
     np.testing.assert_allclose(in_usd, twin, rtol=1e-5, atol=1e-8)
+
+
+def test_a_rotated_normal_map_turns_its_tangent_frame_with_its_coordinates(tmp_path):
+    """UsdTransform2d rotation 90° on the normal map's st: st' = (−t, s), so dP/ds' = −dP/dt = +z and dP/dt' =
+    dP/ds = +x (right-handed with N = +y): a tilt β along +s' is the world normal (0, cos β, sin β)."""
+    beta = math.radians(25.0)
+    _write_exr(tmp_path / "n.exr", [(c + 1) / 2 for c in (math.sin(beta), 0.0, math.cos(beta))])
+    material = _material("./n.exr").replace(
+        "float2 inputs:st.connect = </Floor/Reader.outputs:result>",
+        "float2 inputs:st.connect = </Floor/Rotate.outputs:result>").replace("""    def Shader "NormalTex\"""", """    def Shader "Rotate"
+    {
+        uniform token info:id = "UsdTransform2d"
+        float2 inputs:in.connect = </Floor/Reader.outputs:result>
+        float inputs:rotation = 90
+        float2 outputs:result
+    }
+    def Shader "NormalTex\"""")
+    assert "Rotate.outputs" in material
+    cube, reading = _capture(tmp_path, material, "rotated")
+    assert not [i for i in reading.issues if "normal" in i.message], reading.issues
+    world = np.array([0.0, math.cos(beta), math.sin(beta)])
+    expected = RHO * E * max(0.0, float(world @ LIGHT)) / math.pi
+    d = cube_texel_directions(N)
+    facing = (-d @ world) > 0.1  # texels whose rays all see the mapped normal's front
+    np.testing.assert_allclose(cube[_down() & facing], expected, rtol=1e-3)
+    assert (_down() & facing).sum() > 300
