@@ -198,6 +198,18 @@ def _document(file: str, graph: str, output: str) -> str:
 """
 
 
+def _seen_through_document(tmp_path) -> list[np.ndarray]:
+    """:func:`_seen` of the floor bound to ``glow.mtlx``'s material, checking that no input was left unevaluated."""
+    text = header() + 'def Scope "Looks" (\n    references = @./glow.mtlx@</MaterialX>\n)\n{\n}\n' + _floor("").replace(
+        "</Glow>", "</Looks/Materials/Glow>") + "".join(probe(f"P{k}", (x, 0.05, z)) for k, (x, z) in enumerate(POINTS))
+    reading = read_scene(write(tmp_path / "scene.usda", text))
+    assert not [i for i in reading.issues if "does not evaluate" in i.message], reading.issues
+    cubes, _ = capture_probes(reading.scene, 16, samples=4, bounces=0)
+    d = cube_texel_directions(16)
+    down = np.unravel_index(np.argmin(d[..., 1]), d.shape[:3])
+    return [cube[down].astype(np.float64) for cube in cubes]
+
+
 GRAPHS = [  # (nodes, output node, colour as a function of the texel c (RGB))
     ('<multiply name="tint" type="color3"><input name="in1" type="color3" nodename="halves" />'
      '<input name="in2" type="color3" value="0.5, 1, 2" /></multiply>', "tint",
@@ -221,15 +233,8 @@ def test_materialx_constant_arithmetic_over_an_image_is_folded(tmp_path, graph, 
     an image: the texel through the same arithmetic, at every hit (before: the input's default)."""
     file = _halves(tmp_path / "halves.exr")
     (tmp_path / "glow.mtlx").write_text(_document(file, graph, output))
-    text = header() + 'def Scope "Looks" (\n    references = @./glow.mtlx@</MaterialX>\n)\n{\n}\n' + _floor("").replace(
-        "</Glow>", "</Looks/Materials/Glow>") + "".join(probe(f"P{k}", (x, 0.05, z)) for k, (x, z) in enumerate(POINTS))
-    reading = read_scene(write(tmp_path / "scene.usda", text))
-    assert not [i for i in reading.issues if "does not evaluate" in i.message], reading.issues
-    cubes, _ = capture_probes(reading.scene, 16, samples=4, bounces=0)
-    d = cube_texel_directions(16)
-    down = np.unravel_index(np.argmin(d[..., 1]), d.shape[:3])
     expected = [colour(np.asarray(c)) for c in _expected(lambda s, t: (s, t))]
-    np.testing.assert_allclose([cube[down] for cube in cubes], expected, atol=2e-3)
+    np.testing.assert_allclose(_seen_through_document(tmp_path), expected, atol=2e-3)
 
 
 def test_an_image_times_an_image_is_still_reported(tmp_path):
@@ -242,3 +247,24 @@ def test_an_image_times_an_image_is_still_reported(tmp_path):
         "</Glow>", "</Looks/Materials/Glow>")
     reading = read_scene(write(tmp_path / "scene.usda", text))
     assert [i for i in reading.issues if "multiply node, which the capture does not evaluate" in i.message]
+
+
+def test_a_node_graph_with_an_interface_input_is_folded(tmp_path):
+    """The usual layout of library materials: the image and a multiply inside a nodegraph whose tint is an
+    interface input; the surface input reads the graph's output."""
+    file = _halves(tmp_path / "halves.exr")
+    graph = f"""<nodegraph name="NG_glow">
+    <input name="tint" type="color3" value="0.5, 1, 2" />
+    <image name="img" type="color3"><input name="file" type="filename" value="{file}" /></image>
+    <multiply name="tinted" type="color3">
+      <input name="in1" type="color3" nodename="img" />
+      <input name="in2" type="color3" interfacename="tint" />
+    </multiply>
+    <output name="out" type="color3" nodename="tinted" />
+  </nodegraph>"""
+    document = _document(file, graph, "unused").replace(
+        '<input name="emission_color" type="color3" nodename="unused" />',
+        '<input name="emission_color" type="color3" nodegraph="NG_glow" output="out" />')
+    (tmp_path / "glow.mtlx").write_text(document)
+    expected = [np.asarray(c) * np.array([0.5, 1.0, 2.0]) for c in _expected(lambda s, t: (s, t))]
+    np.testing.assert_allclose(_seen_through_document(tmp_path), expected, atol=2e-3)
