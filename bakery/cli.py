@@ -320,7 +320,8 @@ def inspect(store: Path, as_json: bool, pattern: str | None, region: str | None)
                       f"noise {a.get('capture_target_noise', 0)}; SH noise median {np.median(noise):.3g}, "
                       f"max {noise.max():.3g} ({noise.size} rendered probes)")
     if "capture/backface_fraction" in s.diagnostics:  # probe validity
-        from bakery.pipeline.merge import INSIDE_BACKFACE_FRACTION, inside_geometry
+        from bakery.conventions import INSIDE_BACKFACE_FRACTION
+        from bakery.pipeline.merge import inside_geometry
 
         threshold = float(s.attributes.get("inside_geometry_backface_fraction", INSIDE_BACKFACE_FRACTION))
         inside = inside_geometry(s.diagnostics, threshold)

@@ -59,6 +59,26 @@ def Material "{name}"
 """
 
 
+def glowing_mtlx_material(name: str, emission_source: str, shaders: str) -> str:
+    """:func:`glowing_material` as a MaterialX standard_surface authored in USD (base 0, specular 0, emission 1)
+    whose emission_color is connected to ``emission_source``, with the upstream ``shaders`` (usda text)."""
+    return f"""
+def Material "{name}"
+{{
+    token outputs:mtlx:surface.connect = </{name}/Surf.outputs:out>
+    def Shader "Surf"
+    {{
+        uniform token info:id = "ND_standard_surface_surfaceshader"
+        float inputs:base = 0
+        float inputs:specular = 0
+        float inputs:emission = 1
+        color3f inputs:emission_color.connect = {emission_source}
+        token outputs:out
+    }}{shaders}
+}}
+"""
+
+
 def mtlx_material(name: str, shader_id: str, inputs: str) -> str:
     """A MaterialX surface authored in USD (a ``mtlx`` surface output of a shader ``shader_id``, e.g.
     ``ND_standard_surface_surfaceshader``); ``inputs``: its authored inputs (usda lines)."""

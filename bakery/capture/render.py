@@ -71,7 +71,7 @@ from bakery.capture.lights import (
 from bakery.capture.scene import CaptureScene, Light
 from bakery.capture.surfaces import BOUNCE_SPREAD, Surfaces
 from bakery.capture.tracer import FAR, SceneTracer
-from bakery.capture.validity import Relocator, back_facing
+from bakery.capture.validity import Relocator, back_facing, triangle_fronts
 from bakery.capture.vec import REAL, TINY, dot, dotc, luminance, power, vmax
 from bakery.conventions import LUMINANCE_WEIGHTS
 from bakery.files import sha256_bytes
@@ -250,9 +250,7 @@ class ProbeRenderer:
         self.max_samples = int(max_samples) if max_samples else max(samples, 64 * samples if target_noise else samples)
         self.tracer = SceneTracer(scene)
         self.surfaces = Surfaces(scene, self.tracer)
-        #: per triangle: +1 / −1 the side of its winding normal that is the front, 0 double-sided (``Mesh.front``)
-        fronts = np.array([getattr(m, "front", 1) for m in scene.meshes] or [1], dtype=REAL)
-        self._front_soa = np.take(fronts, self.surfaces.mesh_of_soa)
+        self._front_soa = triangle_fronts(scene, self.tracer)
         self.relocator = Relocator(self.tracer, self._front_soa)
         self.dome = DomeSampler(scene.dome)
         self.lights = LightSet(scene.lights, scene.textures)
@@ -578,9 +576,10 @@ class ProbeRenderer:
             ai = np.flatnonzero(alive)
             if ai.size:
                 pa, wa = _take(points, ai), _take(wi, ai)
-                limit = self.lights.nearest_soa(pa, wa)[0] if self.lights.surfaces and \
-                    self.surfaces.tint_soa is not None else None  # tints count up to the nearest light shape
-                p2, tt, uu, vv, tint = self._intersect_through(pa, wa, owners.take(ai), limit)
+                # the nearest light shape along each ray: where tints stop counting, and what the ray may find
+                nearest = self.lights.nearest_soa(pa, wa) if self.lights.surfaces else None
+                p2, tt, uu, vv, tint = self._intersect_through(pa, wa, owners.take(ai),
+                                                               None if nearest is None else nearest[0])
                 prim2[ai], t2[ai], bu2[ai], bv2[ai] = p2, tt, uu, vv
                 if tint is not None:  # the path continues (and finds emitters) through what it passed
                     weight = weight.copy()
@@ -590,7 +589,7 @@ class ProbeRenderer:
                         weight_d[:, ai] *= tint
                         weight_s[:, ai] *= tint
                 found, on_light = self._emitted_along(pa, wa, tt, p2 < 0, pdf_b[ai],
-                                                      None if mesh is None else mesh[ai])
+                                                      None if mesh is None else mesh[ai], nearest)
                 if found is not None and self._lobes:  # (diffuse, specular) emitter sums
                     _add_at(out_add, ai, _take(weight_d, ai) * found[0] + _take(weight_s, ai) * found[1])
                 elif found is not None:
@@ -618,7 +617,7 @@ class ProbeRenderer:
         return out
 
     def _emitted_along(self, points: np.ndarray, wi: np.ndarray, t: np.ndarray, escaped: np.ndarray,
-                       pdf_b: np.ndarray, mesh: np.ndarray | None = None
+                       pdf_b: np.ndarray, mesh: np.ndarray | None = None, nearest: tuple | None = None
                        ) -> tuple[np.ndarray | tuple[np.ndarray, np.ndarray] | None, np.ndarray]:
         """Radiance (3, M) a BSDF-sampled ray finds at a light shape, the dome or a distant disc, weighted by the
         power heuristic against the next-event pdfs (None if nothing can be found), and whether the ray ended on a
@@ -639,7 +638,7 @@ class ProbeRenderer:
         on_light = np.zeros(m, dtype=bool)
         if self.lights.surfaces:
             sums = [np.zeros((3, m), dtype=REAL) for _ in sums]
-            t_l, which, l_l = self.lights.nearest_soa(points, wi)
+            t_l, which, l_l = nearest if nearest is not None else self.lights.nearest_soa(points, wi)
             on_light = (which >= 0) & (t_l < t)
             for k, model in enumerate(self.lights.surfaces):
                 j = self._surface_strategy[k]

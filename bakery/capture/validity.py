@@ -35,6 +35,13 @@ RELOCATION_MARGIN = 0.1
 MAX_CANDIDATES = 16
 
 
+def triangle_fronts(scene, tracer) -> np.ndarray:  # noqa: ANN001 - CaptureScene, SceneTracer
+    """Per triangle of the scene's tracer (T,) float32: +1 / −1 the side of its winding normal that is its front,
+    0 double-sided (``Mesh.front`` of its mesh)."""
+    fronts = np.array([mesh.front for mesh in scene.meshes] or [1], dtype=REAL)
+    return np.take(fronts, np.asarray(tracer.mesh_of, dtype=np.int64))
+
+
 def back_facing(normals_soa: np.ndarray, front_soa: np.ndarray, prim: np.ndarray, directions: np.ndarray
                 ) -> np.ndarray:
     """Whether hits on triangles ``prim`` (K,) of rays ``directions`` (3, K) see the triangles' backs: bool (K,).
@@ -51,6 +58,14 @@ class Relocator:
         self.tracer = tracer
         self.front_soa = front_soa
         self.directions = np.ascontiguousarray(fibonacci_directions(SEARCH_DIRECTIONS).T, dtype=REAL)  # (3, D)
+
+    @classmethod
+    def of_scene(cls, scene) -> Relocator:  # noqa: ANN001 - CaptureScene
+        """A relocator over a scene's own Embree scene (no renderer: for ``bakery check``)."""
+        from bakery.capture.tracer import SceneTracer
+
+        tracer = SceneTracer(scene)
+        return cls(tracer, triangle_fronts(scene, tracer))
 
     def _cast(self, position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Back-face flags (D,) and hit distances (D,) of the search rays from ``position`` (3,)."""

@@ -240,7 +240,8 @@ def write_report(store: str | os.PathLike[str], out_dir: str | os.PathLike[str],
 def _capture_validity(store: Any, listed: int = 20) -> dict[str, Any] | None:
     """The threshold, count and (up to ``listed``) names of the probes likely inside geometry, with the summary of
     every rendered probe's backface fraction (``capture/backface_fraction``), or None when the store has none."""
-    from bakery.pipeline.merge import BACKFACE_KEY, INSIDE_BACKFACE_FRACTION, inside_geometry
+    from bakery.conventions import INSIDE_BACKFACE_FRACTION
+    from bakery.pipeline.merge import BACKFACE_KEY, inside_geometry
 
     if BACKFACE_KEY not in store.diagnostics:
         return None

@@ -44,13 +44,12 @@ def check_scene(path: str | Path) -> list[Issue]:
 def inside_geometry_issues(scene: CaptureScene, shown: int = 3) -> list[Issue]:
     """Warnings for the rendered probes of ``scene`` whose backface fraction over the relocation search's rays is
     ≥ the threshold: one per probe prim, one per volume (count and first members); volumes that relocate say so."""
-    from bakery.capture.render import ProbeRenderer  # Embree: only when there are probes and geometry
-    from bakery.capture.validity import SEARCH_DIRECTIONS
+    from bakery.capture.validity import SEARCH_DIRECTIONS, Relocator  # Embree: only with probes and geometry
 
     probes = [p for p in scene.probes if not p.image]
     if not probes or not scene.meshes:
         return []
-    relocator = ProbeRenderer(scene, samples=1, bounces=0).relocator
+    relocator = Relocator.of_scene(scene)
     inside: dict[str, list[tuple[str, float]]] = {}
     relocating: dict[str, bool] = {}
     for spec in probes:

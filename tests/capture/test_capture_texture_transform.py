@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import OpenImageIO as oiio
 import pytest
-from usd_scenes import glowing_material, header, probe, write
+from usd_scenes import glowing_material, glowing_mtlx_material, header, probe, write
 
 from bakery.capture import capture_probes
 from bakery.sphere.cubemap import cube_texel_directions
@@ -89,19 +89,7 @@ def _materialx(file: str, image: str, place: str = "") -> str:
         float2 outputs:out
     }}""" if place else ""
     image_id, image_inputs = image
-    return f"""
-def Material "Glow"
-{{
-    token outputs:mtlx:surface.connect = </Glow/Surf.outputs:out>
-    def Shader "Surf"
-    {{
-        uniform token info:id = "ND_standard_surface_surfaceshader"
-        float inputs:base = 0
-        float inputs:specular = 0
-        float inputs:emission = 1
-        color3f inputs:emission_color.connect = </Glow/Image.outputs:out>
-        token outputs:out
-    }}
+    return glowing_mtlx_material("Glow", "</Glow/Image.outputs:out>", f"""
     def Shader "Image"
     {{
         uniform token info:id = "{image_id}"
@@ -109,9 +97,7 @@ def Material "Glow"
         {image_inputs}
         {texcoord}
         color3f outputs:out
-    }}{place_shader}
-}}
-"""
+    }}{place_shader}""")
 
 
 #: probes above floor points (x, z) ↔ st = ((x + 1)/2, (1 − z)/2)

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from usd_scenes import glowing_material, header, probe, write
+from usd_scenes import glowing_material, glowing_mtlx_material, header, probe, write
 
 from bakery.capture import capture_probes
 from bakery.capture.snapshot import read_capture_scene, write_capture_scene
@@ -154,27 +154,13 @@ def test_materialx_geompropvalue_reads_the_primvar_per_hit(tmp_path, authored):
     a standard_surface authored in USD and one in a .mtlx document."""
     left, right = (0.9, 0.2, 0.1), (0.1, 0.3, 0.8)
     if authored == "usd":
-        material = """
-def Material "Glow"
-{
-    token outputs:mtlx:surface.connect = </Glow/Surf.outputs:out>
-    def Shader "Surf"
-    {
-        uniform token info:id = "ND_standard_surface_surfaceshader"
-        float inputs:base = 0
-        float inputs:specular = 0
-        float inputs:emission = 1
-        color3f inputs:emission_color.connect = </Glow/Cd.outputs:out>
-        token outputs:out
-    }
+        material = glowing_mtlx_material("Glow", "</Glow/Cd.outputs:out>", """
     def Shader "Cd"
     {
         uniform token info:id = "ND_geompropvalue_color3"
         string inputs:geomprop = "Cd"
         color3f outputs:out
-    }
-}
-"""
+    }""")
         binding = "/Glow"
     else:
         (tmp_path / "glow.mtlx").write_text(GEOMPROP_MTLX)
