@@ -16,6 +16,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+from bakery.environment.layouts import LAYOUTS
 from bakery.errors import BakeryError, BakeryWarning
 console = Console(stderr=True, soft_wrap=True)
 out = Console(soft_wrap=True)
@@ -104,7 +105,7 @@ def _scheduler_address(ctx: click.Context, param: click.Parameter, value: str | 
 @click.option("--encodings", "-e", multiple=True, help="Encodings to bake (repeatable); overrides the recipe.")
 @click.option("--face-size", type=int, default=None,
               help="Bake-grid cube face size (default 64 images, 32 scenes).")
-@click.option("--layout", type=click.Choice(["equirect", "cube", "angular"]), help="Force the image layout.")
+@click.option("--layout", type=click.Choice(LAYOUTS), help="Force the image layout.")
 @click.option("--layer", type=click.Path(path_type=Path),
               help="USD layer of baked attributes, .usda or .usdc (scenes; default <store stem>.bake.usda).")
 @click.option("--samples", type=click.IntRange(min=1), default=None, help="Rays per cube texel (scenes; default 4).")
@@ -589,7 +590,7 @@ def _settings_options(command):  # noqa: ANN001, ANN202
         click.option("--recipe", "-r", help="Recipe preset (mobile, console, pc-high, reference) or TOML path."),
         click.option("--encodings", "-e", multiple=True, help="Encodings to bake (repeatable); overrides the recipe."),
         click.option("--face-size", type=int, default=None, help="Bake-grid cube face size."),
-        click.option("--layout", type=click.Choice(["equirect", "cube", "angular"]), help="Force the image layout."),
+        click.option("--layout", type=click.Choice(LAYOUTS), help="Force the image layout."),
         click.option("--samples", type=click.IntRange(min=1), default=None, help="Rays per cube texel (scenes)."),
         click.option("--bounces", type=click.IntRange(min=0), default=None, help="Diffuse bounces (scenes)."),
         click.option("--seed", type=int, default=None, help="Base seed of the per-probe capture seeds (scenes)."),

@@ -23,6 +23,12 @@ Equirect (latlong) orientation    OpenEXR / USD DomeLight: row 0 = zenith (+Y), 
                                   s = ½ - φ/2π, t = ½ - latitude/π. The image centre looks down +Z.
 Angular map (Debevec)             u, v ∈ [-1, 1] (v up), r = √(u²+v²) ≤ 1; direction = (u·sin(πr)/r, v·sin(πr)/r,
                                   cos(πr)): the disc centre is +Z, the rim is -Z. Texels outside the disc are masked.
+Mirrored ball (UsdLux)            The disc of the angular map with θ = 2·asin r: direction = (2u√(1-r²),
+                                  2v√(1-r²), 1-2r²), the view ray -Z reflected about the ball's normal.
+Vertical cross (UsdLux)           3N × 4N: +Y above the middle row +X | +Z | -X, then -Y and -Z (upside down);
+                                  within a face a = 2s-1 rightwards, b = 2t-1 downwards: +Y:(-a,1,b)
+                                  +X:(1,-b,a)  +Z:(-a,-b,1)  -X:(-1,-b,-a)  -Y:(-a,-1,-b)  -Z:(-a,b,-1). The
+                                  centre face continues the latlong's centre; empty cells are masked.
 Roughness                         Every stored roughness is GGX α unless its name says ``perceptual``; α = r².
 ================================  ===========================================================================
 """
@@ -55,6 +61,10 @@ CONVENTIONS: dict[str, str] = {
     "equirect_orientation": "row 0 = +Y (zenith), column 0 = longitude +pi, longitude = atan2(x, z), "
     "image centre = +Z (OpenEXR / USD DomeLight)",
     "angular_map": "Debevec: centre = +Z, rim = -Z, direction = (u sin(pi r)/r, v sin(pi r)/r, cos(pi r)), v up",
+    "mirrored_ball": "UsdLux mirroredBall: disc as angular_map, theta = 2 asin(r), "
+    "direction = (2u sqrt(1-r^2), 2v sqrt(1-r^2), 1-2r^2) (view ray -Z reflected about (u, v, sqrt(1-r^2)))",
+    "vertical_cross": "UsdLux cubeMapVerticalCross, 3N x 4N: +Y above, +X|+Z|-X, then -Y, -Z; a right, b down in "
+    "[-1,1]: +Y:(-a,1,b) +X:(1,-b,a) +Z:(-a,-b,1) -X:(-1,-b,-a) -Y:(-a,-1,-b) -Z:(-a,b,-1)",
     "roughness": "GGX alpha unless named perceptual; alpha = perceptual^2",
 }
 

@@ -2,9 +2,10 @@
 OpenImageIO, and the only one here that touches files).
 
 Supported: equirect ``.hdr``/``.exr`` (and any format OpenImageIO reads), OpenEXR cube maps (``envmap=cube``,
-OpenImageIO's ``textureformat = "CubeFace Environment"``, six faces stacked vertically), and Debevec angular maps.
-The layout comes from the file's metadata, else from its aspect ratio (2:1 equirect, 1:6 cube, 1:1 angular), and can
-be forced.
+OpenImageIO's ``textureformat = "CubeFace Environment"``, six faces stacked vertically), Debevec angular maps,
+mirrored-ball photographs and vertical-cross cube maps (:mod:`bakery.environment.layouts`). The layout comes from
+the file's metadata, else from its aspect ratio (2:1 equirect, 1:6 cube, 1:1 angular, 3:4 vertical cross), and can
+be forced (a mirrored ball is 1:1 like an angular map, so it is always named).
 """
 
 from __future__ import annotations
@@ -40,9 +41,11 @@ def detect_layout(width: int, height: int, texture_format: str = "") -> str:
         return "cube"
     if width == height:
         return "angular"
+    if 4 * width == 3 * height and width % 3 == 0:
+        return "vertical_cross"
     raise ImageError(
-        f"cannot tell the layout of a {width}x{height} image: expected 2:1 equirect, 1:6 stacked cube or 1:1 "
-        f"angular map; pass the layout explicitly (--layout {{{','.join(LAYOUTS)}}})"
+        f"cannot tell the layout of a {width}x{height} image: expected 2:1 equirect, 1:6 stacked cube, 1:1 "
+        f"angular map or 3:4 vertical cross; pass the layout explicitly (--layout {{{','.join(LAYOUTS)}}})"
     )
 
 
@@ -136,6 +139,8 @@ def read_environment(path: str | os.PathLike[str], layout: str | None = None) ->
         raise ImageError(f"{path}: {error}") from None
     if chosen == "cube" and height != 6 * width:
         raise ImageError(f"{path}: a stacked cube map must be N x 6N, got {width}x{height}")
+    if chosen == "vertical_cross" and (4 * width != 3 * height or width % 3):
+        raise ImageError(f"{path}: a vertical cross must be 3N x 4N, got {width}x{height}")
     if pixels.shape[2] == 1:
         pixels = np.repeat(pixels, 3, axis=2)
     elif pixels.shape[2] == 2:

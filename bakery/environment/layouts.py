@@ -8,7 +8,16 @@ Layouts
     ``cube``       six N × N faces stacked vertically in the order +X,-X,+Y,-Y,+Z,-Z, each face in OpenEXR's
                    ``envmap=cube`` orientation (ImfEnvmap.cpp, ``CubeMap::direction``); converted to bakery's
                    OpenGL-style faces on resampling.
-    ``angular``    Debevec's angular map: disc centre = +Z, rim = -Z; pixels outside the disc are invalid.
+    ``angular``    Debevec's angular map: disc centre = +Z, rim = -Z, the radius linear in the angle from +Z;
+                   pixels outside the disc are invalid.
+    ``mirrored_ball`` a mirrored sphere photographed orthographically from +Z (UsdLux ``mirroredBall``): the disc
+                   point (u, v) reflects the view ray (0, 0, -1) about the ball's normal (u, v, √(1−u²−v²)), so
+                   centre = +Z (towards the camera), rim = -Z, the radius r = sin(θ/2); u right, v up as in
+                   ``angular``; pixels outside the disc are invalid.
+    ``vertical_cross`` a 3N × 4N unfolded cube (UsdLux ``cubeMapVerticalCross``, HDRShop's layout) seen from inside:
+                   the middle row is +X | +Z | −X with +Y above and −Y, −Z below the centre; −Z is upside down.
+                   The centre face continues the latlong's centre (+Z, +Y up, −X to the right), every shared
+                   edge of the image is continuous, and the six empty cells are invalid.
 """
 
 from __future__ import annotations
@@ -19,7 +28,9 @@ import numpy as np
 
 from bakery.sphere.cubemap import cube_texel_density
 
-LAYOUTS = ("equirect", "cube", "angular")
+LAYOUTS = ("equirect", "cube", "angular", "mirrored_ball", "vertical_cross")
+#: Layouts whose image holds invalid pixels (outside the disc, the cross's empty cells).
+PARTIAL_LAYOUTS = ("angular", "mirrored_ball", "vertical_cross")
 
 
 @dataclass(frozen=True)
@@ -83,31 +94,117 @@ def direction_to_equirect(directions: np.ndarray, height: int, width: int) -> tu
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# Angular map
-def _angular_uv(rows: np.ndarray, cols: np.ndarray, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+# Disc maps: angular and mirrored ball
+def _disc_uv(rows: np.ndarray, cols: np.ndarray, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     return 2.0 * cols / width - 1.0, 1.0 - 2.0 * rows / height
 
 
-def angular_directions(rows: np.ndarray, cols: np.ndarray, height: int, width: int) -> np.ndarray:
-    """Directions (..., 3) at continuous pixel positions of an angular map (undefined outside the disc)."""
-    u, v = _angular_uv(rows, cols, height, width)
-    r = np.sqrt(u * u + v * v)
-    # sin(πr)/r → π as r → 0; (u·s, v·s, cos πr) is unit length by construction.
-    s = np.where(r > 1e-12, np.sin(np.pi * np.minimum(r, 1.0)) / np.maximum(r, 1e-12), np.pi)
-    return np.stack([u * s, v * s, np.cos(np.pi * np.minimum(r, 1.0))], axis=-1)
+def _disc_polar_angle(layout: str, r: np.ndarray) -> np.ndarray:
+    """Angle θ from +Z at disc radius r ∈ [0, 1]: θ = π·r (angular), θ = 2·asin r (mirrored ball)."""
+    r = np.minimum(r, 1.0)
+    return np.pi * r if layout == "angular" else 2.0 * np.arcsin(r)
 
 
-def angular_density(rows: np.ndarray, cols: np.ndarray, height: int, width: int) -> np.ndarray:
-    """Solid angle per unit pixel area: dΩ = π·sin(πr)/r du dv, du dv = (2/W)(2/H) per pixel; 0 outside the disc."""
-    u, v = _angular_uv(rows, cols, height, width)
+def disc_directions(layout: str, rows: np.ndarray, cols: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Directions (..., 3) at continuous pixel positions of a disc map (undefined outside the disc)."""
+    u, v = _disc_uv(rows, cols, height, width)
     r = np.sqrt(u * u + v * v)
-    jac = np.where(r > 1e-12, np.pi * np.sin(np.pi * np.minimum(r, 1.0)) / np.maximum(r, 1e-12), np.pi * np.pi)
+    theta = _disc_polar_angle(layout, r)
+    # sin θ / r → dθ/dr at r = 0 (π, resp. 2); (u·s, v·s, cos θ) is unit length by construction.
+    s = np.where(r > 1e-12, np.sin(theta) / np.maximum(r, 1e-12), np.pi if layout == "angular" else 2.0)
+    return np.stack([u * s, v * s, np.cos(theta)], axis=-1)
+
+
+def disc_density(layout: str, rows: np.ndarray, cols: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Solid angle per unit pixel area, 0 outside the disc; du dv = (2/W)(2/H) per pixel.
+
+    dΩ = sin θ · dθ/dr / r du dv: π·sin(πr)/r for the angular map; for the mirrored ball sin θ = 2r√(1−r²) and
+    dθ/dr = 2/√(1−r²), so dΩ = 4 du dv, uniform (the disc's area π holds 4π steradians).
+    """
+    u, v = _disc_uv(rows, cols, height, width)
+    r = np.sqrt(u * u + v * v)
+    if layout == "angular":
+        rc = np.minimum(r, 1.0)
+        jac = np.where(r > 1e-12, np.pi * np.sin(np.pi * rc) / np.maximum(r, 1e-12), np.pi * np.pi)
+    else:
+        jac = np.full_like(r, 4.0)
     return np.where(r <= 1.0, jac, 0.0) * (4.0 / (width * height))
 
 
-def angular_inside(rows: np.ndarray, cols: np.ndarray, height: int, width: int) -> np.ndarray:
-    u, v = _angular_uv(rows, cols, height, width)
+def direction_to_disc(layout: str, directions: np.ndarray, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """Continuous (row, column) of directions (..., 3) in a disc map (−Z maps to the rim at +u)."""
+    d = np.asarray(directions, dtype=np.float64)
+    d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    theta = np.arccos(np.clip(d[..., 2], -1.0, 1.0))
+    r = theta / np.pi if layout == "angular" else np.sin(0.5 * theta)
+    planar = np.hypot(d[..., 0], d[..., 1])
+    cos_phi = np.where(planar > 1e-12, d[..., 0] / np.maximum(planar, 1e-12), 1.0)
+    sin_phi = np.where(planar > 1e-12, d[..., 1] / np.maximum(planar, 1e-12), 0.0)
+    u, v = r * cos_phi, r * sin_phi
+    return (1.0 - v) * 0.5 * height, (u + 1.0) * 0.5 * width
+
+
+def disc_inside(rows: np.ndarray, cols: np.ndarray, height: int, width: int) -> np.ndarray:
+    u, v = _disc_uv(rows, cols, height, width)
     return u * u + v * v <= 1.0
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Vertical cross (3N × 4N): cell (row, column) of each face, and its direction at face coordinates a (rightwards)
+# and b (downwards) in [-1, 1]. Derived by unfolding: each image-adjacent pair of faces agrees on its shared edge
+# (+Y|+Z, +X|+Z, +Z|−X, +Z|−Y, −Y|−Z), and the folded edges pair up likewise (tests check all twelve).
+VERTICAL_CROSS_CELLS = {"+Y": (0, 1), "+X": (1, 0), "+Z": (1, 1), "-X": (1, 2), "-Y": (2, 1), "-Z": (3, 1)}
+
+
+def _cross_face_direction(face: str, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    one = np.ones_like(a)
+    return {
+        "+Y": lambda: np.stack([-a, one, b], -1),
+        "+X": lambda: np.stack([one, -b, a], -1),
+        "+Z": lambda: np.stack([-a, -b, one], -1),
+        "-X": lambda: np.stack([-one, -b, -a], -1),
+        "-Y": lambda: np.stack([-a, -one, -b], -1),
+        "-Z": lambda: np.stack([-a, b, -one], -1),
+    }[face]()
+
+
+def _cross_cell(rows: np.ndarray, cols: np.ndarray, face_size: int):
+    cell_row = np.clip(np.floor(np.asarray(rows) / face_size).astype(np.int64), 0, 3)
+    cell_col = np.clip(np.floor(np.asarray(cols) / face_size).astype(np.int64), 0, 2)
+    a = 2.0 * (cols - cell_col * face_size) / face_size - 1.0
+    b = 2.0 * (rows - cell_row * face_size) / face_size - 1.0
+    return cell_row, cell_col, a, b
+
+
+def vertical_cross_directions(rows: np.ndarray, cols: np.ndarray, face_size: int) -> np.ndarray:
+    """Unit directions (..., 3) at continuous pixel positions of a vertical cross (zero in the empty cells)."""
+    cell_row, cell_col, a, b = _cross_cell(rows, cols, face_size)
+    out = np.zeros((*np.shape(a), 3))
+    for face, (r, c) in VERTICAL_CROSS_CELLS.items():
+        mask = (cell_row == r) & (cell_col == c)
+        out[mask] = _cross_face_direction(face, a[mask], b[mask])
+    norm = np.linalg.norm(out, axis=-1, keepdims=True)
+    return out / np.where(norm > 0, norm, 1.0)
+
+
+def vertical_cross_inside(rows: np.ndarray, cols: np.ndarray, face_size: int) -> np.ndarray:
+    cell_row, cell_col, _, _ = _cross_cell(rows, cols, face_size)
+    inside = np.zeros(np.shape(cell_row), dtype=bool)
+    for r, c in VERTICAL_CROSS_CELLS.values():
+        inside |= (cell_row == r) & (cell_col == c)
+    return inside
+
+
+def vertical_cross_density(rows: np.ndarray, cols: np.ndarray, face_size: int) -> np.ndarray:
+    """Solid angle per unit pixel area: a cube face's (1 + a² + b²)^(-3/2) · (2/N)², 0 in the empty cells."""
+    _, _, a, b = _cross_cell(rows, cols, face_size)
+    return np.where(vertical_cross_inside(rows, cols, face_size), cube_texel_density(a, b, face_size), 0.0)
+
+
+def vertical_cross_face_size(height: int, width: int) -> int:
+    if 4 * width != 3 * height or width % 3:
+        raise ValueError(f"a vertical cross is 3N x 4N, got {width}x{height}")
+    return width // 3
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -153,8 +250,21 @@ def layout_directions_and_density(
     """Directions (..., 3) and solid angle per unit pixel area (...) at continuous positions of any layout."""
     if layout == "equirect":
         return equirect_directions(rows, cols, height, width), equirect_density(rows, height, width)
-    if layout == "angular":
-        return angular_directions(rows, cols, height, width), angular_density(rows, cols, height, width)
+    if layout in ("angular", "mirrored_ball"):
+        return (disc_directions(layout, rows, cols, height, width),
+                disc_density(layout, rows, cols, height, width))
     if layout == "cube":
         return exr_cube_directions(rows, cols, width), exr_cube_density(rows, cols, width)
+    if layout == "vertical_cross":
+        n = vertical_cross_face_size(height, width)
+        return vertical_cross_directions(rows, cols, n), vertical_cross_density(rows, cols, n)
     raise ValueError(f"unknown layout {layout!r}")
+
+
+def layout_inside(layout: str, rows: np.ndarray, cols: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Whether continuous pixel positions hold radiance (the disc, the cross's six faces; everywhere otherwise)."""
+    if layout in ("angular", "mirrored_ball"):
+        return disc_inside(rows, cols, height, width)
+    if layout == "vertical_cross":
+        return vertical_cross_inside(rows, cols, vertical_cross_face_size(height, width))
+    return np.ones(np.shape(rows), dtype=bool)

@@ -63,6 +63,7 @@ def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN00
     """Hash of everything that can affect every probe (module docstring)."""
     from bakery.capture.lights import light_model
     from bakery.capture.render import CAPTURE_MODEL_VERSION
+    from bakery.environment.resample import RESAMPLE_MODEL_VERSION
 
     parts: list = [(mesh.name, _material_fields(mesh.material), np.asarray(mesh.triangles, dtype=np.float32),
                     None if getattr(mesh, "uvs", None) is None else np.asarray(mesh.uvs, dtype=np.float32))
@@ -78,7 +79,9 @@ def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN00
         response = (getattr(dome, "diffuse", 1.0), getattr(dome, "specular", 1.0))
         links = getattr(dome, "links", None)
         parts.append((dome.name, dome.scale, dome.rotation, dome.layout, pixels)  # the later fields only when authored
-                     + (() if response == (1.0, 1.0) else (response,)) + (() if links is None else (("links", links),)))
+                     + (() if response == (1.0, 1.0) else (response,)) + (() if links is None else (("links", links),))
+                     # a latlong dome is sampled as it is; every other layout is resampled to a cube first
+                     + (() if dome.layout == "equirect" else (("resample", RESAMPLE_MODEL_VERSION),)))
     parts += [_light_fields(light) for light in scene.lights if light_model(light).is_global]
     parts += [_light_fields(portal) for portal in getattr(scene, "portals", ())]
     parts.append((getattr(scene, "time_code", None), getattr(scene, "working_space", "lin_rec709")))

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from bakery.environment.io import read_environment
-from bakery.environment.resample import environment_samples, resample_to_cube
+from bakery.environment.resample import RESAMPLE_MODEL_VERSION, environment_samples, resample_to_cube
 from bakery.errors import DegenerateInputWarning, ImageError
 from bakery.files import sha256_file
 from bakery.probe import PROBE_KINDS, Probe
@@ -27,10 +27,12 @@ from bakery.sources.base import Capture, PlannedProbe, Source, SourceHandle, Sou
 
 @dataclass(frozen=True)
 class EnvironmentCapture:
-    """Capture spec of one distant probe: the image file and its layout (None: from metadata/aspect ratio)."""
+    """Capture spec of one distant probe: the image file, its layout (None: from metadata/aspect ratio) and the
+    version of the resampling that turns it into the capture (hashed: a changed resampling re-bakes)."""
 
     path: str
     layout: str | None = None
+    resample_model: int = RESAMPLE_MODEL_VERSION
 
 
 @lru_cache(maxsize=4)
@@ -42,7 +44,7 @@ def _read(path: str, layout: str | None, face_size: int) -> Capture:
 
 
 class EnvironmentSource(Source):
-    """Environment images (equirect, cube or angular; see :mod:`bakery.environment`)."""
+    """Environment images (every layout of :mod:`bakery.environment.layouts`)."""
 
     kind = "environment"
     default_face_size = 64

@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from bakery.encodings import ENCODINGS
+from bakery.environment.resample import RESAMPLE_MODEL_VERSION
 from bakery.errors import SceneError, SceneWarning
 from bakery.pipeline.settings import CaptureSettings
 from bakery.probe import Probe
@@ -143,7 +144,8 @@ class UsdSceneSource(Source):
                         f"its influence volume) instead of the default range")})
             probe = Probe(spec.name, (spec.kind,), spec.position, probe_settings)
             image_hash = (sha256_file(spec.image) if Path(spec.image).is_file() else "<missing>") if spec.image else None
-            inputs = (scene_hash, image_hash) if spec.image else (scene_hash,)
+            # a captured image is resampled to the bake grid: a changed resampling re-bakes its probe
+            inputs = (scene_hash, image_hash, RESAMPLE_MODEL_VERSION) if spec.image else (scene_hash,)
             capture = SceneProbeCapture(index, spec.name, self.capture_settings)
             planned.append(PlannedProbe(probe, capture, inputs))
             self._prim_of[spec.name] = spec.volume or spec.name

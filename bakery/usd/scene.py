@@ -696,9 +696,10 @@ class SceneReader:
         if resolved is None:
             self.issue("error", prim, f"dome texture {texture.path!r} not found")
             return
-        layouts = {"automatic": None, "latlong": "equirect", "angular": "angular"}
+        layouts = {"automatic": None, "latlong": "equirect", "angular": "angular", "mirroredBall": "mirrored_ball",
+                   "cubeMapVerticalCross": "vertical_cross"}
         if fmt not in layouts:
-            self.issue("error", prim, f"dome texture format {fmt!r} is not supported (latlong, angular, automatic)")
+            self.issue("error", prim, f"dome texture format {fmt!r} is not a UsdLux format ({', '.join(layouts)})")
             return
         if not self.load_textures:
             self.domes.append(Dome(name, scale=tuple(scale), rotation=rotation, source=resolved, **response))

@@ -107,3 +107,75 @@ def test_sun_blocked_by_an_occluder_is_missing_from_the_probe(tmp_path):
     cubes, _ = capture_probes(reading.scene, FACE)
     up = cube_texel_directions(FACE)[..., 1] > 0.05
     assert float(np.abs(cubes[0][up]).max()) == 0.0
+
+
+def _converted_sky(layout: str, height: int, width: int, tmp_path: Path):
+    """The Stinson Beach latlong rewritten into ``layout`` (each pixel the mean of the nearest latlong texels at
+    4 × 4 points in it), as an EXR, with a quadrature of the written pixels from the layout's definition, written
+    out here: the mirrored ball as 4 × 4 points per pixel, each the view ray (0, 0, −1) reflected about the ball's
+    normal, with the uniform solid angle 1/(W·H) each inside the disc; the cross as its texels with a cube face's
+    texel solid angles."""
+    from bakery.environment.io import write_exr
+    from bakery.environment.layouts import direction_to_equirect, layout_directions_and_density, layout_inside
+
+    sky, _ = read_environment(str(SKY))
+    sub = (np.arange(4) + 0.5) / 4
+    fr, fc = np.meshgrid((np.arange(height)[:, None] + sub).reshape(-1), (np.arange(width)[:, None] + sub).reshape(-1),
+                         indexing="ij")
+    inside = layout_inside(layout, fr, fc, height, width)
+    directions, _ = layout_directions_and_density(layout, fr[inside], fc[inside], height, width)
+    r, c = direction_to_equirect(directions, sky.height, sky.width)
+    fine = np.zeros((4 * height, 4 * width, 3))
+    fine[inside] = sky.pixels[np.clip(r.astype(int), 0, sky.height - 1), np.clip(c.astype(int), 0, sky.width - 1)]
+    count = inside.reshape(height, 4, width, 4).sum(axis=(1, 3))
+    pixels = (fine.reshape(height, 4, width, 4, 3).sum(axis=(1, 3)) / np.maximum(count, 1)[..., None])
+    pixels = pixels.astype(np.float32)
+    write_exr(tmp_path / f"{layout}.exr", pixels, half=False)
+    if layout == "vertical_cross":
+        rows, cols = np.meshgrid(np.arange(height) + 0.5, np.arange(width) + 0.5, indexing="ij")
+        centre = layout_inside(layout, rows, cols, height, width)
+        omega = np.tile(cube_texel_solid_angles(width // 3)[0], (4, 3))[centre]
+        directions, _ = layout_directions_and_density(layout, rows[centre], cols[centre], height, width)
+        return directions, omega, pixels[centre].astype(np.float64)
+    u, v = 2 * fc / width - 1, 1 - 2 * fr / height
+    disc = u * u + v * v < 1
+    normal = np.stack([u[disc], v[disc], np.sqrt(1 - u[disc] ** 2 - v[disc] ** 2)], -1)
+    reflected = np.array([0.0, 0.0, -1.0]) + 2 * normal[:, 2:] * normal
+    radiance = np.repeat(np.repeat(pixels, 4, axis=0), 4, axis=1)[disc].astype(np.float64)
+    return reflected, np.full(len(reflected), 1.0 / (height * width)), radiance
+
+
+@pytest.mark.parametrize("token,layout,height,width", [("mirroredBall", "mirrored_ball", 1024, 1024),
+                                                       ("cubeMapVerticalCross", "vertical_cross", 4 * 128, 3 * 128),
+                                                       ("automatic", "vertical_cross", 4 * 128, 3 * 128)])
+def test_dome_textures_in_every_usdlux_format_give_their_exact_irradiance(tmp_path, token, layout, height, width):
+    """A DomeLight whose texture is a mirrored ball or a vertical cross (named, or a 3:4 cross left ``automatic``):
+    the probe's irradiance in six directions is the written image's exact irradiance within 0.3 % (measured
+    ≤ 0.12 %), and that of the latlong it was converted from within 4 % (the conversion's own error: 0.7 % for the
+    ball, 2.8 % for the cross's 128² faces)."""
+    directions, omega, radiance = _converted_sky(layout, height, width, tmp_path)
+    text = header() + f"""
+def DomeLight "Sky"
+{{
+    asset inputs:texture:file = @./{layout}.exr@
+    token inputs:texture:format = "{token}"
+}}
+""" + probe("P", (0.0, 1.0, 0.0))
+    reading = read_scene(write(tmp_path / "sky.usda", text))
+    assert not reading.errors
+    cubes, _ = capture_probes(reading.scene, FACE)
+    captured = _cube_irradiance(cubes[0], NORMALS)
+    np.testing.assert_allclose(captured, _irradiance(directions, omega, radiance, NORMALS), rtol=3e-3)
+    np.testing.assert_allclose(captured, _irradiance(*_sky_samples(), NORMALS), rtol=4e-2)
+
+
+def test_an_unknown_dome_texture_format_is_an_error_naming_the_prim(tmp_path):
+    text = header() + f"""
+def DomeLight "Sky"
+{{
+    asset inputs:texture:file = @{SKY}@
+    token inputs:texture:format = "octahedral"
+}}
+""" + probe("P", (0.0, 1.0, 0.0))
+    reading = read_scene(write(tmp_path / "sky.usda", text))
+    assert any("/Sky" in str(e) and "octahedral" in str(e) for e in reading.errors)
