@@ -284,6 +284,15 @@ class ProbeRenderer:
         self._dome_links = None if dome is None or dome.links is None else np.isin(meshes, dome.links)
         self._linking = any(x is not None for x in [*self._light_links, self._dome_links])
         self._shadowless = [not m.light.shadow for m in self.lights.models]
+        # UsdLux shadow linking: per analytic light, the meshes that cast its shadows (bool per mesh), or None for all
+        self._casters = [None if m.light.shadow_links is None else np.isin(meshes, m.light.shadow_links)
+                         for m in self.lights.models]
+        #: lights sampled by next-event estimation alone, without MIS: a BSDF-sampled ray cannot pass the meshes
+        #: their shadow rays pass (shadowless, or shadow-linked), so it must not count them
+        self._nee_only = [shadowless or casters is not None
+                          for shadowless, casters in zip(self._shadowless, self._casters)]
+        self._dome_casters = None if dome is None or dome.shadow_links is None else np.isin(meshes, dome.shadow_links)
+        self._dome_nee_only = self._dome_casters is not None
         self._shadow_color = [tuple(map(float, m.light.shadow_color)) if m.light.shadow else (0.0, 0.0, 0.0)
                               for m in self.lights.models]
 
@@ -465,14 +474,16 @@ class ProbeRenderer:
         return self._intersect_through(origins, directions, owners)[:4]
 
     def _intersect_through(self, origins: np.ndarray, directions: np.ndarray, owners: _Owners,
-                           limit: np.ndarray | None = None
+                           limit: np.ndarray | None = None, casters: tuple[np.ndarray, np.ndarray] | None = None
                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
         """:meth:`_intersect` and the transmittance (3, M) float32 of the surfaces each ray passed through nearer
         than ``limit`` (M,) (all, if None): the product of their materials' ``transmission_tint``; None when no
-        material of the scene tints (``Surfaces.tint_soa``)."""
+        material of the scene tints (``Surfaces.tint_soa``). ``casters``: for shadow rays of shadow-linked
+        lights, a (J, meshes) bool table and each ray's row (M,); a mesh whose entry is False is passed through
+        untinted, as if absent."""
         prim, t, bu, bv = self.tracer.intersect_uv(origins, directions, soa=True)
         owners.traced()
-        if not self.surfaces.cutout:
+        if not self.surfaces.cutout and casters is None:
             return prim, t, bu, bv, None
         tints = self.surfaces.tint_soa
         tint = None if tints is None else np.ones((3, prim.shape[0]), dtype=REAL)
@@ -480,13 +491,21 @@ class ProbeRenderer:
         for _ in range(32):
             if idx.size == 0:
                 break
-            u = self._presence_numbers(owners, idx) if self.surfaces.stochastic else None
-            cut = self.surfaces.cut(prim[idx], bu[idx].astype(np.float64), bv[idx].astype(np.float64), u)
+            if self.surfaces.cutout:
+                u = self._presence_numbers(owners, idx) if self.surfaces.stochastic else None
+                cut = self.surfaces.cut(prim[idx], bu[idx].astype(np.float64), bv[idx].astype(np.float64), u)
+            else:
+                cut = np.zeros(idx.size, dtype=bool)
+            absent = None
+            if casters is not None:
+                absent = ~casters[0][casters[1][idx], np.take(self.surfaces.mesh_of_soa, prim[idx])]
+                cut |= absent
             if not cut.any():
                 break
             j = idx[cut]
             if tint is not None:
-                jt = j if limit is None else j[t[j] < limit[j]]
+                jt = j if absent is None else j[~absent[cut]]
+                jt = jt if limit is None else jt[t[jt] < limit[jt]]
                 tint[:, jt] *= np.take(tints, np.take(self.surfaces.mesh_of_soa, prim[jt]), axis=1)
             dj = _take(directions, j)
             hits = _take(origins, j) + t[j] * dj
@@ -645,13 +664,14 @@ class ProbeRenderer:
                 sel = np.flatnonzero(on_light & (which == k))
                 if sel.size and mesh is not None and self._light_links[j] is not None:
                     sel = sel[self._light_links[j][mesh[sel]]]
-                if sel.size and not self._shadowless[j]:
+                if sel.size and not self._nee_only[j]:
                     pdf_l = model.pdf_soa(_take(points, sel), _take(wi, sel), t_l[sel])
                     add(sel, _take(l_l, sel) * power(pdf_b[sel], pdf_l), self._light_lobes[j])
             escaped = escaped & ~on_light
         distant = [(light, self._model_strategy[id(light)]) for light in self.distant if not light.delta]
-        distant = [(light, j) for light, j in distant if not self._shadowless[j]]
-        ei = np.flatnonzero(escaped) if not (self.dome.black and not distant) else np.zeros(0, dtype=np.int64)
+        distant = [(light, j) for light, j in distant if not self._nee_only[j]]
+        dome_found = not self.dome.black and not self._dome_nee_only  # by escaping BSDF rays
+        ei = np.flatnonzero(escaped) if dome_found or distant else np.zeros(0, dtype=np.int64)
         if ei.size:
             w_dirs = _take(wi, ei)
             pb = pdf_b[ei]
@@ -660,7 +680,7 @@ class ProbeRenderer:
             def linked(value: np.ndarray, links: np.ndarray | None) -> np.ndarray:
                 return value if mesh is None or links is None else value * links[mesh[ei]].astype(REAL)
 
-            if not self.dome.black:
+            if dome_found:
                 rest, pdf_rest = self.dome.rest_lookup_soa(w_dirs)
                 if self.portals:
                     pdf_rest = self._dome_pdf(_take(points, ei), w_dirs, pdf_rest)
@@ -744,8 +764,8 @@ class ProbeRenderer:
         weight = power(pdf, pdf_b)
         shadowless = np.array(self._shadowless + [False] * (count - lights))
         for j in range(count):
-            if not can_hit[j] or shadowless[j]:  # a shadowless light is found by next-event estimation alone
-                weight[j] = 1
+            if not can_hit[j] or (self._nee_only[j] if j < lights else self._dome_nee_only):
+                weight[j] = 1  # found by next-event estimation alone
         with np.errstate(divide="ignore"):
             inv = np.where(np.isinf(pdf), 1, np.where(pdf > 0, 1 / pdf, 0)).astype(REAL, copy=False)
         dist = np.stack(dists)
@@ -759,8 +779,10 @@ class ProbeRenderer:
         tint = None
         if idx.size:
             sp, sw, sd = _take(points, idx % m), _take(wi.reshape(3, -1), idx), short.reshape(-1)[idx]
-            if self.surfaces.cutout:
-                _p, t_hit, _u, _v, tint = self._intersect_through(sp, sw, owners.take(idx % m), sd)
+            casters = self._caster_table(count)
+            if self.surfaces.cutout or casters is not None:
+                _p, t_hit, _u, _v, tint = self._intersect_through(
+                    sp, sw, owners.take(idx % m), sd, None if casters is None else (casters, idx // m))
                 visible = t_hit >= sd
             else:
                 visible = ~self.tracer.occluded(sp, sw, sd, soa=True)
@@ -787,6 +809,20 @@ class ProbeRenderer:
         for j in range(1, count):  # in strategy order, element by element (a reduction's order may depend on M)
             total = total + terms[:, j]
         return total
+
+    def _caster_table(self, count: int) -> np.ndarray | None:
+        """(J, meshes) bool: whether each mesh casts the shadows of next-event strategy j (the analytic lights, then
+        the dome's ``count − lights`` strategies); None when no light is shadow-linked."""
+        lights = len(self._casters)
+        rows = self._casters + [self._dome_casters] * (count - lights)
+        linked = [casters for casters in rows if casters is not None]
+        if not linked:
+            return None
+        table = np.ones((count, len(linked[0])), dtype=bool)
+        for j, casters in enumerate(rows):
+            if casters is not None:
+                table[j] = casters
+        return table
 
     def _dome_pdf(self, points: np.ndarray, wi: np.ndarray, pdf: np.ndarray) -> np.ndarray:
         """Solid-angle pdf (M,) of the dome-rest next-event strategy from the dome's own ``pdf``: with portals the

@@ -55,6 +55,9 @@ class Light:
         shadow_color: ``shadow:color``: the fraction of the light (RGB) an occluded next-event ray still delivers.
         links: UsdLux light linking (``collection:lightLink``): indices into :attr:`CaptureScene.meshes` of the
             meshes the light illuminates; None: every mesh. A probe still sees an unlinked light directly.
+        shadow_links: UsdLux shadow linking (``collection:shadowLink``): indices of the meshes that cast the light's
+            shadows; None: every mesh. Its next-event rays pass the others (the light is then sampled by next-event
+            estimation alone, as without shadows); what rays see is unchanged.
     """
 
     kind: str
@@ -74,6 +77,7 @@ class Light:
     shadow: bool = True
     shadow_color: tuple[float, float, float] = (0.0, 0.0, 0.0)
     links: tuple[int, ...] | None = None
+    shadow_links: tuple[int, ...] | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in LIGHT_TYPES:
@@ -114,6 +118,7 @@ class Dome:
         diffuse, specular: UsdLux's multipliers of the dome's effect on the diffuse and specular lobes of surfaces
             (:class:`Light`); the dome seen by escaping camera rays is unscaled.
         links: light linking as :attr:`Light.links` (None: every mesh).
+        shadow_links: shadow linking as :attr:`Light.shadow_links` (None: every mesh shadows the dome).
     """
 
     name: str
@@ -125,6 +130,7 @@ class Dome:
     diffuse: float = 1.0
     specular: float = 1.0
     links: tuple[int, ...] | None = None
+    shadow_links: tuple[int, ...] | None = None
 
 
 @dataclass(frozen=True)

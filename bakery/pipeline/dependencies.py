@@ -77,9 +77,10 @@ def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN00
         dome = scene.dome
         pixels = np.zeros(0) if dome.pixels is None else np.asarray(dome.pixels, dtype=np.float32)
         response = (getattr(dome, "diffuse", 1.0), getattr(dome, "specular", 1.0))
-        links = getattr(dome, "links", None)
+        links, casters = getattr(dome, "links", None), getattr(dome, "shadow_links", None)
         parts.append((dome.name, dome.scale, dome.rotation, dome.layout, pixels)  # the later fields only when authored
                      + (() if response == (1.0, 1.0) else (response,)) + (() if links is None else (("links", links),))
+                     + (() if casters is None else (("shadow_links", casters),))
                      # a latlong dome is sampled as it is; every other layout is resampled to a cube first
                      + (() if dome.layout == "equirect" else (("resample", RESAMPLE_MODEL_VERSION),)))
     parts += [_light_fields(light) for light in scene.lights if light_model(light).is_global]
@@ -115,7 +116,7 @@ def _light_fields(light) -> dict:  # noqa: ANN001 - bakery.capture.scene.Light
 
 #: Light fields hashed only when they differ from these (the fields added after the light table's first format)
 _LIGHT_DEFAULTS = {"ies": None, "diffuse": 1.0, "specular": 1.0, "shadow": True, "shadow_color": (0.0, 0.0, 0.0),
-                   "links": None}
+                   "links": None, "shadow_links": None}
 
 
 def _texture_peak(scene, light) -> float:  # noqa: ANN001

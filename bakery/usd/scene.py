@@ -584,8 +584,9 @@ class SceneReader:
         return -1 if index is None else index
 
     def _apply_light_links(self) -> None:
-        """UsdLux light linking: a light (or the dome) whose ``collection:lightLink`` leaves out some of the meshes
-        read illuminates only the others (:attr:`Light.links`); shadow linking and light filters are reported."""
+        """UsdLux light and shadow linking: a light (or the dome) whose ``collection:lightLink`` leaves out some of
+        the meshes read illuminates only the others (:attr:`Light.links`); one whose ``collection:shadowLink`` leaves
+        some out is shadowed by the others alone (:attr:`Light.shadow_links`). Light filters are reported."""
         for kind, index, prim in self._linked:
             api = UsdLux.LightAPI(prim)
             links = self._members(api.GetLightLinkCollectionAPI())
@@ -594,9 +595,12 @@ class SceneReader:
                     self.lights[index] = dataclasses.replace(self.lights[index], links=links)
                 else:
                     self.domes[index] = dataclasses.replace(self.domes[index], links=links)
-            if self._members(api.GetShadowLinkCollectionAPI()) is not None:
-                self.issue("warning", prim, "shadow linking (collection:shadowLink) is not applied: every mesh casts "
-                                            "shadows")
+            casters = self._members(api.GetShadowLinkCollectionAPI())
+            if casters is not None:
+                if kind == "light":
+                    self.lights[index] = dataclasses.replace(self.lights[index], shadow_links=casters)
+                else:
+                    self.domes[index] = dataclasses.replace(self.domes[index], shadow_links=casters)
             if api.GetFiltersRel().GetTargets():
                 self.issue("warning", prim, "light filters are not applied by the capture")
 

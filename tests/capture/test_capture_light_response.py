@@ -1,5 +1,5 @@
 """UsdLux's non-physical light controls in the capture: the ``diffuse``/``specular`` multipliers, ShadowAPI's
-``shadow:enable`` and ``shadow:color``, and light linking. References: the closed forms of a floor under a sun or a uniform dome, and
+``shadow:enable`` and ``shadow:color``, light linking and shadow linking. References: the closed forms of a floor under a sun or a uniform dome, and
 linearity (a capture with the multipliers (1, 0) plus one with (0, 1) is the capture with (1, 1), sample for
 sample, since the lobes are weighted apart on the same paths)."""
 
@@ -269,14 +269,105 @@ def SphereLight "Lamp"
     assert float(np.abs(only_b[a]).max()) == 0.0 and both[a].max() > 0
 
 
-def test_shadow_links_and_filters_are_reported(tmp_path):
-    text = header() + _two_floors() + _sun(
-        '    uniform bool collection:shadowLink:includeRoot = 0\n    rel collection:shadowLink:includes = </A>\n'
-        '    rel light:filters = </Filter>') + 'def LightFilter "Filter"\n{\n}\n' + probe("P", (0.0, 0.5, 0.0))
+def _shadow_link(*targets: str, collection: str = "shadowLink") -> str:
+    """A collection that includes only ``targets`` (not the root)."""
+    return (f"    uniform bool collection:{collection}:includeRoot = 0\n"
+            f"    rel collection:{collection}:includes = [{', '.join(f'<{t}>' for t in targets)}]")
+
+
+def test_shadow_linking_leaves_out_the_shadows_of_unlinked_meshes(tmp_path):
+    """collection:shadowLink = {/Plane}: the plate casts no shadow, so the floor under it is lit (ρE/π) as with
+    shadow:enable = false, while the probe still sees the black plate above it; shadowLink = {/Plate}, or
+    includeRoot with /Plane excluded, keeps the shadow (black), as does the plain sun."""
+    inside, outside = _shadow_masks()
+    lit = RHO * E / math.pi
+    d = cube_texel_directions(N)
+    t = 0.5 / np.maximum(d[..., 1], 1e-9)  # the texels that see the plate, 0.5 m above the probe at x = 0.9
+    above = (d[..., 1] > 0.3) & (np.abs(0.9 + t * d[..., 0]) < 0.4) & (np.abs(t * d[..., 2]) < 0.4)
+    assert above.sum() > 3
+    unlinked = _capture(tmp_path, _shadowed_scene(_shadow_link("/Plane"), api=""), "unlinked")
+    np.testing.assert_allclose(unlinked[inside | outside], lit, rtol=1e-3)
+    assert float(np.abs(unlinked[above]).max()) == 0.0
+    kept = _capture(tmp_path, _shadowed_scene(_shadow_link("/Plate"), api=""), "kept")
+    excluded = _capture(tmp_path, _shadowed_scene(
+        "    rel collection:shadowLink:excludes = </Plane>", api=""), "excluded")
+    for cube in (kept, excluded):
+        assert float(np.abs(cube[inside]).max()) == 0.0
+        np.testing.assert_allclose(cube[outside], lit, rtol=1e-3)
+
+
+def test_a_shadow_linked_sphere_light_counts_once_and_passes_the_unlinked_plate(tmp_path):
+    """A large SphereLight (radius 1.2 m at 3 m: its BSDF-sampled share under MIS is large): shadow-linked to the
+    floor alone, it is sampled by next-event estimation alone, so the open floor receives what the MIS capture
+    does (no double counting; measured 0.7 %, the two estimators' noise) and the floor under the plate what it
+    would without the plate (measured 0.06 %; with MIS kept, the BSDF rays the plate stops leave it 1.5 % dark)."""
+    def scene(extra: str, plate: bool = True) -> str:
+        text = header() + material("Ground", diffuse=(RHO,) * 3, diffuse_only=True) + plane_mesh(
+            "Plane", 100, "/Ground")
+        if plate:
+            text += material("Black", diffuse=(0.0, 0.0, 0.0), diffuse_only=True)
+            text += plane_mesh("Plate", 0.5, "/Black", height=1.0)
+        return text + f"""
+def SphereLight "Lamp"
+{{
+    float inputs:radius = 1.2
+    float inputs:intensity = 5
+{extra}
+    double3 xformOp:translate = (0, 3, 0)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+}}
+""" + probe("P", (0.9, 0.5, 0.0))
+    d = cube_texel_directions(N)
+    t = 0.5 / np.maximum(-d[..., 1], 1e-9)
+    x, z = 0.9 + t * d[..., 0], t * d[..., 2]  # the floor point each texel sees; the penumbra ends at |x| = 1.35
+    down = d[..., 1] < -0.3
+    inside = down & (np.abs(x) < 0.8) & (np.abs(z) < 0.8)
+    outside = down & (np.maximum(np.abs(x), np.abs(z)) > 1.5)
+    assert inside.sum() > 10 and outside.sum() > 10
+    linked = _capture(tmp_path, scene(_shadow_link("/Plane")), "linked", samples=64)
+    no_plate = _capture(tmp_path, scene("", plate=False), "no_plate", samples=64)
+    plain = _capture(tmp_path, scene(""), "plain", samples=64)
+    np.testing.assert_allclose(linked[outside].mean(), plain[outside].mean(), rtol=0.015)
+    np.testing.assert_allclose(linked[inside].mean(), no_plate[inside].mean(), rtol=5e-3)
+    assert plain[inside].mean() < 0.8 * no_plate[inside].mean()  # the plate's shadow, without the links
+
+
+def test_a_dome_shadow_linked_past_a_roof_lights_the_floor_under_it(tmp_path):
+    """A uniform dome L whose shadowLink leaves out a black roof over the probe: the floor below receives the
+    whole sky, ρ·L (next-event estimation alone); the probe still sees the roof's black underside; without the
+    links the floor under the roof is dark."""
+    def scene(extra: str) -> str:
+        return (header() + material("Ground", diffuse=(RHO,) * 3, diffuse_only=True)
+                + plane_mesh("Plane", 1e4, "/Ground") + material("Black", diffuse=(0.0, 0.0, 0.0), diffuse_only=True)
+                + plane_mesh("Roof", 1e4, "/Black", height=2.0)
+                + f'def DomeLight "Sky"\n{{\n    float inputs:intensity = 1.5\n{extra}\n}}\n'
+                + probe("P", (0.0, 0.5, 0.0)))
+    d = cube_texel_directions(N)
+    down, up = d[..., 1] < -0.3, d[..., 1] > 0.3
+    linked = _capture(tmp_path, scene(_shadow_link("/Plane")), "linked", samples=64)
+    np.testing.assert_allclose(linked[down].mean(axis=0), RHO * 1.5, rtol=0.01)
+    assert float(np.abs(linked[up]).max()) == 0.0
+    plain = _capture(tmp_path, scene(""), "plain", samples=16)
+    assert float(np.abs(plain[down]).max()) < 1e-3 * RHO * 1.5
+
+
+def test_shadow_links_are_read_and_hashed_and_filters_reported(tmp_path):
+    from bakery.pipeline.dependencies import environment_hash
+
+    text = header() + _two_floors() + _sun(_shadow_link("/A") + '\n    rel light:filters = </Filter>')
+    text += 'def LightFilter "Filter"\n{\n}\n' + probe("P", (0.0, 0.5, 0.0))
     reading = read_scene(write(tmp_path / "links.usda", text))
     messages = [i.message for i in reading.issues if i.prim == "/Sun"]
-    assert any("shadow linking" in m for m in messages) and any("light filters" in m for m in messages)
-    assert reading.scene.lights[0].links is None
+    assert not any("shadow linking" in m for m in messages) and any("light filters" in m for m in messages)
+    names = [mesh.name for mesh in reading.scene.meshes]
+    (sun,) = reading.scene.lights
+    assert sun.links is None and [names[i] for i in sun.shadow_links] == ["/A"]
+    plain = read_scene(write(tmp_path / "plain.usda", header() + _two_floors() + _sun() + probe("P", (0.0, 0.5, 0.0))))
+    assert plain.scene.lights[0].shadow_links is None
+    assert environment_hash(reading.scene) != environment_hash(plain.scene)
+    dome = header() + _two_floors() + f'def DomeLight "Sky"\n{{\n{_shadow_link("/B")}\n}}\n' + probe("P")
+    reading = read_scene(write(tmp_path / "dome.usda", dome))
+    assert [names[i] for i in reading.scene.dome.shadow_links] == ["/B"]
 
 
 def test_light_shapes_end_paths_with_lobe_multipliers(tmp_path):

@@ -140,3 +140,23 @@ def test_an_untinted_material_hashes_as_before():
     keep their hashes)."""
     assert "transmission_tint" not in _material_fields(Material())
     assert _material_fields(Material(transmission_tint=TINT))["transmission_tint"] == TINT
+
+
+def test_a_pane_the_sun_is_not_shadow_linked_to_does_not_tint_its_light(tmp_path):
+    """The sun's collection:shadowLink holds the ground alone: its shadow rays pass the pane as if absent, untinted
+    (ρ·E·⟨cos⟩/π exactly), while the probe still sees the sky through the pane tinted (C·L)."""
+    sun = SUN.replace("    float inputs:angle = %s\n", "    float inputs:angle = 0.53\n"
+                      "    uniform bool collection:shadowLink:includeRoot = 0\n"
+                      "    rel collection:shadowLink:includes = </Ground>\n")
+    text = header() + DOME + _pane() + material("Soil", diffuse=(0.5,) * 3, diffuse_only=True)
+    text += plane_mesh("Ground", 1e4, "/Soil", height=0.0) + probe("P", (0.0, 1.0, 0.0)) + sun
+    reading = _read(tmp_path, text)
+    cube = _capture(reading, bounces=0)
+    d = cube_texel_directions(N)
+    below = d[..., 1] < -0.3
+    alpha = math.radians(0.53 / 2)
+    sun_light = 0.5 * 3.0 * math.cos(math.radians(30.0)) * (1 + math.cos(alpha)) / 2 / math.pi
+    dome_light = 0.5 * np.asarray(TINT)  # the uniform dome reaches the ground through the (shadow-casting) pane
+    np.testing.assert_allclose(cube[below].mean(axis=0), sun_light + dome_light, rtol=2e-3)
+    sky = np.median(cube[d[..., 1] > 0.05], axis=0)  # through the pane (the sun's own texels aside)
+    np.testing.assert_allclose(sky, TINT, rtol=1e-5)
