@@ -20,8 +20,8 @@ Mapping (metallic workflow of the capture; see ``docs/capture.md``)
     Inputs connected to ``image``/``tiledimage`` nodes (directly or through a nodegraph output) become texture maps
     with the node's file, ``colorspace`` (colour inputs are converted with OpenColorIO), address modes and default;
     a scalar weight multiplying a textured colour (base · base_color) folds into the map's scale. Lobes the
-    capture cannot represent (coat colour, sheen, subsurface, thin film, specular weight/colour ≠ 1, object-space
-    normal maps, other node types in a graph) are reported; chains of ``multiply``/``add``/``subtract``/``mix``
+    capture cannot represent (coat colour, sheen, thin film, specular weight/colour ≠ 1, object-space normal maps,
+    other node types in a graph) are reported; subsurface is read as its diffuse limit (:func:`_subsurface_as_diffuse`); chains of ``multiply``/``add``/``subtract``/``mix``
     with constant operands over one image (or ``geompropvalue``) fold into the map's scale and bias
     (:func:`fold_affine`); a colour input fed by ``geompropvalue`` reads that primvar per hit (vertex colours);
     image coordinates follow ``tiledimage`` tiling and a ``place2d``; a tangent-space ``normalmap`` of an image is
@@ -49,14 +49,17 @@ from bakery.usd.materials import (
 _SUPPORTED = ("standard_surface", "open_pbr_surface", "UsdPreviewSurface", "gltf_pbr")
 #: Lobe weights the capture does not model: (input, neutral value).
 _UNMODELLED = {
-    "standard_surface": (("coat_color", 1.0), ("sheen", 0.0), ("subsurface", 0.0),
+    "standard_surface": (("coat_color", 1.0), ("sheen", 0.0),
                          ("thin_film_thickness", 0.0), ("specular", 1.0), ("specular_color", 1.0)),
     "open_pbr_surface": (("coat_color", 1.0), ("fuzz_weight", 0.0),
-                         ("subsurface_weight", 0.0), ("thin_film_weight", 0.0), ("specular_weight", 1.0),
-                         ("specular_color", 1.0)),
+                         ("thin_film_weight", 0.0), ("specular_weight", 1.0), ("specular_color", 1.0)),
     "UsdPreviewSurface": (("displacement", 0.0),),
     "gltf_pbr": (("sheen_color", 0.0),),
 }
+#: (subsurface weight, subsurface colour): the dielectric base is mix(diffuse, subsurface, weight) in both
+#: surfaces' MaterialX graphs; the capture reads the subsurface lobe as its diffuse limit (:func:`_subsurface_as_diffuse`)
+_SUBSURFACE = {"standard_surface": ("subsurface", "subsurface_color"),
+               "open_pbr_surface": ("subsurface_weight", "subsurface_color")}
 #: (transmission weight, metalness) inputs: transmission is modelled as thin, straight pass-through — the surface's
 #: presence (opacity) is multiplied by 1 − t·(1 − metalness), the share of the base that is not transmitted
 _TRANSMISSION = {"standard_surface": ("transmission", "metalness"),
@@ -67,6 +70,12 @@ _TRANSMISSION = {"standard_surface": ("transmission", "metalness"),
 _TRANSMISSION_TINT = {"standard_surface": ("transmission_color", "transmission_depth"),
                       "open_pbr_surface": ("transmission_color", "transmission_depth"),
                       "gltf_pbr": ("base_color", None)}
+
+
+def _is_colour(name: str) -> bool:
+    """Whether a surface input is a colour (its textures are colour-managed): ``*_color``, ``emissive`` (gltf_pbr)
+    and UsdPreviewSurface's colour inputs."""
+    return name in COLOR_INPUTS or "color" in name or name == "emissive"
 
 
 class MaterialXError(ValueError):
@@ -173,10 +182,49 @@ def _to_surface(category: str, values: dict[str, object], maps: dict[str, dict],
 
     for target, colour_input, weight_input, scalar in _INPUT_MAP.get(category, _PREVIEW_SURFACE_MAP):
         put(target, colour_input, weight_input, scalar)
+    if category in _SUBSURFACE:
+        _subsurface_as_diffuse(category, d, maps, surface)
     if category in _TRANSMISSION:
         _transmission_as_presence(category, d, maps, surface)
     surface.primvar = "st" if any("primvar" not in entry for entry in surface.maps.values()) else None
     return surface
+
+
+def _subsurface_as_diffuse(category: str, values: dict[str, object], maps: dict[str, dict],
+                           surface: Surface) -> None:
+    """Subsurface weight s (textured: its mean) and colour C: the diffuse albedo becomes (1 − s)·diffuse + s·C,
+    the subsurface lobe's diffusion limit — light entering the surface leaves where it entered, as it does when its
+    mean free path (millimetres for skin, wax, marble) is far below the distances the probes resolve. A textured
+    diffuse or C folds into the map's scale and bias (the other taken as its mean when both are textured)."""
+    weight_input, colour_input = _SUBSURFACE[category]
+    weight = _mean(values.get(weight_input, 0.0))
+    if weight_input in maps:
+        weight = _mean(maps[weight_input].get("_mean", weight))
+        surface.notes.append(f"{category} {weight_input} is textured; its mean {weight:g} is used")
+    weight = min(max(weight, 0.0), 1.0)
+    if weight <= 0:
+        return
+    colour = np.broadcast_to(np.asarray(values.get(colour_input, (1.0, 1.0, 1.0)), dtype=np.float64), 3)
+    diffuse = np.broadcast_to(np.asarray(surface.values.get("diffuseColor", (0.18,) * 3), dtype=np.float64), 3)
+    base_map, colour_map = surface.maps.get("diffuseColor"), maps.get(colour_input)
+    if colour_map is not None:
+        colour = np.broadcast_to(np.asarray(colour_map.get("_mean", colour), dtype=np.float64), 3)
+    surface.values["diffuseColor"] = tuple(float(x) for x in (1.0 - weight) * diffuse + weight * colour)
+    if base_map is not None:  # (1 − s)·(a·tex + b) + s·C
+        if colour_map is not None:
+            surface.notes.append(f"{category} {colour_input} and the base colour are both textured; the mean of "
+                                 f"{colour_input} is mixed with the base colour's texture")
+        surface.maps["diffuseColor"] = _folded_entry(base_map, *_rgb_affine(1.0 - weight, weight * colour))
+    elif colour_map is not None:  # s·(a·tex + b) + (1 − s)·diffuse
+        entry = {k: v for k, v in colour_map.items() if k != "_mean"}
+        surface.maps["diffuseColor"] = _folded_entry(entry, *_rgb_affine(weight, (1.0 - weight) * diffuse))
+    surface.notes.append(f"{category} {weight_input} {weight:g} is read as its diffuse limit (albedo "
+                         f"{colour_input} where light enters): no light travels under the surface")
+
+
+def _rgb_affine(factor: float, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(scale, bias) (4,) of v → factor·v + offset on RGB, alpha unchanged (:func:`_folded_entry`'s operands)."""
+    return np.array([factor, factor, factor, 1.0]), np.append(np.asarray(offset, dtype=np.float64), 0.0)
 
 
 def _transmission_as_presence(category: str, values: dict[str, object], maps: dict[str, dict],
@@ -268,8 +316,7 @@ def surface_from_document(reader, document: str, material_name: str, prim: str) 
             entry = vertex_color_entry(str(leaf.getInputValue("geomprop"))) if leaf.getType() in (
                 "color3", "vector3") and leaf.getInputValue("geomprop") else None
         else:
-            entry = _image_map(reader, leaf, base_dir, name in ("base_color", "emission_color", "diffuseColor",
-                                                                "emissiveColor", "specularColor", "emissive"), prim)
+            entry = _image_map(reader, leaf, base_dir, _is_colour(name), prim)
         if entry is not None:
             maps[name] = _folded_entry(entry, scale, bias)
         elif leaf.getCategory() == "geompropvalue":
@@ -541,7 +588,7 @@ def surface_from_usd_shader(reader, shader, shader_id: str) -> Surface | None:  
                 maps[name] = entry
             continue
         if upstream_id == "UsdUVTexture":
-            entry, mean, _primvar = reader._uv_texture(upstream, output, name in COLOR_INPUTS or "color" in name)
+            entry, mean, _primvar = reader._uv_texture(upstream, output, _is_colour(name))
             if entry is not None:
                 maps[name] = dict(entry, _mean=mean)
             continue
@@ -551,7 +598,7 @@ def surface_from_usd_shader(reader, shader, shader_id: str) -> Surface | None:  
             leaf_id = leaf.GetShaderId() or ""
             entry = None
             if leaf_id.startswith("ND_image_") or leaf_id.startswith("ND_tiledimage_"):
-                entry = _usd_image_map(reader, leaf, "color" in name or name == "emissive")
+                entry = _usd_image_map(reader, leaf, _is_colour(name))
             elif leaf_id in ("ND_geompropvalue_color3", "ND_geompropvalue_vector3"):  # a colour primvar per hit
                 primvar = reader._input_value(leaf, "geomprop", "")
                 entry = vertex_color_entry(str(primvar)) if primvar else None
