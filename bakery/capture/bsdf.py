@@ -5,7 +5,8 @@
 with D the GGX distribution, V the height-correlated Smith visibility G2/(4 (n·wo)(n·wi)) and F Schlick's
 Fresnel — exactly the terms of :mod:`bakery.brdf.ggx` that the reflection encodings use. F = F0 + (F90 − F0)(1 −
 c)⁵ with F90 = min(1, 50·luminance(F0)) (a surface with F0 = 0 has no specular lobe at all, so a purely diffuse
-material is exactly Lambertian). α = roughness², clamped to ≥ :data:`MIN_ALPHA`.
+material is exactly Lambertian). A tinted lobe (MaterialX specular weight and colour, a coat's colour) scales F0
+and F90 alike: its F90 (3, M) is given. α = roughness², clamped to ≥ :data:`MIN_ALPHA`.
 
 Clearcoat (UsdPreviewSurface ``clearcoat`` c, ``clearcoatRoughness`` r_c; MaterialX coat): a white GGX lobe with
 F0 = 0.04 on top, F_c = c·Schlick(0.04, v·h), α_c = r_c² (≥ MIN_ALPHA); the base lobes are weighted by 1 − F_c (the
@@ -53,7 +54,7 @@ class Bsdf:
 
     def __init__(self, normals: np.ndarray, wo: np.ndarray, albedo: np.ndarray, f0: np.ndarray,
                  roughness: np.ndarray, geometric: np.ndarray | None = None,
-                 coat: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+                 coat: tuple[np.ndarray, np.ndarray] | None = None, f90: np.ndarray | None = None) -> None:
         self.n = normals
         #: the geometric normal (3, M) facing wo when ``normals`` are interpolated shading normals: directions
         #: below the geometric surface get no value and no pdf (a sampled one ends its path), so shading normals
@@ -62,14 +63,15 @@ class Bsdf:
         self.wo = wo
         self.f0 = f0
         self.albedo_pi = albedo * _INV_PI
-        self.f90 = np.minimum(1, 50 * luminance(f0))
+        #: F90 (M,) from F0 (module docstring), or (3, M) as given (a tinted specular lobe: Surfaces.params_soa)
+        self.f90 = np.minimum(1, 50 * luminance(f0)) if f90 is None else f90
         alpha = np.maximum(roughness * roughness, MIN_ALPHA)
         self.alpha = alpha
         self.a2 = alpha * alpha
         self.nv_raw = dot(normals, wo)
         nv = np.clip(self.nv_raw, 1e-6, 1)
         self.nv = nv
-        specular = self.f90 > 0
+        specular = self.f90 > 0 if self.f90.ndim == 1 else vmax(self.f90) > 0
         diffuse = vmax(albedo) > 0
         self.any_specular = bool(specular.any())
         #: points (indices) whose lobe is sharp enough (α < 0.03) for float32 cancellation in D's denominator to

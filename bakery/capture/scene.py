@@ -152,6 +152,10 @@ class Material:
         transmission_tint: (3,) the colour that multiplies light passing through the surface where it is absent
             (a passed-through hit: the thin, straight transmission of MaterialX surfaces, tinted by their
             ``transmission_color``); 1 for UsdPreviewSurface, whose opacity is colourless.
+        specular_tint: (3,) the dielectric specular lobe's weight × colour (MaterialX ``specular``·``specular_color``):
+            it scales that lobe's whole Fresnel curve, F0 and F90 alike (the metal's is unscaled).
+        coat_tint: (3,) what the coat lets through to the base, both ways (MaterialX mix(1, coat_color, coat)): it
+            scales the base's diffuse and specular lobes.
         maps: textured inputs, each a dict {"input": name, "texture": index into CaptureScene.textures,
             "channels": "rgb" | "r" | "g" | "b" | "a", "scale": (4,), "bias": (4,), "fallback": (4,),
             "wrap": (wrapS, wrapT)} and optionally "st_transform": ((a, b, tx), (c, d, ty)), the affine map
@@ -175,6 +179,8 @@ class Material:
     clearcoat: float = 0.0
     clearcoat_roughness: float = 0.01
     transmission_tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    specular_tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    coat_tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     @property
     def emits(self) -> bool:

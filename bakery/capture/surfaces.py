@@ -44,6 +44,7 @@ class SurfacePoint:
     emission: np.ndarray
     opacity: np.ndarray
     threshold: np.ndarray
+    f90: np.ndarray | None = None
 
 
 def transformed_st(entry: dict, s: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
@@ -270,6 +271,12 @@ class Surfaces:
             "ior": np.array([m.ior for m in mats], dtype=np.float64),
         }
         self.specular_workflow = np.array([m.use_specular_workflow for m in mats], dtype=bool)
+        #: (N, 3) each material's dielectric specular tint and coat tint (Material), or None when none is tinted:
+        #: the BSDF then derives F90 from F0 alone, exactly as without them
+        self.specular_tint = self.coat_tint = None
+        if any(tuple(m.specular_tint) != (1.0, 1.0, 1.0) or tuple(m.coat_tint) != (1.0, 1.0, 1.0) for m in mats):
+            self.specular_tint = np.array([m.specular_tint for m in mats], dtype=np.float64).reshape(-1, 3)
+            self.coat_tint = np.array([m.coat_tint for m in mats], dtype=np.float64).reshape(-1, 3)
         self.threshold = np.array([m.opacity_threshold for m in mats], dtype=np.float64)
         self.textured = [i for i, m in enumerate(self.materials) if m.maps]
         #: materials of partial presence: opacity < 1 (or textured) without an opacityThreshold — a hit passes
@@ -308,11 +315,12 @@ class Surfaces:
                                           for m in scene.meshes])
             self._colors_soa = np.ascontiguousarray(self.colors.reshape(-1, 9).T, dtype=np.float32)
 
-        # per-material BSDF parameters (rows: albedo rgb, F0 rgb, roughness, emission rgb) for the renderer's
-        # structure-of-arrays gathers; textured materials are re-evaluated per hit on top
+        # per-material BSDF parameters (rows: albedo rgb, F0 rgb, roughness, emission rgb, and F90 rgb with tints)
+        # for the renderer's structure-of-arrays gathers; textured materials are re-evaluated per hit on top
         point = self._point({name: array.copy() for name, array in self.base.items()}, np.arange(len(mats)))
         self.table = np.ascontiguousarray(np.concatenate(
-            [point.albedo.T, point.f0.T, point.roughness[None], point.emission.T]), dtype=np.float32)
+            [point.albedo.T, point.f0.T, point.roughness[None], point.emission.T]
+            + ([] if point.f90 is None else [point.f90.T])), dtype=np.float32)
         self.emissive = any(m.emits for m in self.materials)
         self.mesh_of_soa = np.ascontiguousarray(self.mesh_of, dtype=np.int32)
         #: (2, materials) float32 clearcoat amount and roughness, or None when no material has a coat
@@ -393,29 +401,39 @@ class Surfaces:
         return self._uvs_soa
 
     def params_soa(self, prim: np.ndarray, bu: np.ndarray, bv: np.ndarray, t: np.ndarray, spread: float
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
-        """BSDF parameters at hits as float32 structure-of-arrays: albedo (3, M), F0 (3, M), roughness (M,) and
-        emission (3, M) (None when no material emits)."""
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """BSDF parameters at hits as float32 structure-of-arrays: albedo (3, M), F0 (3, M), roughness (M,),
+        emission (3, M) (None when no material emits) and F90 (3, M) (None when no material's specular is tinted:
+        the BSDF derives it from F0)."""
         mi = np.take(self.mesh_of_soa, prim) if len(self.materials) else np.zeros(prim.shape, dtype=np.int32)
-        rows = 10 if self.emissive else 7
-        cols = [np.take(self.table[c], mi) for c in range(rows)]
-        albedo, f0, rough = np.stack(cols[0:3]), np.stack(cols[3:6]), cols[6]
-        emission = np.stack(cols[7:10]) if self.emissive else None
+        rows = [*range(7), *(range(7, 10) if self.emissive else ()), *(range(10, 13) if self.tinted else ())]
+        cols = {c: np.take(self.table[c], mi) for c in rows}
+        albedo, f0, rough = np.stack([cols[c] for c in (0, 1, 2)]), np.stack([cols[c] for c in (3, 4, 5)]), cols[6]
+        emission = np.stack([cols[c] for c in (7, 8, 9)]) if self.emissive else None
+        f90 = np.stack([cols[c] for c in (10, 11, 12)]) if self.tinted else None
         for k in self.textured:
             sel = np.flatnonzero(mi == k)
             if sel.size:
-                a, f, r, e = self._textured_soa(k, np.take(prim, sel), np.take(bu, sel), np.take(bv, sel),
-                                                np.take(t, sel), spread)
+                a, f, r, e, f9 = self._textured_soa(k, np.take(prim, sel), np.take(bu, sel), np.take(bv, sel),
+                                                    np.take(t, sel), spread)
                 albedo[:, sel] = a
                 f0[:, sel] = f
                 rough[sel] = r
                 if emission is not None:
                     emission[:, sel] = e
-        return albedo, f0, rough, emission
+                if f90 is not None:
+                    f90[:, sel] = f9
+        return albedo, f0, rough, emission, f90
+
+    @property
+    def tinted(self) -> bool:
+        """Whether some material's specular lobe is tinted (:attr:`specular_tint`, :attr:`coat_tint`)."""
+        return self.specular_tint is not None
 
     def _textured_soa(self, k: int, prim: np.ndarray, bu: np.ndarray, bv: np.ndarray, t: np.ndarray, spread: float
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """:meth:`at` (textures, then :meth:`_point`) for hits on material ``k``, float32 (3, M) / (M,)."""
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+        """:meth:`at` (textures, then :meth:`_point`) for hits on material ``k``, float32 (3, M) / (M,); F90 (3, M)
+        when some material is tinted."""
         m = prim.shape[0]
         dtype = t.dtype
         uv = [np.take(self._uvs_soa_f32()[i], prim) for i in range(6)]
@@ -465,9 +483,19 @@ class Surfaces:
             f0 = np.clip((1 - metallic) * dielectric + metallic * diffuse, 0, 1)
             albedo = diffuse * (1 - metallic)
         shape = (3, m)
+        f90 = None
+        if self.tinted:  # the tinted lobe: Material.specular_tint on the dielectric share, coat_tint on the base
+            spec = self.specular_tint[k].astype(dtype).reshape(3, 1)
+            coat = self.coat_tint[k].astype(dtype).reshape(3, 1)
+            f90 = (np.minimum(1, 50 * (0.2126 * f0[0] + 0.7152 * f0[1] + 0.0722 * f0[2]))
+                   * (coat * (1 if self.specular_workflow[k] else (1 - metallic) * spec + metallic)))
+            if not self.specular_workflow[k]:
+                f0 = (1 - metallic) * dielectric * spec + metallic * diffuse
+            f0, albedo = np.clip(coat * f0, 0, 1), albedo * coat
+            f90 = np.broadcast_to(f90, shape)
         return (np.broadcast_to(np.clip(albedo, 0, 1), shape), np.broadcast_to(f0, shape),
                 np.broadcast_to(np.clip(get("roughness"), 0, 1), (m,)),
-                np.broadcast_to(np.maximum(get("emissiveColor"), 0), shape))
+                np.broadcast_to(np.maximum(get("emissiveColor"), 0), shape), f90)
 
     def entry_texture(self, entry: dict) -> MipTexture | UdimTexture:
         """The texture a map entry reads: its image, or its UDIM tiles (``entry["udim"]``)."""
@@ -554,8 +582,16 @@ class Surfaces:
         f0_metal = (1.0 - metallic)[:, None] * dielectric[:, None] + metallic[:, None] * diffuse
         f0 = np.where(spec_wf[:, None], np.clip(v["specularColor"], 0.0, 1.0), np.clip(f0_metal, 0.0, 1.0))
         albedo = np.where(spec_wf[:, None], diffuse, diffuse * (1.0 - metallic)[:, None])
+        f90 = None
+        if self.tinted:  # Material.specular_tint scales the dielectric share of F0 and F90, coat_tint the whole base
+            spec, coat = self.specular_tint[mi], self.coat_tint[mi]
+            share = np.where(spec_wf[:, None], 1.0, (1.0 - metallic)[:, None] * spec + metallic[:, None])
+            f90 = np.minimum(1.0, 50.0 * (f0 @ np.array([0.2126, 0.7152, 0.0722])))[:, None] * share * coat
+            tinted = (1.0 - metallic)[:, None] * dielectric[:, None] * spec + metallic[:, None] * diffuse
+            f0 = np.clip(coat * np.where(spec_wf[:, None], f0, tinted), 0.0, 1.0)
+            albedo = albedo * coat
         return SurfacePoint(
             albedo=np.clip(albedo, 0.0, 1.0), f0=f0, roughness=np.clip(v["roughness"], 0.0, 1.0),
             emission=np.maximum(v["emissiveColor"], 0.0), opacity=np.clip(v["opacity"], 0.0, 1.0),
-            threshold=self.threshold[mi],
+            threshold=self.threshold[mi], f90=f90,
         )

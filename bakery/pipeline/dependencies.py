@@ -93,14 +93,15 @@ def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN00
 
 
 def _material_fields(material) -> dict:  # noqa: ANN001 - bakery.capture.scene.Material
-    """A material's fields for hashing, the clearcoat and the transmission tint only when the material has them (as
+    """A material's fields for hashing, the clearcoat and the tints only when the material has them (as
     :func:`_light_fields`)."""
     fields = dict(material.__dict__)
     if fields.get("clearcoat", 0.0) == 0.0:
         fields.pop("clearcoat", None)
         fields.pop("clearcoat_roughness", None)
-    if tuple(fields.get("transmission_tint", (1.0, 1.0, 1.0))) == (1.0, 1.0, 1.0):
-        fields.pop("transmission_tint", None)
+    for tint in ("transmission_tint", "specular_tint", "coat_tint"):
+        if tuple(fields.get(tint, (1.0, 1.0, 1.0))) == (1.0, 1.0, 1.0):
+            fields.pop(tint, None)
     return fields
 
 

@@ -212,6 +212,8 @@ class MaterialReader:
             clearcoat=float(np.clip(np.mean(v["clearcoat"]), 0.0, 1.0)),
             clearcoat_roughness=float(np.clip(np.mean(v["clearcoatRoughness"]), 0.0, 1.0)),
             transmission_tint=tuple(float(x) for x in surface.values.get("transmission_tint", (1.0, 1.0, 1.0))),
+            specular_tint=tuple(float(x) for x in surface.values.get("specular_tint", (1.0, 1.0, 1.0))),
+            coat_tint=tuple(float(x) for x in surface.values.get("coat_tint", (1.0, 1.0, 1.0))),
         )
         return material, False, surface.primvar if maps else None
 

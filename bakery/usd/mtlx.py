@@ -20,8 +20,9 @@ Mapping (metallic workflow of the capture; see ``docs/capture.md``)
     Inputs connected to ``image``/``tiledimage`` nodes (directly or through a nodegraph output) become texture maps
     with the node's file, ``colorspace`` (colour inputs are converted with OpenColorIO), address modes and default;
     a scalar weight multiplying a textured colour (base · base_color) folds into the map's scale. Lobes the
-    capture cannot represent (coat colour, sheen, thin film, specular weight/colour ≠ 1, object-space normal maps,
-    other node types in a graph) are reported; subsurface is read as its diffuse limit (:func:`_subsurface_as_diffuse`); chains of ``multiply``/``add``/``subtract``/``mix``
+    capture cannot represent (sheen, thin film, object-space normal maps, other node types in a graph) are
+    reported; subsurface is read as its diffuse limit (:func:`_subsurface_as_diffuse`), the specular weight and
+    colour and the coat colour as tints of the specular lobe and the base (:func:`_specular_and_coat_tints`); chains of ``multiply``/``add``/``subtract``/``mix``
     with constant operands over one image (or ``geompropvalue``) fold into the map's scale and bias
     (:func:`fold_affine`); a colour input fed by ``geompropvalue`` reads that primvar per hit (vertex colours);
     image coordinates follow ``tiledimage`` tiling and a ``place2d``; a tangent-space ``normalmap`` of an image is
@@ -49,13 +50,16 @@ from bakery.usd.materials import (
 _SUPPORTED = ("standard_surface", "open_pbr_surface", "UsdPreviewSurface", "gltf_pbr")
 #: Lobe weights the capture does not model: (input, neutral value).
 _UNMODELLED = {
-    "standard_surface": (("coat_color", 1.0), ("sheen", 0.0),
-                         ("thin_film_thickness", 0.0), ("specular", 1.0), ("specular_color", 1.0)),
-    "open_pbr_surface": (("coat_color", 1.0), ("fuzz_weight", 0.0),
-                         ("thin_film_weight", 0.0), ("specular_weight", 1.0), ("specular_color", 1.0)),
+    "standard_surface": (("sheen", 0.0), ("thin_film_thickness", 0.0)),
+    "open_pbr_surface": (("fuzz_weight", 0.0), ("thin_film_weight", 0.0)),
     "UsdPreviewSurface": (("displacement", 0.0),),
     "gltf_pbr": (("sheen_color", 0.0),),
 }
+#: (specular weight, specular colour, coat weight, coat colour): the dielectric specular lobe is weighted by
+#: weight × colour, and the coat lets mix(1, coat colour, coat weight) through to the base, both surfaces' stdlib
+#: graphs (:func:`_specular_and_coat_tints`)
+_TINTS = {"standard_surface": ("specular", "specular_color", "coat", "coat_color"),
+          "open_pbr_surface": ("specular_weight", "specular_color", "coat_weight", "coat_color")}
 #: (subsurface weight, subsurface colour): the dielectric base is mix(diffuse, subsurface, weight) in both
 #: surfaces' MaterialX graphs; the capture reads the subsurface lobe as its diffuse limit (:func:`_subsurface_as_diffuse`)
 _SUBSURFACE = {"standard_surface": ("subsurface", "subsurface_color"),
@@ -184,6 +188,8 @@ def _to_surface(category: str, values: dict[str, object], maps: dict[str, dict],
         put(target, colour_input, weight_input, scalar)
     if category in _SUBSURFACE:
         _subsurface_as_diffuse(category, d, maps, surface)
+    if category in _TINTS:
+        _specular_and_coat_tints(category, d, maps, surface)
     if category in _TRANSMISSION:
         _transmission_as_presence(category, d, maps, surface)
     surface.primvar = "st" if any("primvar" not in entry for entry in surface.maps.values()) else None
@@ -220,6 +226,29 @@ def _subsurface_as_diffuse(category: str, values: dict[str, object], maps: dict[
         surface.maps["diffuseColor"] = _folded_entry(entry, *_rgb_affine(weight, (1.0 - weight) * diffuse))
     surface.notes.append(f"{category} {weight_input} {weight:g} is read as its diffuse limit (albedo "
                          f"{colour_input} where light enters): no light travels under the surface")
+
+
+def _specular_and_coat_tints(category: str, values: dict[str, object], maps: dict[str, dict],
+                             surface: Surface) -> None:
+    """Material.specular_tint = specular weight × specular colour (the dielectric lobe's whole Fresnel curve) and
+    Material.coat_tint = mix(1, coat colour, coat weight) (what the coat passes to the base; the coat's own lobe is
+    the capture's clearcoat). Textured: their means, reported."""
+    weight_input, colour_input, coat_input, coat_colour_input = _TINTS[category]
+
+    def constant(name: str, fallback):  # noqa: ANN001, ANN202
+        value = values.get(name, fallback)
+        if name in maps:
+            value = maps[name].get("_mean", value)
+            surface.notes.append(f"{category} {name} is textured; its mean is used")
+        return np.broadcast_to(np.asarray(value, dtype=np.float64), 3)
+
+    specular = np.clip(constant(weight_input, 1.0) * constant(colour_input, 1.0), 0.0, None)
+    if np.any(specular != 1.0):
+        surface.values["specular_tint"] = tuple(float(x) for x in specular)
+    coat = min(max(float(np.mean(constant(coat_input, 0.0))), 0.0), 1.0)
+    passed = np.clip((1.0 - coat) + coat * constant(coat_colour_input, 1.0), 0.0, 1.0)
+    if np.any(passed != 1.0):
+        surface.values["coat_tint"] = tuple(float(x) for x in passed)
 
 
 def _rgb_affine(factor: float, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,111 @@
+"""MaterialX specular weight/colour and coat colour as tints: the stdlib graphs weight the dielectric specular lobe
+by ``specular`` × ``specular_color`` (F0 and F90 alike) and pass mix(1, coat_color, coat) through the coat to the
+base. References: the reader's closed forms, the BSDF's Schlick terms written out, and linearity of the capture in
+the tint (a tinted lobe is the untinted one times the tint, path for path)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from usd_scenes import header, mtlx_material, plane_mesh, probe, write
+
+from bakery.capture import capture_probes
+from bakery.capture.bsdf import Bsdf
+from bakery.sphere.cubemap import cube_texel_directions
+from bakery.usd.scene import read_scene
+
+N = 16
+DOME = 'def DomeLight "Sky"\n{\n    float inputs:intensity = 1\n}\n'
+
+
+def _reading(tmp_path, category_id: str, inputs: str, name: str = "scene"):
+    text = header() + DOME + mtlx_material("Mat", category_id, inputs) + plane_mesh("Floor", 1e4, "/Mat")
+    reading = read_scene(write(tmp_path / f"{name}.usda", text + probe("P", (0.0, 1.0, 0.0))))
+    assert not reading.errors, reading.errors
+    return reading
+
+
+@pytest.mark.parametrize(("category_id", "names"), [
+    ("ND_standard_surface_surfaceshader", ("specular", "specular_color", "coat", "coat_color")),
+    ("ND_open_pbr_surface_surfaceshader", ("specular_weight", "specular_color", "coat_weight", "coat_color")),
+])
+def test_specular_and_coat_tints_are_read(tmp_path, category_id, names):
+    weight, colour, coat, coat_colour = names
+    reading = _reading(tmp_path, category_id, f"float inputs:{weight} = 0.5\n        "
+                       f"color3f inputs:{colour} = (1, 0.5, 0.25)\n        float inputs:{coat} = 0.6\n        "
+                       f"color3f inputs:{coat_colour} = (0.2, 0.4, 1)")
+    material = reading.scene.meshes[0].material
+    np.testing.assert_allclose(material.specular_tint, (0.5, 0.25, 0.125), rtol=1e-6)
+    np.testing.assert_allclose(material.coat_tint, 0.4 + 0.6 * np.array([0.2, 0.4, 1.0]), rtol=1e-6)
+    assert not [i for i in reading.issues if "not modelled" in i.message], reading.issues
+    plain = _reading(tmp_path, category_id, "", name="plain").scene.meshes[0].material
+    assert plain.specular_tint == (1.0, 1.0, 1.0) and plain.coat_tint == (1.0, 1.0, 1.0)
+
+
+def test_a_tinted_lobe_scales_the_whole_schlick_curve():
+    """f = (1 − F)·ρ/π·cos + F·D·V·cos with F = t ⊙ Schlick(F0, F90): the specular part is t × the untinted one at
+    every angle (grazing included), the diffuse part ρ/π·(1 − t ⊙ F_1)·cos."""
+    rng = np.random.default_rng(3)
+    m = 64
+    n = np.tile(np.array([[0.0], [0.0], [1.0]], np.float32), (1, m))
+    wo = rng.normal(size=(3, m)).astype(np.float32)
+    wo[2] = np.abs(wo[2]) + 0.05
+    wo /= np.linalg.norm(wo, axis=0)
+    wi = rng.normal(size=(3, m)).astype(np.float32)
+    wi[2] = np.abs(wi[2]) + 0.05
+    wi /= np.linalg.norm(wi, axis=0)
+    albedo = np.full((3, m), 0.5, np.float32)
+    f0 = np.full((3, m), 0.04, np.float32)
+    rough = np.full(m, 0.4, np.float32)
+    tint = np.array([[0.5], [0.25], [0.0]], np.float32)
+    plain = Bsdf(n, wo, albedo, f0, rough)
+    tinted = Bsdf(n, wo, albedo, tint * f0, rough, f90=np.broadcast_to(tint * 1.0, (3, m)).astype(np.float32))
+    d1, s1, _ = plain.evaluate_lobes(wi)
+    dt, st, _ = tinted.evaluate_lobes(wi)
+    np.testing.assert_allclose(st, tint * s1, rtol=2e-5, atol=1e-9)
+    h = (wo + wi) / np.linalg.norm(wo + wi, axis=0)
+    vh = np.clip((wo * h).sum(axis=0), 0, 1)
+    fresnel = 0.04 + (1 - 0.04) * (1 - vh) ** 5
+    cos = np.maximum(wi[2], 0)
+    np.testing.assert_allclose(dt, 0.5 / np.pi * (1 - tint * fresnel) * cos, rtol=2e-5, atol=1e-9)
+    np.testing.assert_allclose(d1, np.broadcast_to(0.5 / np.pi * (1 - fresnel) * cos, d1.shape), rtol=2e-5,
+                               atol=1e-9)
+
+
+def test_the_capture_is_linear_in_the_specular_tint(tmp_path):
+    """A black dielectric floor (base 0: only the specular lobe, picked with probability 1, so the same paths)
+    under a uniform dome: the floor seen by the probe with specular 0.5 × colour (1, 0.5, 0.25) is that tint times
+    the untinted floor, texel for texel; with specular 0 the floor is black."""
+    surface = "ND_standard_surface_surfaceshader"
+    base = "float inputs:base = 0\n        float inputs:specular_roughness = 0.3\n        "
+    plain = _reading(tmp_path, surface, base, "plain")
+    tinted = _reading(tmp_path, surface, base + "float inputs:specular = 0.5\n        "
+                      "color3f inputs:specular_color = (1, 0.5, 0.25)", "tinted")
+    none = _reading(tmp_path, surface, base + "float inputs:specular = 0", "none")
+    below = cube_texel_directions(N)[..., 1] < -0.2
+    cubes = [capture_probes(r.scene, N, samples=16, bounces=0)[0][0].astype(np.float64)[below]
+             for r in (plain, tinted, none)]
+    assert cubes[0].min() > 0.01
+    np.testing.assert_allclose(cubes[1], cubes[0] * np.array([0.5, 0.25, 0.125]), rtol=1e-5)
+    assert float(np.abs(cubes[2]).max()) == 0.0
+
+
+def test_the_coat_colour_filters_the_base(tmp_path):
+    """A white diffuse base (specular 0) under a coat of weight 1 and colour C: the floor is the coat's own
+    reflection plus C ⊙ the base's share, so per channel it interpolates linearly between the captures with C = 0
+    and C = 1 (64 rays per texel: 1.5 %); a coat weight 0 passes everything whatever C."""
+    surface = "ND_standard_surface_surfaceshader"
+    base = "float inputs:base = 0.8\n        float inputs:specular = 0\n        float inputs:coat = 1\n        "
+    colours = {"black": (0.0, 0.0, 0.0), "white": (1.0, 1.0, 1.0), "tinted": (0.2, 0.5, 0.9)}
+    below = cube_texel_directions(N)[..., 1] < -0.2
+    mean = {}
+    for name, colour in colours.items():
+        reading = _reading(tmp_path, surface, base + f"color3f inputs:coat_color = {colour}", name)
+        cube = capture_probes(reading.scene, N, samples=64, bounces=0)[0][0].astype(np.float64)
+        mean[name] = cube[below].mean(axis=0)
+    expected = mean["black"] + np.array(colours["tinted"]) * (mean["white"] - mean["black"])
+    np.testing.assert_allclose(mean["tinted"], expected, rtol=0.015)
+    assert mean["white"][0] > 5 * mean["black"][0]  # the base dominates a white coat
+    uncoated = _reading(tmp_path, surface, "float inputs:coat = 0\n        color3f inputs:coat_color = (0, 0, 0)",
+                        "uncoated").scene.meshes[0].material
+    assert uncoated.coat_tint == (1.0, 1.0, 1.0)
