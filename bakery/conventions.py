@@ -69,6 +69,14 @@ CONVENTIONS: dict[str, str] = {
 }
 
 
+def stage_to_bake_axes(up_axis: str) -> np.ndarray:
+    """(3, 3) stage axes → bake frame for row vectors (bake = stage @ M): a ``Z``-up stage's (x, y, z) is the bake
+    frame's (x, z, −y); a ``Y``-up stage's is unchanged."""
+    if up_axis == "Z":
+        return np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+    return np.eye(3)
+
+
 def convention_attributes() -> dict[str, str]:
     """The conventions as one JSON string plus one attribute per entry, for a store's root."""
     attributes = {f"convention.{key}": value for key, value in CONVENTIONS.items()}

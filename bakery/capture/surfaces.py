@@ -18,6 +18,9 @@ already applied, as its specification asks)
     normal) handedness (right-handed tangent space: x along +s, y along +t, z out of the surface); a hit on the
     back side mirrors n with the surface. Where the mapped normal faces away from the viewer (or z ≤ 0) the
     unperturbed one is kept; as for authored normals, directions below the geometric surface get no BSDF value.
+    A world-space map (entry ``space`` "world": MaterialX ``normalize`` of a decoded image, the surfaces' ``normal``
+    being in world space) gives n in stage axes, turned into the bake frame (:func:`bakery.conventions.
+    stage_to_bake_axes`); a back-side hit sees it mirrored, and it is kept only on the front side of the surface.
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bakery.capture.scene import CaptureScene, Material
+from bakery.conventions import stage_to_bake_axes
 
 #: Angular spread (radians) assumed for bounce rays (diffuse-like): textures seen after a bounce are blurred.
 BOUNCE_SPREAD = 0.05
@@ -332,6 +336,7 @@ class Surfaces:
         self.normal_maps = {k: next(e for e in m.maps if e.get("input") == "normal")
                             for k, m in enumerate(self.materials) if any(e.get("input") == "normal" for e in m.maps)}
         self._tangents = None
+        self._stage_axes = stage_to_bake_axes(getattr(scene, "up_axis", "Y")).astype(np.float32)
         if self.normal_maps:  # and which triangles have texture coordinates (no tangent frame without them)
             self._tangents = _tangent_frames(self.triangles, self.uvs)
             for k, entry in self.normal_maps.items():  # a transformed map's frame: that of its coordinates
@@ -378,14 +383,12 @@ class Surfaces:
             texels = texture.lookup_soa(s_, t_, lod, tuple(entry.get("wrap", ("repeat", "repeat"))), (0, 1, 2))
             scale, bias = entry.get("scale", (1.0,) * 4), entry.get("bias", (0.0,) * 4)
             x, y, z = (texels[c] * np.float32(scale[c]) + np.float32(bias[c]) for c in range(3))
-            tangent = np.stack([np.take(self._tangents[c], p) for c in range(3)])
-            handed = np.take(self._tangents[3], p)
-            tangent = tangent - front * (tangent * front).sum(axis=0)  # Gram–Schmidt against the shading normal
-            tangent /= np.maximum(np.sqrt((tangent * tangent).sum(axis=0)), np.float32(1e-30))
-            bitangent = handed * np.stack([front[1] * tangent[2] - front[2] * tangent[1],
-                                           front[2] * tangent[0] - front[0] * tangent[2],
-                                           front[0] * tangent[1] - front[1] * tangent[0]])
-            mapped = (x * tangent + y * bitangent + z * front) * side  # back to the viewer's side
+            if entry.get("space") == "world":  # stage axes → bake frame (row vectors: bake = stage @ axes)
+                world = (np.stack([x, y, z]).T @ self._stage_axes).T
+                z = (world * front).sum(axis=0)  # its height over the front side: ≤ 0 keeps the unmapped normal
+                mapped = world * side
+            else:
+                mapped = self._tangent_space(p, front, x, y, z) * side  # back to the viewer's side
             length = np.sqrt((mapped * mapped).sum(axis=0))
             mapped /= np.maximum(length, np.float32(1e-30))
             keep = ((mapped * np.take(wo, sel, axis=1)).sum(axis=0) <= 0) | (length <= 0) | (z <= 0)
@@ -393,6 +396,18 @@ class Surfaces:
                 out = shading.copy()
             out[:, sel] = np.where(keep, n, mapped)
         return out
+
+    def _tangent_space(self, p: np.ndarray, front: np.ndarray, x: np.ndarray, y: np.ndarray, z: np.ndarray
+                       ) -> np.ndarray:
+        """x·T + y·B + z·N (3, M) on the triangles ``p`` with N = ``front`` (module docstring "Normal maps")."""
+        tangent = np.stack([np.take(self._tangents[c], p) for c in range(3)])
+        handed = np.take(self._tangents[3], p)
+        tangent = tangent - front * (tangent * front).sum(axis=0)  # Gram–Schmidt against the shading normal
+        tangent /= np.maximum(np.sqrt((tangent * tangent).sum(axis=0)), np.float32(1e-30))
+        bitangent = handed * np.stack([front[1] * tangent[2] - front[2] * tangent[1],
+                                       front[2] * tangent[0] - front[0] * tangent[2],
+                                       front[0] * tangent[1] - front[1] * tangent[0]])
+        return x * tangent + y * bitangent + z * front
 
     def _uvs_soa_f32(self) -> np.ndarray:
         if self._uvs_soa is None:

@@ -26,7 +26,8 @@ Mapping (metallic workflow of the capture; see ``docs/capture.md``)
     with constant operands over one image (or ``geompropvalue``) fold into the map's scale and bias
     (:func:`fold_affine`); a colour input fed by ``geompropvalue`` reads that primvar per hit (vertex colours);
     image coordinates follow ``tiledimage`` tiling and a ``place2d``; a tangent-space ``normalmap`` of an image is
-    a normal map (2·in − 1, x and y times its ``scale``). Transmission is read as thin, straight pass-through: the
+    a normal map (2·in − 1, x and y times its ``scale``), and a ``normalize`` of an image through constant
+    arithmetic a world-space one. Transmission is read as thin, straight pass-through: the
     presence (opacity) is multiplied by 1 − transmission·(1 − metalness), and the light that passes is tinted by
     the transmission colour (reported: no refraction, no reflection of the transmitted light).
 """
@@ -364,8 +365,25 @@ def _unmapped_normal(notes: list[str], what: str) -> None:
     notes.append(f"normal is {what}, which the capture does not evaluate (the mesh's normals are used)")
 
 
+def _world_normal_entry(entry: dict, scale: np.ndarray, bias: np.ndarray) -> dict:
+    """``normalize`` of a constant-affine image (:func:`fold_affine`): a world-space normal map (the surfaces'
+    ``normal`` input is in world space, MaterialX's ``Nworld``), the image decoded by the chain's scale and bias."""
+    return dict(_folded_entry(dict(entry, channels="rgb"), scale, bias), space="world")
+
+
 def _document_normal_map(reader, node, base_dir: Path, prim: str, notes: list[str]) -> dict | None:  # noqa: ANN001
-    """The map entry of a ``normalmap`` node (tangent space) fed by an ``image``/``tiledimage`` node, or None."""
+    """The map entry of a ``normalmap`` node (tangent space) fed by an ``image``/``tiledimage`` node, or of a
+    ``normalize`` of an image through constant arithmetic (world space; MaterialX upgrades a 1.38 object-space
+    ``normalmap`` to exactly this graph), or None."""
+    if node.getCategory() == "normalize":
+        source = node.getInput("in")
+        upstream = source.getConnectedNode() if source is not None else None
+        folded = None if upstream is None else fold_affine(upstream, lambda n: n.getCategory(), _document_operand)
+        if folded is None or folded[0].getCategory() not in ("image", "tiledimage"):
+            _unmapped_normal(notes, "a normalize of a computed vector")
+            return None
+        entry = _image_map(reader, folded[0], base_dir, False, prim)
+        return None if entry is None else _world_normal_entry(entry, folded[1], folded[2])
     if node.getCategory() != "normalmap":
         _unmapped_normal(notes, f"computed by a {node.getCategory()} node")
         return None
@@ -644,6 +662,17 @@ def _usd_normal_map(reader, node, node_id: str, notes: list[str]) -> dict | None
     if node_id == "UsdUVTexture":  # a tangent-space normal in [−1, 1]³ after the texture's scale/bias
         entry, _mean, _primvar = reader._uv_texture(node, "rgb", False)
         return None if entry is None else dict(entry, channels="rgb")
+    if node_id.startswith("ND_normalize_vector3"):
+        source = node.GetInput("in")
+        _value, upstream, _output = reader._producer(source) if source else (None, None, None)
+        folded = None if upstream is None else fold_affine(upstream, _usd_node_category,
+                                                            lambda shader, n: _usd_operand(reader, shader, n))
+        leaf_id = (folded[0].GetShaderId() or "") if folded is not None else ""
+        if not (leaf_id.startswith("ND_image_") or leaf_id.startswith("ND_tiledimage_")):
+            _unmapped_normal(notes, "a normalize of a computed vector")
+            return None
+        entry = _usd_image_map(reader, folded[0], False)
+        return None if entry is None else _world_normal_entry(entry, folded[1], folded[2])
     if not node_id.startswith("ND_normalmap"):
         _unmapped_normal(notes, f"computed by {node_id or 'an untyped shader'}")
         return None

@@ -39,6 +39,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
 from bakery.capture.ies import IesError, IesShaping, parse_ies
 from bakery.capture.lights import LIGHT_MODELS, Placement
 from bakery.capture.scene import CaptureScene, Dome, Light, Material, Mesh, ProbeSpec
+from bakery.conventions import stage_to_bake_axes
 from bakery.environment.io import is_8bit_image, read_environment
 from bakery.errors import ImageError, SceneError
 from bakery.usd import gprims
@@ -47,7 +48,6 @@ from bakery.usd.color import WORKING_SPACE, ColorSpaceError, to_working_space
 from bakery.usd.materials import MaterialReader, srgb_to_linear
 from bakery.usd.plugin import FALLBACKS, PROBE_TYPES
 
-_Z_UP_TO_BAKE = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 _POLE_Y_TO_Z = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # row vectors: +Y ↦ +Z
 #: Time at which the scene is read: authored defaults, else the first time sample.
 _T = Usd.TimeCode.EarliestTime()
@@ -104,7 +104,7 @@ class _Frame:
     def __init__(self, stage: Usd.Stage) -> None:
         self.mpu = float(UsdGeom.GetStageMetersPerUnit(stage))
         self.up = str(UsdGeom.GetStageUpAxis(stage))
-        self.axes = _Z_UP_TO_BAKE if self.up == "Z" else np.eye(3)
+        self.axes = stage_to_bake_axes(self.up)
 
     def points(self, local: np.ndarray, matrix: np.ndarray) -> np.ndarray:
         """Bake-frame points (…, 3) in metres of local points and a world matrix."""

@@ -272,3 +272,132 @@ def test_a_rotated_normal_map_turns_its_tangent_frame_with_its_coordinates(tmp_p
     facing = (-d @ world) > 0.1  # texels whose rays all see the mapped normal's front
     np.testing.assert_allclose(cube[_down() & facing], expected, rtol=1e-3)
     assert (_down() & facing).sum() > 300
+
+
+_WORLD_MTLX = """<?xml version="1.0"?>
+<materialx version="1.39">
+  <image name="normals" type="vector3">
+    <input name="file" type="filename" value="w.exr" />
+  </image>
+  <multiply name="twice" type="vector3">
+    <input name="in1" type="vector3" nodename="normals" />
+    <input name="in2" type="float" value="2" />
+  </multiply>
+  <subtract name="centred" type="vector3">
+    <input name="in1" type="vector3" nodename="twice" />
+    <input name="in2" type="float" value="1" />
+  </subtract>
+  <normalize name="unit" type="vector3">
+    <input name="in" type="vector3" nodename="centred" />
+  </normalize>
+  <standard_surface name="SR_floor" type="surfaceshader">
+    <input name="base" type="float" value="1" />
+    <input name="base_color" type="color3" value="{rho}, {rho}, {rho}" />
+    <input name="specular" type="float" value="0" />
+    <input name="normal" type="vector3" nodename="unit" />
+  </standard_surface>
+  <surfacematerial name="Floor" type="material">
+    <input name="surfaceshader" type="surfaceshader" nodename="SR_floor" />
+  </surfacematerial>
+</materialx>
+"""
+#: a world-space normal tilted towards +x and −z in the Y-up bake frame
+WORLD_NORMAL = np.array([0.35, 0.9, -0.25]) / np.linalg.norm([0.35, 0.9, -0.25])
+
+
+def _world_scene(tmp_path, name: str, up_axis: str = "Y") -> tuple[np.ndarray, object]:
+    """The Lambertian floor (specular 0) under the sun with the world-space normal map of :data:`_WORLD_MTLX`; for
+    a Z-up stage the whole scene sits under a +90° rotation about x (the Y-up scene turned into Z-up axes), and the
+    map holds the normal in those axes, (x, −z, y)."""
+    normal = WORLD_NORMAL if up_axis == "Y" else WORLD_NORMAL[[0, 2, 1]] * np.array([1, -1, 1])
+    _write_exr(tmp_path / "w.exr", (normal + 1) / 2)
+    (tmp_path / "world.mtlx").write_text(_WORLD_MTLX.format(rho=RHO))
+    content = ('def Scope "Looks" (\n    references = @./world.mtlx@</MaterialX>\n)\n{\n}\n'
+               + _floor().replace("</Floor>", "</Looks/Materials/Floor>") + _sun() + probe("P", (0.0, 0.5, 0.0)))
+    if up_axis == "Z":  # the same content, turned: every prim under an Xform rotated +90° about x
+        body = "\n".join("    " + line for line in content.replace("</Looks", "</World/Looks").splitlines())
+        content = (f'def Xform "World"\n{{\n    float xformOp:rotateX = 90\n'
+                   f'    uniform token[] xformOpOrder = ["xformOp:rotateX"]\n{body}\n}}\n')
+    reading = read_scene(write(tmp_path / f"{name}.usda", header(up_axis) + content))
+    assert not [i for i in reading.issues if "normal" in i.message], reading.issues
+    cubes, _ = capture_probes(reading.scene, N, samples=4, bounces=0)
+    return cubes[0], reading
+
+
+def test_a_world_space_normal_map_shades_with_its_normal(tmp_path):
+    """MaterialX ``normalize(2·image − 1)`` on a surface's ``normal`` (world space, MaterialX's Nworld; a 1.38
+    object-space normalmap upgrades to exactly this): the floor is ρE·max(0, n·l)/π with n the map's normal
+    wherever n faces the probe; a Z-up stage holding the same scene turned (and the normal in its axes) captures
+    the same probe."""
+    cube, reading = _world_scene(tmp_path, "world")
+    (entry,) = [e for e in reading.scene.meshes[0].material.maps if e["input"] == "normal"]
+    assert entry["space"] == "world" and entry["scale"][:3] == (2.0, 2.0, 2.0) and entry["bias"][:3] == (-1, -1, -1)
+    d = cube_texel_directions(N)
+    facing = (-d @ WORLD_NORMAL) > 0.1  # a texel whose rays all see the mapped normal
+    expected = RHO * E * max(0.0, float(WORLD_NORMAL @ LIGHT)) / math.pi
+    np.testing.assert_allclose(cube[_down() & facing], expected, rtol=1e-3)
+    assert abs(expected - RHO * E * math.cos(SUN) / math.pi) > 0.05 * expected  # the map matters
+    turned, _ = _world_scene(tmp_path, "world_z", up_axis="Z")
+    # texels on the floor off the mapped normal's horizon (where a texel's rays split, by the probe path's seed)
+    clear = _down() & (np.abs(d @ WORLD_NORMAL) > 0.1)
+    np.testing.assert_allclose(turned[clear], cube[clear], rtol=1e-3)  # the sun disc sampled by another seed
+
+
+def test_the_shared_object_space_normal_map_reads_as_world_space(shared_data):
+    """OpenUSD's MaterialXvsNative normalMap.mtlx (MaterialX 1.38, normalmap space = object) upgrades to a
+    normalize of the decoded image: read as a world-space map, with no report."""
+    reading = read_scene(shared_data / "usd" / "openusd_MaterialXvsNative" / "materialXnormalMap.usda")
+    assert not [i for i in reading.issues if "normal" in i.message], reading.issues
+    entries = [e for mesh in reading.scene.meshes for e in mesh.material.maps if e["input"] == "normal"]
+    assert entries and all(e["space"] == "world" for e in entries)
+    assert all(e["scale"][:3] == (2.0, 2.0, 2.0) and e["bias"][:3] == (-1.0, -1.0, -1.0) for e in entries)
+
+
+def test_a_world_space_normal_graph_authored_in_usd_captures_as_the_document(tmp_path):
+    """The same graph as ND_ shaders in USD (ND_normalize_vector3 over ND_subtract_vector3FA / ND_multiply_vector3FA
+    of ND_image_vector3) captures as the document's."""
+    document, _ = _world_scene(tmp_path, "document")
+    authored = f"""
+def Material "Floor"
+{{
+    token outputs:mtlx:surface.connect = </Floor/Surf.outputs:out>
+    def Shader "Surf"
+    {{
+        uniform token info:id = "ND_standard_surface_surfaceshader"
+        float inputs:base = 1
+        color3f inputs:base_color = ({RHO}, {RHO}, {RHO})
+        float inputs:specular = 0
+        float3 inputs:normal.connect = </Floor/Unit.outputs:out>
+        token outputs:out
+    }}
+    def Shader "Unit"
+    {{
+        uniform token info:id = "ND_normalize_vector3"
+        float3 inputs:in.connect = </Floor/Centred.outputs:out>
+        float3 outputs:out
+    }}
+    def Shader "Centred"
+    {{
+        uniform token info:id = "ND_subtract_vector3FA"
+        float3 inputs:in1.connect = </Floor/Twice.outputs:out>
+        float inputs:in2 = 1
+        float3 outputs:out
+    }}
+    def Shader "Twice"
+    {{
+        uniform token info:id = "ND_multiply_vector3FA"
+        float3 inputs:in1.connect = </Floor/Normals.outputs:out>
+        float inputs:in2 = 2
+        float3 outputs:out
+    }}
+    def Shader "Normals"
+    {{
+        uniform token info:id = "ND_image_vector3"
+        asset inputs:file = @./w.exr@
+        float3 outputs:out
+    }}
+}}
+"""
+    in_usd, reading = _capture(tmp_path, authored, "authored_world")
+    assert not [i for i in reading.issues if "normal" in i.message], reading.issues
+    np.testing.assert_allclose(in_usd, document, rtol=1e-5, atol=1e-8)
