@@ -233,7 +233,9 @@ def _renormalised(image: EnvironmentImage, cube: np.ndarray, face_size: int) -> 
     """``cube`` (6·N·N, 3) scaled per channel to the flux of ``image``."""
     # Global renormalisation: Σ_j L_j Ω_j (exact cube solid angles) = Σ_i L_i Ω_i (source), per channel. A constant
     # environment is left unchanged (both sides are c·4π); the box filter's local weights only redistribute.
-    source_flux = environment_samples(image).flux()
+    omega = source_texel_solid_angles(image)
+    valid = omega > 0  # environment_samples(image).flux(), without the directions
+    source_flux = omega[valid].astype(np.float64) @ image.pixels[valid].astype(np.float64)
     cube_flux = cube_texel_solid_angles(face_size).reshape(-1) @ cube
     scale = np.where(cube_flux > 0, source_flux / np.where(cube_flux > 0, cube_flux, 1.0), 1.0)
     return cube * scale
