@@ -45,15 +45,23 @@ def inside_geometry(diagnostics: dict[str, np.ndarray], threshold: float = INSID
 
 def inside_geometry_warning(merged: EncodedBatch, shown: int = 3) -> BakeWarning | None:
     """One warning naming the probes that are likely inside geometry (:func:`inside_geometry`), or None."""
-    names = [merged.probes[i].name for i in inside_geometry(merged.diagnostics)]
-    if not names:
+    probes = [merged.probes[i] for i in inside_geometry(merged.diagnostics)]
+    if not probes:
         return None
+    names = [probe.name for probe in probes]
     listed = ", ".join(names[:shown]) + (f" and {len(names) - shown} more" if len(names) > shown else "")
+    relocated = sum(1 for probe in probes if probe.settings.get("relocate"))
+    if relocated == len(probes):  # relocation was on and found no point outside within its search radius
+        advice = ("Relocation (bakery:volume:relocate) found no point outside within half the spacing: move them, "
+                  "or author")
+    else:
+        also = f" ({relocated} of them already relocate and found no point outside)" if relocated else ""
+        advice = f"Move them, set bakery:volume:relocate on their volume{also}, or author"
     return BakeWarning("SceneWarning", (
         f"{len(names)} of {len(merged.probes)} probes are likely inside geometry: ≥ "
         f"{INSIDE_BACKFACE_FRACTION:.0%} of their camera rays see the back of single-sided surfaces ({listed}); "
-        f"what they store is the inside. Move them, set bakery:volume:relocate on their volume, or "
-        f"author doubleSided = true on open sheets seen from both sides (per probe: /diagnostics/{BACKFACE_KEY})"))
+        f"what they store is the inside. {advice} doubleSided = true on open sheets seen from both sides "
+        f"(per probe: /diagnostics/{BACKFACE_KEY})"))
 
 
 def merge_batches(batches: list[EncodedBatch], order: list[str] | None = None, *,

@@ -176,3 +176,14 @@ def test_check_reports_probes_inside_geometry_before_a_bake(tmp_path):
     relocating = write(tmp_path / "relocating.usda", _hall("bool bakery:volume:relocate = 1"))
     (row,) = [i for i in check_scene(relocating) if "inside geometry" in i.message]
     assert "the bake relocates them" in row.message
+
+
+def test_a_probe_relocation_cannot_free_is_reported_as_such(tmp_path):
+    """A 6 m cube around a whole relocating row: no point outside lies within half the 2 m spacing of any probe,
+    so they stay inside, and the warning says relocation found none (rather than advising to turn it on)."""
+    text = _hall("bool bakery:volume:relocate = 1").replace("double size = 1", "double size = 6")
+    with pytest.warns(SceneWarning, match=r"likely inside geometry.*/Row\[1,0,0\].*Relocation \(bakery:volume:"
+                                          r"relocate\) found no point outside") as record:
+        bakery.bake(write(tmp_path / "deep.usda", text), tmp_path / "deep.h5", encodings=("sh2",), face_size=8,
+                    samples=1)
+    assert not any("set bakery:volume:relocate" in str(w.message) for w in record)
