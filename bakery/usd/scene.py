@@ -589,18 +589,12 @@ class SceneReader:
         some out is shadowed by the others alone (:attr:`Light.shadow_links`). Light filters are reported."""
         for kind, index, prim in self._linked:
             api = UsdLux.LightAPI(prim)
-            links = self._members(api.GetLightLinkCollectionAPI())
-            if links is not None:
-                if kind == "light":
-                    self.lights[index] = dataclasses.replace(self.lights[index], links=links)
-                else:
-                    self.domes[index] = dataclasses.replace(self.domes[index], links=links)
-            casters = self._members(api.GetShadowLinkCollectionAPI())
-            if casters is not None:
-                if kind == "light":
-                    self.lights[index] = dataclasses.replace(self.lights[index], shadow_links=casters)
-                else:
-                    self.domes[index] = dataclasses.replace(self.domes[index], shadow_links=casters)
+            emitters = self.lights if kind == "light" else self.domes
+            for collection, field in ((api.GetLightLinkCollectionAPI(), "links"),
+                                      (api.GetShadowLinkCollectionAPI(), "shadow_links")):
+                members = self._members(collection)
+                if members is not None:
+                    emitters[index] = dataclasses.replace(emitters[index], **{field: members})
             if api.GetFiltersRel().GetTargets():
                 self.issue("warning", prim, "light filters are not applied by the capture")
 
