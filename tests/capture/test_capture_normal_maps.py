@@ -158,26 +158,32 @@ def test_normal_map_decoded_as_srgb_is_reported(tmp_path):
     assert any("normal map decoded as sRGB" in i.message for i in reading.issues)
 
 
-_MTLX = """<?xml version="1.0"?>
+def _document(nodes: str, normal: str, lobe: str) -> str:
+    """A .mtlx document: ``nodes`` (the normal's graph), a standard_surface floor of albedo ρ whose ``normal`` is the
+    node ``normal``, with the specular input line ``lobe``."""
+    return f"""<?xml version="1.0"?>
 <materialx version="1.39">
-  <image name="bumps" type="vector3">
-    <input name="file" type="filename" value="n.exr" />
-  </image>
-  <normalmap name="mapped" type="vector3">
-    <input name="in" type="vector3" nodename="bumps" />
-    <input name="scale" type="float" value="{scale}" />
-  </normalmap>
+{nodes}
   <standard_surface name="SR_floor" type="surfaceshader">
     <input name="base" type="float" value="1" />
-    <input name="base_color" type="color3" value="{rho}, {rho}, {rho}" />
-    <input name="specular_roughness" type="float" value="0.4" />
-    <input name="normal" type="vector3" nodename="mapped" />
+    <input name="base_color" type="color3" value="{RHO}, {RHO}, {RHO}" />
+    {lobe}
+    <input name="normal" type="vector3" nodename="{normal}" />
   </standard_surface>
   <surfacematerial name="Floor" type="material">
     <input name="surfaceshader" type="surfaceshader" nodename="SR_floor" />
   </surfacematerial>
 </materialx>
 """
+
+
+_MTLX = _document("""  <image name="bumps" type="vector3">
+    <input name="file" type="filename" value="n.exr" />
+  </image>
+  <normalmap name="mapped" type="vector3">
+    <input name="in" type="vector3" nodename="bumps" />
+    <input name="scale" type="float" value="{scale}" />
+  </normalmap>""", "mapped", '<input name="specular_roughness" type="float" value="0.4" />')
 
 
 def _twin(scale: float) -> str:
@@ -196,7 +202,7 @@ def test_materialx_normalmap_matches_its_preview_surface_twin(tmp_path, scale):
     UsdPreviewSurface with the same lobes and the map decoded by scale/bias — in a .mtlx document and authored in
     USD as ND_ shaders."""
     _write_exr(tmp_path / "n.exr", (0.7, 0.4, 0.9))
-    (tmp_path / "floor.mtlx").write_text(_MTLX.format(scale=scale, rho=RHO))
+    (tmp_path / "floor.mtlx").write_text(_MTLX.replace("{scale}", str(scale)))
     document = """
 def Scope "Looks" (
     references = @./floor.mtlx@</MaterialX>
@@ -274,9 +280,7 @@ def test_a_rotated_normal_map_turns_its_tangent_frame_with_its_coordinates(tmp_p
     assert (_down() & facing).sum() > 300
 
 
-_WORLD_MTLX = """<?xml version="1.0"?>
-<materialx version="1.39">
-  <image name="normals" type="vector3">
+_WORLD_MTLX = _document("""  <image name="normals" type="vector3">
     <input name="file" type="filename" value="w.exr" />
   </image>
   <multiply name="twice" type="vector3">
@@ -289,18 +293,7 @@ _WORLD_MTLX = """<?xml version="1.0"?>
   </subtract>
   <normalize name="unit" type="vector3">
     <input name="in" type="vector3" nodename="centred" />
-  </normalize>
-  <standard_surface name="SR_floor" type="surfaceshader">
-    <input name="base" type="float" value="1" />
-    <input name="base_color" type="color3" value="{rho}, {rho}, {rho}" />
-    <input name="specular" type="float" value="0" />
-    <input name="normal" type="vector3" nodename="unit" />
-  </standard_surface>
-  <surfacematerial name="Floor" type="material">
-    <input name="surfaceshader" type="surfaceshader" nodename="SR_floor" />
-  </surfacematerial>
-</materialx>
-"""
+  </normalize>""", "unit", '<input name="specular" type="float" value="0" />')
 #: a world-space normal tilted towards +x and −z in the Y-up bake frame
 WORLD_NORMAL = np.array([0.35, 0.9, -0.25]) / np.linalg.norm([0.35, 0.9, -0.25])
 
@@ -311,7 +304,7 @@ def _world_scene(tmp_path, name: str, up_axis: str = "Y") -> tuple[np.ndarray, o
     map holds the normal in those axes, (x, −z, y)."""
     normal = WORLD_NORMAL if up_axis == "Y" else WORLD_NORMAL[[0, 2, 1]] * np.array([1, -1, 1])
     _write_exr(tmp_path / "w.exr", (normal + 1) / 2)
-    (tmp_path / "world.mtlx").write_text(_WORLD_MTLX.format(rho=RHO))
+    (tmp_path / "world.mtlx").write_text(_WORLD_MTLX)
     content = ('def Scope "Looks" (\n    references = @./world.mtlx@</MaterialX>\n)\n{\n}\n'
                + _floor().replace("</Floor>", "</Looks/Materials/Floor>") + _sun() + probe("P", (0.0, 0.5, 0.0)))
     if up_axis == "Z":  # the same content, turned: every prim under an Xform rotated +90° about x
