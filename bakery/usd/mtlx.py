@@ -54,7 +54,8 @@ _UNMODELLED = {
     "standard_surface": (("sheen", 0.0), ("thin_film_thickness", 0.0)),
     "open_pbr_surface": (("fuzz_weight", 0.0), ("thin_film_weight", 0.0)),
     "UsdPreviewSurface": (("displacement", 0.0),),
-    "gltf_pbr": (("sheen_color", 0.0),),
+    "gltf_pbr": (("sheen_color", 0.0), ("iridescence", 0.0), ("specular", 1.0), ("specular_color", 1.0),
+                 ("anisotropy_strength", 0.0)),
 }
 #: (specular weight, specular colour, coat weight, coat colour): the dielectric specular lobe is weighted by
 #: weight × colour, and the coat lets mix(1, coat colour, coat weight) through to the base, both surfaces' stdlib
@@ -187,6 +188,8 @@ def _to_surface(category: str, values: dict[str, object], maps: dict[str, dict],
 
     for target, colour_input, weight_input, scalar in _INPUT_MAP.get(category, _PREVIEW_SURFACE_MAP):
         put(target, colour_input, weight_input, scalar)
+    if category == "gltf_pbr":
+        _gltf_alpha_mode(d, surface)
     if category in _SUBSURFACE:
         _subsurface_as_diffuse(category, d, maps, surface)
     if category in _TINTS:
@@ -195,6 +198,17 @@ def _to_surface(category: str, values: dict[str, object], maps: dict[str, dict],
         _transmission_as_presence(category, d, maps, surface)
     surface.primvar = "st" if any("primvar" not in entry for entry in surface.maps.values()) else None
     return surface
+
+
+def _gltf_alpha_mode(values: dict[str, object], surface: Surface) -> None:
+    """glTF 2.0 ``alphaMode`` (gltf_pbr ``alpha_mode``): 0 OPAQUE ignores alpha (the surface is opaque), 1 MASK cuts
+    out where alpha < ``alpha_cutoff`` (the capture's opacityThreshold), 2 BLEND keeps alpha as presence."""
+    mode = int(round(_mean(values.get("alpha_mode", 0))))
+    if mode == 0:
+        surface.values["opacity"] = 1.0
+        surface.maps.pop("opacity", None)
+    elif mode == 1:
+        surface.values["opacityThreshold"] = _mean(values.get("alpha_cutoff", 0.5))
 
 
 def _subsurface_as_diffuse(category: str, values: dict[str, object], maps: dict[str, dict],
