@@ -9,7 +9,7 @@ material is exactly Lambertian). A tinted lobe (MaterialX specular weight and co
 and F90 alike: its F90 (3, M) is given. α = roughness², clamped to ≥ :data:`MIN_ALPHA`.
 
 Clearcoat (UsdPreviewSurface ``clearcoat`` c, ``clearcoatRoughness`` r_c; MaterialX coat): a white GGX lobe with
-F0 = 0.04 on top, F_c = c·Schlick(0.04, v·h), α_c = r_c² (≥ MIN_ALPHA); the base lobes are weighted by 1 − F_c (the
+F0 = 0.04 (MaterialX: ((ior − 1)/(ior + 1))² of the coat's IOR, given per point) on top, F_c = c·Schlick(0.04, v·h), α_c = r_c² (≥ MIN_ALPHA); the base lobes are weighted by 1 − F_c (the
 light the coat transmits, as the diffuse lobe is by 1 − F under the specular one). It is picked first with
 probability p_c = clip(F_c(n·v) / (F_c(n·v) + (1 − F_c(n·v))·(base weights)), 0.05, 0.95) and sampled by its visible
 normals; the mixture pdf is p_c·pdf_c + (1 − p_c)·pdf_base. Without a coat the BSDF is unchanged.
@@ -95,7 +95,8 @@ class Bsdf:
             amount = np.clip(coat[0], 0, 1).astype(nv.dtype, copy=False)
             alpha_c = np.maximum(coat[1] * coat[1], MIN_ALPHA).astype(nv.dtype, copy=False)
             a2c = alpha_c * alpha_c
-            fc_v = amount * (COAT_F0 + (1 - COAT_F0) * _pow5(1 - nv))  # the coat's Fresnel towards the viewer
+            f0c = coat[2] if len(coat) > 2 else COAT_F0  # (M,) from the coat's IOR, or 0.04
+            fc_v = amount * (f0c + (1 - f0c) * _pow5(1 - nv))  # the coat's Fresnel towards the viewer
             base = (spec_w + luminance(albedo * (1 - fv))) * (1 - fc_v)
             with np.errstate(divide="ignore", invalid="ignore"):
                 pc = np.clip(np.where(fc_v + base > 0, fc_v / (fc_v + base), 0.5), 0.05, 0.95)
@@ -103,7 +104,7 @@ class Bsdf:
             tan2 = (1 - nv * nv) / (nv * nv)
             g1c = 1 / (1 + 0.5 * (np.sqrt(1 + a2c * tan2) - 1))
             self.coat = (amount, alpha_c, a2c, np.sqrt(nv * nv * (1 - a2c) + a2c), self.p_coat * g1c / (4 * nv),
-                         np.flatnonzero((amount > 0) & (alpha_c < 0.03)))
+                         np.flatnonzero((amount > 0) & (alpha_c < 0.03)), f0c)
 
     def _fresnel(self, c: np.ndarray) -> np.ndarray:
         return self.f0 + (self.f90 - self.f0) * _pow5(1 - np.clip(c, 0, 1))
@@ -144,8 +145,9 @@ class Bsdf:
             specular = f * (d * vis * nlc)
             pdf = pdf + e(self.spec_pdf_scale) * d
         if self.coat is not None:  # [UsdPreviewSurface] clearcoat: a white GGX lobe (F0 0.04) over the base
-            amount, _alpha, a2c, sqvc, pdf_scale, sharp = self.coat
-            fc = e(amount) * (COAT_F0 + (1 - COAT_F0) * _pow5(1 - vh))
+            amount, _alpha, a2c, sqvc, pdf_scale, sharp, f0c = self.coat
+            f0c = e(f0c) if np.ndim(f0c) else f0c
+            fc = e(amount) * (f0c + (1 - f0c) * _pow5(1 - vh))
             d, vis = self._ggx(e, n, wo, wi, nl, nlc, inv_h, e(a2c), e(sqvc), sharp)
             keep = 1 - fc  # the base sees what the coat transmits
             diffuse = diffuse * keep

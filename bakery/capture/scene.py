@@ -146,6 +146,7 @@ class Material:
         ior: index of refraction of the dielectric Fresnel (F0 = ((ior − 1)/(ior + 1))²).
         clearcoat, clearcoat_roughness: a white GGX coat (F0 0.04) of that amount and roughness over the base
             (:mod:`bakery.capture.bsdf`, "Clearcoat").
+        clearcoat_f0: the coat's F0, ((ior − 1)/(ior + 1))² of a MaterialX coat's IOR (UsdPreviewSurface: 0.04).
         opacity, opacity_threshold: cut-outs: a hit whose opacity is below the threshold (threshold > 0) is
             passed through; without a threshold, opacity is the surface's presence: a hit is passed through with
             probability 1 − opacity (stochastic alpha: a window of opacity 0.2 passes 80 % of the light).
@@ -178,6 +179,7 @@ class Material:
     maps: tuple[dict, ...] = ()
     clearcoat: float = 0.0
     clearcoat_roughness: float = 0.01
+    clearcoat_f0: float = 0.04
     transmission_tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
     specular_tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
     coat_tint: tuple[float, float, float] = (1.0, 1.0, 1.0)

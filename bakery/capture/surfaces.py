@@ -327,11 +327,14 @@ class Surfaces:
             + ([] if point.f90 is None else [point.f90.T])), dtype=np.float32)
         self.emissive = any(m.emits for m in self.materials)
         self.mesh_of_soa = np.ascontiguousarray(self.mesh_of, dtype=np.int32)
-        #: (2, materials) float32 clearcoat amount and roughness, or None when no material has a coat
+        #: (2, materials) float32 clearcoat amount and roughness — and a third row, the coat's F0, when some coat's
+        #: is not 0.04 — or None when no material has a coat
         self.coat_table = None
         if any(m.clearcoat > 0 for m in self.materials):
-            self.coat_table = np.array([[m.clearcoat for m in mats], [m.clearcoat_roughness for m in mats]],
-                                       dtype=np.float32)
+            rows = [[m.clearcoat for m in mats], [m.clearcoat_roughness for m in mats]]
+            if any(m.clearcoat > 0 and m.clearcoat_f0 != 0.04 for m in self.materials):
+                rows.append([m.clearcoat_f0 for m in mats])
+            self.coat_table = np.array(rows, dtype=np.float32)
         #: materials with a UsdPreviewSurface ``normal`` map, and each one's map entry
         self.normal_maps = {k: next(e for e in m.maps if e.get("input") == "normal")
                             for k, m in enumerate(self.materials) if any(e.get("input") == "normal" for e in m.maps)}
@@ -350,12 +353,13 @@ class Surfaces:
             self._has_uv = np.concatenate([np.full(np.asarray(m.triangles).reshape(-1, 3, 3).shape[0],
                                                    m.uvs is not None) for m in scene.meshes])
 
-    def coat_soa(self, prim: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """Clearcoat amount and roughness (M,) at hits, or None when no material has a coat."""
+    def coat_soa(self, prim: np.ndarray) -> tuple[np.ndarray, ...] | None:
+        """Clearcoat amount and roughness (M,) at hits (and its F0 (M,) when some coat's is not 0.04), or None when
+        no material has a coat."""
         if self.coat_table is None:
             return None
         mi = np.take(self.mesh_of_soa, prim)
-        return np.take(self.coat_table[0], mi), np.take(self.coat_table[1], mi)
+        return tuple(np.take(row, mi) for row in self.coat_table)
 
     def mapped_normals(self, prim: np.ndarray, bu: np.ndarray, bv: np.ndarray, t: np.ndarray, spread: float,
                        shading: np.ndarray, back: np.ndarray, wo: np.ndarray) -> np.ndarray:

@@ -99,6 +99,9 @@ def _material_fields(material) -> dict:  # noqa: ANN001 - bakery.capture.scene.M
     if fields.get("clearcoat", 0.0) == 0.0:
         fields.pop("clearcoat", None)
         fields.pop("clearcoat_roughness", None)
+        fields.pop("clearcoat_f0", None)
+    if fields.get("clearcoat_f0", 0.04) == 0.04:
+        fields.pop("clearcoat_f0", None)
     for tint in ("transmission_tint", "specular_tint", "coat_tint"):
         if tuple(fields.get(tint, (1.0, 1.0, 1.0))) == (1.0, 1.0, 1.0):
             fields.pop(tint, None)

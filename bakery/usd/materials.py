@@ -211,6 +211,7 @@ class MaterialReader:
             maps=tuple(sorted(maps, key=lambda m: m["input"])),
             clearcoat=float(np.clip(np.mean(v["clearcoat"]), 0.0, 1.0)),
             clearcoat_roughness=float(np.clip(np.mean(v["clearcoatRoughness"]), 0.0, 1.0)),
+            clearcoat_f0=float(surface.values.get("clearcoat_f0", 0.04)),
             transmission_tint=tuple(float(x) for x in surface.values.get("transmission_tint", (1.0, 1.0, 1.0))),
             specular_tint=tuple(float(x) for x in surface.values.get("specular_tint", (1.0, 1.0, 1.0))),
             coat_tint=tuple(float(x) for x in surface.values.get("coat_tint", (1.0, 1.0, 1.0))),

@@ -160,9 +160,11 @@ def _to_surface(category: str, values: dict[str, object], maps: dict[str, dict],
         if name in maps or (name in d and abs(_mean(d[name]) - neutral) > 1e-6):
             surface.notes.append(f"{category} {name} is not modelled by the capture")
     coat_ior = {"standard_surface": ("coat", "coat_IOR"), "open_pbr_surface": ("coat_weight", "coat_ior")}.get(category)
-    if coat_ior and _mean(d.get(coat_ior[0], 0.0)) > 0 and abs(_mean(d.get(coat_ior[1], 1.5)) - 1.5) > 0.05:
-        surface.notes.append(f"{category} {coat_ior[1]} {_mean(d[coat_ior[1]]):g} is read as 1.5 (the capture's "
-                             "coat has F0 0.04)")
+    if coat_ior and _mean(d.get(coat_ior[0], 0.0)) > 0:  # the coat's F0 from its IOR (0.04 at 1.5 exactly)
+        ior = _mean(d.get(coat_ior[1], 1.5))
+        f0 = ((ior - 1.0) / (ior + 1.0)) ** 2 if ior > 0 else 0.0
+        if abs(f0 - 0.04) > 1e-9:
+            surface.values["clearcoat_f0"] = float(f0)
     if "normal" in maps:  # a tangent-space normal map, already decoded to [−1, 1]³ (:func:`_normal_entry`)
         surface.maps["normal"] = {k: v for k, v in maps["normal"].items() if k != "_mean"}
 

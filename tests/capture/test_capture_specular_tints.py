@@ -109,3 +109,31 @@ def test_the_coat_colour_filters_the_base(tmp_path):
     uncoated = _reading(tmp_path, surface, "float inputs:coat = 0\n        color3f inputs:coat_color = (0, 0, 0)",
                         "uncoated").scene.meshes[0].material
     assert uncoated.coat_tint == (1.0, 1.0, 1.0)
+
+
+def test_the_coat_f0_comes_from_its_ior(tmp_path):
+    """F0 = ((n − 1)/(n + 1))² at normal incidence: 0.04 at standard_surface's coat_IOR 1.5 (the hash and the
+    coat table then as before), 0.0533 at open_pbr's default coat_ior 1.6; nothing reported."""
+    standard = _reading(tmp_path, "ND_standard_surface_surfaceshader", "float inputs:coat = 1", "standard")
+    assert standard.scene.meshes[0].material.clearcoat_f0 == 0.04
+    reading = _reading(tmp_path, "ND_open_pbr_surface_surfaceshader", "float inputs:coat_weight = 1", "open")
+    assert reading.scene.meshes[0].material.clearcoat_f0 == pytest.approx((0.6 / 2.6) ** 2)
+    assert not [i for i in reading.issues if "coat" in i.message], reading.issues
+
+
+def test_the_capture_is_linear_in_the_coat_f0(tmp_path):
+    """A coat of weight 1 over a black base (the coat lobe alone, picked with probability 1): Schlick's
+    F = F0·(1 − g) + g is linear in F0, so the coated floor at IOR 1.6 interpolates, texel for texel, between the
+    floors at IOR 1.5 (F0 0.04) and 2 (F0 1/9)."""
+    surface = "ND_standard_surface_surfaceshader"
+    base = ("float inputs:base = 0\n        float inputs:specular = 0\n        float inputs:coat = 1\n        "
+            "float inputs:coat_roughness = 0.3\n        float inputs:coat_IOR = ")
+    below = cube_texel_directions(N)[..., 1] < -0.2
+    floors = {}
+    for ior in (1.5, 2.0, 1.6):
+        reading = _reading(tmp_path, surface, base + str(ior), f"coat{ior}")
+        floors[ior] = capture_probes(reading.scene, N, samples=16, bounces=0)[0][0].astype(np.float64)[below]
+    f0 = {ior: ((ior - 1) / (ior + 1)) ** 2 for ior in floors}
+    share = (f0[1.6] - f0[1.5]) / (f0[2.0] - f0[1.5])
+    np.testing.assert_allclose(floors[1.6], floors[1.5] + share * (floors[2.0] - floors[1.5]), rtol=1e-4)
+    assert floors[2.0].mean() > 1.5 * floors[1.5].mean()
