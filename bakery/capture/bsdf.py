@@ -14,6 +14,11 @@ light the coat transmits, as the diffuse lobe is by 1 − F under the specular o
 probability p_c = clip(F_c(n·v) / (F_c(n·v) + (1 − F_c(n·v))·(base weights)), 0.05, 0.95) and sampled by its visible
 normals; the mixture pdf is p_c·pdf_c + (1 − p_c)·pdf_base. Without a coat the BSDF is unchanged.
 
+Sheen (MaterialX ``standard_surface`` sheen w, sheen_color C, sheen_roughness r): the Imageworks sheen lobe
+(:mod:`bakery.brdf.sheen`) layered over the diffuse lobe, both under the specular one, as the stdlib graph
+layers them: ρ_d/π·(1 − w·E(n·v, r)) + w·C·f_sheen, weighted by 1 − F like the diffuse lobe it joins; it is
+sampled with it (cosine), its directional albedo w·C·E counting towards that lobe's choice.
+
 Sampling: one lobe is picked with probability p_s = lum F(n·wo) / (lum F(n·wo) + lum ρ_d(1 − F(n·wo))) clamped to
 [0.05, 0.95] (0 or 1 when a lobe is absent); diffuse directions are cosine-distributed, specular ones follow the
 GGX distribution of visible normals (:func:`bakery.brdf.sampling.sample_ggx_vndf`). The returned pdf is the
@@ -28,6 +33,7 @@ import math
 
 import numpy as np
 
+from bakery.brdf.sheen import directional_albedo, sheen_brdf
 from bakery.capture.vec import TINY, dot, frame, luminance, vmax
 
 MIN_ALPHA = 1e-3
@@ -54,7 +60,8 @@ class Bsdf:
 
     def __init__(self, normals: np.ndarray, wo: np.ndarray, albedo: np.ndarray, f0: np.ndarray,
                  roughness: np.ndarray, geometric: np.ndarray | None = None,
-                 coat: tuple[np.ndarray, np.ndarray] | None = None, f90: np.ndarray | None = None) -> None:
+                 coat: tuple[np.ndarray, np.ndarray] | None = None, f90: np.ndarray | None = None,
+                 sheen: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> None:
         self.n = normals
         #: the geometric normal (3, M) facing wo when ``normals`` are interpolated shading normals: directions
         #: below the geometric surface get no value and no pdf (a sampled one ends its path), so shading normals
@@ -62,6 +69,20 @@ class Bsdf:
         self.geometric = geometric
         self.wo = wo
         self.f0 = f0
+        #: the sheen layer over the diffuse lobe (module docstring "Sheen"): None, or w·C (3, M) and roughness (M,)
+        self.sheen = None
+        if sheen is not None and bool(np.any(sheen[0] > 0)):
+            weight, colour, sheen_roughness = sheen
+            nv_sheen = np.clip(dot(normals, wo), 0, 1)
+            throughput = 1 - weight * directional_albedo(nv_sheen, sheen_roughness).astype(albedo.dtype)
+            albedo_layer = albedo * throughput  # what the base keeps under the sheen
+            self.sheen = ((weight * colour).astype(albedo.dtype, copy=False), sheen_roughness)
+            # the lobe's share of the diffuse branch's choice: its directional albedo, w·C·E
+            sheen_albedo = self.sheen[0] * (1 - throughput) / np.maximum(weight, TINY)
+            albedo = albedo_layer
+            lobe_albedo = albedo_layer + sheen_albedo
+        else:
+            lobe_albedo = albedo
         self.albedo_pi = albedo * _INV_PI
         #: F90 (M,) from F0 (module docstring), or (3, M) as given (a tinted specular lobe: Surfaces.params_soa)
         self.f90 = np.minimum(1, 50 * luminance(f0)) if f90 is None else f90
@@ -72,14 +93,14 @@ class Bsdf:
         nv = np.clip(self.nv_raw, 1e-6, 1)
         self.nv = nv
         specular = self.f90 > 0 if self.f90.ndim == 1 else vmax(self.f90) > 0
-        diffuse = vmax(albedo) > 0
+        diffuse = vmax(lobe_albedo) > 0
         self.any_specular = bool(specular.any())
         #: points (indices) whose lobe is sharp enough (α < 0.03) for float32 cancellation in D's denominator to
         #: matter; chosen per point, so a point's value does not depend on the other points of the batch
         self.sharp = np.flatnonzero(specular & (alpha < 0.03))
         fv = self._fresnel(nv)
         spec_w = luminance(fv)
-        total = spec_w + luminance(albedo * (1 - fv))
+        total = spec_w + luminance(lobe_albedo * (1 - fv))
         with np.errstate(divide="ignore", invalid="ignore"):
             ps = np.clip(np.where(total > 0, spec_w / total, 0.5), 0.05, 0.95)
         self.p_spec = np.where(specular, np.where(diffuse, ps, 1), 0).astype(nv.dtype, copy=False)
@@ -97,7 +118,7 @@ class Bsdf:
             a2c = alpha_c * alpha_c
             f0c = coat[2] if len(coat) > 2 else COAT_F0  # (M,) from the coat's IOR, or 0.04
             fc_v = amount * (f0c + (1 - f0c) * _pow5(1 - nv))  # the coat's Fresnel towards the viewer
-            base = (spec_w + luminance(albedo * (1 - fv))) * (1 - fc_v)
+            base = (spec_w + luminance(lobe_albedo * (1 - fv))) * (1 - fc_v)
             with np.errstate(divide="ignore", invalid="ignore"):
                 pc = np.clip(np.where(fc_v + base > 0, fc_v / (fc_v + base), 0.5), 0.05, 0.95)
             self.p_coat = np.where(amount > 0, np.where(base > 0, pc, 1), 0).astype(nv.dtype, copy=False)
@@ -138,6 +159,11 @@ class Bsdf:
         f0 = e(self.f0)
         f = f0 + (e(self.f90) - f0) * _pow5(1 - vh)
         diffuse = e(self.albedo_pi) * (1 - f) * nlc
+        if self.sheen is not None:  # the sheen lobe, layered with the diffuse one under the specular lobe
+            colour, sheen_roughness = self.sheen
+            nh = (e(self.nv_raw) + nl) * inv_h
+            lobe = sheen_brdf(nlc, e(self.nv), nh, e(sheen_roughness)).astype(diffuse.dtype, copy=False)
+            diffuse = diffuse + e(colour) * ((1 - f) * (lobe * nlc))
         specular = None
         pdf = (1 - e(self.p_spec)) * _INV_PI * nlc
         if self.any_specular:

@@ -146,6 +146,8 @@ class Material:
         ior: index of refraction of the dielectric Fresnel (F0 = ((ior − 1)/(ior + 1))²).
         clearcoat, clearcoat_roughness: a white GGX coat (F0 0.04) of that amount and roughness over the base
             (:mod:`bakery.capture.bsdf`, "Clearcoat").
+        sheen, sheen_color, sheen_roughness: a sheen layer (MaterialX standard_surface) of that weight, colour and
+            roughness over the diffuse lobe (:mod:`bakery.capture.bsdf`, "Sheen"), on the dielectric share.
         clearcoat_f0: the coat's F0, ((ior − 1)/(ior + 1))² of a MaterialX coat's IOR (UsdPreviewSurface: 0.04).
         opacity, opacity_threshold: cut-outs: a hit whose opacity is below the threshold (threshold > 0) is
             passed through; without a threshold, opacity is the surface's presence: a hit is passed through with
@@ -180,6 +182,9 @@ class Material:
     clearcoat: float = 0.0
     clearcoat_roughness: float = 0.01
     clearcoat_f0: float = 0.04
+    sheen: float = 0.0
+    sheen_color: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    sheen_roughness: float = 0.3
     transmission_tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
     specular_tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
     coat_tint: tuple[float, float, float] = (1.0, 1.0, 1.0)

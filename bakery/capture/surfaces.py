@@ -335,6 +335,14 @@ class Surfaces:
             if any(m.clearcoat > 0 and m.clearcoat_f0 != 0.04 for m in self.materials):
                 rows.append([m.clearcoat_f0 for m in mats])
             self.coat_table = np.array(rows, dtype=np.float32)
+        #: (5, materials) float32 sheen weight on the dielectric share (× 1 − metallic), colour (× the coat's tint)
+        #: and roughness, or None when no material has sheen
+        self.sheen_table = None
+        if any(m.sheen > 0 for m in self.materials):
+            self.sheen_table = np.array(
+                [[m.sheen * (1.0 - min(max(m.metallic, 0.0), 1.0)) for m in mats]]
+                + [[m.sheen_color[c] * m.coat_tint[c] for m in mats] for c in range(3)]
+                + [[m.sheen_roughness for m in mats]], dtype=np.float32)
         #: materials with a UsdPreviewSurface ``normal`` map, and each one's map entry
         self.normal_maps = {k: next(e for e in m.maps if e.get("input") == "normal")
                             for k, m in enumerate(self.materials) if any(e.get("input") == "normal" for e in m.maps)}
@@ -360,6 +368,13 @@ class Surfaces:
             return None
         mi = np.take(self.mesh_of_soa, prim)
         return tuple(np.take(row, mi) for row in self.coat_table)
+
+    def sheen_soa(self, prim: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """Sheen weight (M,), colour (3, M) and roughness (M,) at hits, or None when no material has sheen."""
+        if self.sheen_table is None:
+            return None
+        rows = [np.take(row, np.take(self.mesh_of_soa, prim)) for row in self.sheen_table]
+        return rows[0], np.stack(rows[1:4]), rows[4]
 
     def mapped_normals(self, prim: np.ndarray, bu: np.ndarray, bv: np.ndarray, t: np.ndarray, spread: float,
                        shading: np.ndarray, back: np.ndarray, wo: np.ndarray) -> np.ndarray:

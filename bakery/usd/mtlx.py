@@ -20,7 +20,7 @@ Mapping (metallic workflow of the capture; see ``docs/capture.md``)
     Inputs connected to ``image``/``tiledimage`` nodes (directly or through a nodegraph output) become texture maps
     with the node's file, ``colorspace`` (colour inputs are converted with OpenColorIO), address modes and default;
     a scalar weight multiplying a textured colour (base · base_color) folds into the map's scale. Lobes the
-    capture cannot represent (sheen, thin film, object-space normal maps, other node types in a graph) are
+    capture cannot represent (open_pbr fuzz, thin film, object-space normal maps, other node types in a graph) are
     reported; subsurface is read as its diffuse limit (:func:`_subsurface_as_diffuse`), the specular weight and
     colour and the coat colour as tints of the specular lobe and the base (:func:`_specular_and_coat_tints`); chains of ``multiply``/``add``/``subtract``/``mix``
     with constant operands over one image (or ``geompropvalue``) fold into the map's scale and bias
@@ -51,7 +51,7 @@ from bakery.usd.materials import (
 _SUPPORTED = ("standard_surface", "open_pbr_surface", "UsdPreviewSurface", "gltf_pbr")
 #: Lobe weights the capture does not model: (input, neutral value).
 _UNMODELLED = {
-    "standard_surface": (("sheen", 0.0), ("thin_film_thickness", 0.0)),
+    "standard_surface": (("thin_film_thickness", 0.0),),
     "open_pbr_surface": (("fuzz_weight", 0.0), ("thin_film_weight", 0.0)),
     "UsdPreviewSurface": (("displacement", 0.0),),
     "gltf_pbr": (("sheen_color", 0.0), ("iridescence", 0.0), ("specular", 1.0), ("specular_color", 1.0),
@@ -196,6 +196,8 @@ def _to_surface(category: str, values: dict[str, object], maps: dict[str, dict],
         _subsurface_as_diffuse(category, d, maps, surface)
     if category in _TINTS:
         _specular_and_coat_tints(category, d, maps, surface)
+    if category == "standard_surface":
+        _sheen(category, d, maps, surface)
     if category in _TRANSMISSION:
         _transmission_as_presence(category, d, maps, surface)
     surface.primvar = "st" if any("primvar" not in entry for entry in surface.maps.values()) else None
@@ -266,6 +268,25 @@ def _specular_and_coat_tints(category: str, values: dict[str, object], maps: dic
     passed = np.clip((1.0 - coat) + coat * constant(coat_colour_input, 1.0), 0.0, 1.0)
     if np.any(passed != 1.0):
         surface.values["coat_tint"] = tuple(float(x) for x in passed)
+
+
+def _sheen(category: str, values: dict[str, object], maps: dict[str, dict], surface: Surface) -> None:
+    """standard_surface's sheen layer (weight ``sheen``, ``sheen_color``, ``sheen_roughness``: the stdlib graph's
+    sheen_bsdf in mode conty_kulla over the diffuse base) → Material.sheen*; textured inputs: their means."""
+    read = {}
+    for name, fallback in (("sheen", 0.0), ("sheen_color", (1.0, 1.0, 1.0)), ("sheen_roughness", 0.3)):
+        value = values.get(name, fallback)
+        if name in maps:
+            value = maps[name].get("_mean", value)
+            surface.notes.append(f"{category} {name} is textured; its mean is used")
+        read[name] = value
+    weight = min(max(_mean(read["sheen"]), 0.0), 1.0)
+    if weight <= 0:
+        return
+    surface.values["sheen"] = weight
+    surface.values["sheen_color"] = tuple(float(x) for x in np.clip(
+        np.broadcast_to(np.asarray(read["sheen_color"], dtype=np.float64), 3), 0.0, None))
+    surface.values["sheen_roughness"] = min(max(_mean(read["sheen_roughness"]), 0.0), 1.0)
 
 
 def _rgb_affine(factor: float, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

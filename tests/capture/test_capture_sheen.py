@@ -1,0 +1,85 @@
+"""standard_surface sheen: the Imageworks sheen lobe layered over the diffuse lobe (MaterialX sheen_bsdf,
+conty_kulla). References: the directional albedo by brute-force quadrature of the formula written out here, and
+MaterialX's own rational fit of it; floors under a uniform dome L, whose radiance towards the probe is
+L·(ρ·(1 − w·E(μ)) + w·C·E(μ)) at view cosine μ (the layer's energy balance, a closed form in E)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from usd_scenes import header, mtlx_material, plane_mesh, probe, write
+
+from bakery.brdf.sheen import directional_albedo
+from bakery.capture import capture_probes
+from bakery.sphere.cubemap import cube_texel_directions
+from bakery.usd.scene import read_scene
+
+N = 16
+L = 1.5
+
+
+def _brute_albedo(mu: float, roughness: float, n: int = 1500) -> float:
+    """∫ D/(4(n·l + n·v − n·l n·v)) n·l dl on a midpoint grid in (cos θ, φ), D = (2 + 1/r) sin(θ_h)^(1/r)/(2π)."""
+    cos_l = (np.arange(n) + 0.5) / n
+    phi = (np.arange(n) + 0.5) * (2 * math.pi / n)
+    c, p = np.meshgrid(cos_l, phi, indexing="ij")
+    s = np.sqrt(1 - c * c)
+    lx, ly, lz = s * np.cos(p), s * np.sin(p), c
+    vx, vz = math.sqrt(1 - mu * mu), mu
+    hx, hy, hz = lx + vx, ly, lz + vz
+    nh = hz / np.sqrt(hx * hx + hy * hy + hz * hz)
+    inv_r = 1 / max(roughness, 0.005)
+    d = (2 + inv_r) * np.maximum(1 - nh * nh, 0) ** (0.5 * inv_r) / (2 * math.pi)
+    f = d / (4 * (lz + mu - lz * mu))
+    return float(np.sum(f * lz) * (1 / n) * (2 * math.pi / n))
+
+
+def _materialx_fit(mu: float, roughness: float) -> float:
+    """MaterialX's mx_imageworks_sheen_dir_albedo_curve_fit (pbrlib/genglsl/lib/mx_microfacet_sheen.glsl)."""
+    a = np.array([13.67300, 1.0]) + np.array([-68.78018, 61.57746]) * mu + np.array([799.08825, 442.78211]) * roughness
+    a = a + np.array([-905.00061, 2597.49308]) * mu * roughness + np.array([60.28956, 121.81241]) * mu * mu
+    a = a + np.array([1086.96473, 3045.55075]) * roughness * roughness
+    return float(a[0] / a[1])
+
+
+@pytest.mark.parametrize("mu", [0.2, 0.5, 0.875])
+@pytest.mark.parametrize("roughness", [0.25, 0.5, 1.0])
+def test_the_directional_albedo_table_is_the_lobes_integral(mu, roughness):
+    """At table nodes: the brute-force integral to 2·10⁻³; MaterialX's rational fit of it to 0.015."""
+    table = float(directional_albedo(mu, roughness))
+    assert table == pytest.approx(_brute_albedo(mu, roughness), abs=2e-3)
+    assert table == pytest.approx(_materialx_fit(mu, roughness), abs=0.015)
+
+
+def _floor(tmp_path, inputs: str, name: str):
+    text = header() + f'def DomeLight "Sky"\n{{\n    float inputs:intensity = {L}\n}}\n'
+    text += mtlx_material("Cloth", "ND_standard_surface_surfaceshader", inputs) + plane_mesh("Floor", 1e4, "/Cloth")
+    reading = read_scene(write(tmp_path / f"{name}.usda", text + probe("P", (0.0, 1.0, 0.0))))
+    assert not reading.errors, reading.errors
+    return reading
+
+
+@pytest.mark.parametrize(("base", "colour", "roughness"), [(0.0, (1.0, 0.5, 0.25), 0.3), (0.8, (1.0, 1.0, 1.0), 0.6)])
+def test_a_sheen_floor_under_a_uniform_dome_is_the_layers_closed_form(tmp_path, base, colour, roughness):
+    """Black or white (0.8) diffuse base, specular 0, sheen 1: the floor seen at view cosine μ is
+    L·(base·(1 − E(μ)) + C·E(μ)), averaged over the texels looking down steeply enough to see the floor far
+    from its horizon (64 rays per texel, 2 %)."""
+    inputs = (f"float inputs:base = 1\n        color3f inputs:base_color = ({base}, {base}, {base})\n        "
+              f"float inputs:specular = 0\n        float inputs:sheen = 1\n        "
+              f"color3f inputs:sheen_color = {colour}\n        float inputs:sheen_roughness = {roughness}")
+    reading = _floor(tmp_path, inputs, "cloth")
+    material = reading.scene.meshes[0].material
+    assert material.sheen == 1.0 and material.sheen_roughness == pytest.approx(roughness)
+    assert not [i for i in reading.issues if "sheen" in i.message], reading.issues
+    cube = capture_probes(reading.scene, N, samples=64, bounces=0)[0][0].astype(np.float64)
+    d = cube_texel_directions(N)
+    below = d[..., 1] < -0.3
+    nodes = np.linspace(0.25, 1.0, 16)  # brute-force E on a μ grid, interpolated to the texels' view cosines
+    albedo = np.interp(-d[below][:, 1], nodes, [_brute_albedo(float(mu), roughness, 600) for mu in nodes])
+    expected = L * (base * (1 - albedo)[:, None] + np.asarray(colour) * albedo[:, None])
+    np.testing.assert_allclose(cube[below].mean(axis=0), expected.mean(axis=0), rtol=0.02)
+    grazing, steep = d[below][:, 1] > -0.5, d[below][:, 1] < -0.9  # the sheen rises towards grazing views
+    if base == 0.0:
+        assert cube[below][grazing].mean() > 1.5 * cube[below][steep].mean()
