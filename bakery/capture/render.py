@@ -292,7 +292,11 @@ class ProbeRenderer:
         self._nee_only = [shadowless or casters is not None
                           for shadowless, casters in zip(self._shadowless, self._casters)]
         self._dome_casters = None if dome is None or dome.shadow_links is None else np.isin(meshes, dome.shadow_links)
-        self._dome_nee_only = self._dome_casters is not None
+        # ShadowAPI on the dome: shadowless, or a shadow colour, as for the analytic lights
+        self._dome_shadowless = dome is not None and not dome.shadow
+        self._dome_shadow_color = (0.0, 0.0, 0.0) if dome is None or not dome.shadow else tuple(
+            map(float, dome.shadow_color))
+        self._dome_nee_only = self._dome_casters is not None or self._dome_shadowless
         self._shadow_color = [tuple(map(float, m.light.shadow_color)) if m.light.shadow else (0.0, 0.0, 0.0)
                               for m in self.lights.models]
 
@@ -763,7 +767,8 @@ class ProbeRenderer:
                 if links is not None:
                     valid[j] &= links[mesh]
         weight = power(pdf, pdf_b)
-        shadowless = np.array(self._shadowless + [False] * (count - lights))
+        shadowless = np.array(self._shadowless + [self._dome_shadowless] * (count - lights))
+        shadow_colors = self._shadow_color + [self._dome_shadow_color] * (count - lights)
         for j in range(count):
             if not can_hit[j] or (self._nee_only[j] if j < lights else self._dome_nee_only):
                 weight[j] = 1  # found by next-event estimation alone
@@ -797,12 +802,12 @@ class ProbeRenderer:
             transmittance = transmittance.reshape(3, count, m)
         if shadowless.any():
             scale[shadowless] = valid[shadowless]
-        elif idx.size == 0 and not any(self._shadow_color):
+        elif idx.size == 0 and not any(any(colour) for colour in shadow_colors):
             return np.zeros((3, m), dtype=REAL)
         terms = value * radiance * (scale * weight * inv)
         if transmittance is not None:
             terms *= transmittance
-        for j, colour in enumerate(self._shadow_color):  # ShadowAPI shadow:color: occluded segments deliver
+        for j, colour in enumerate(shadow_colors):  # ShadowAPI shadow:color: occluded segments deliver
             if any(colour):                                # that fraction, by next-event estimation alone
                 occluded = (valid[j] & (scale[j] == 0)).astype(REAL) * inv[j]
                 terms[:, j] += value[:, j] * radiance[:, j] * (np.array(colour, dtype=REAL)[:, None] * occluded)

@@ -119,6 +119,7 @@ class Dome:
             (:class:`Light`); the dome seen by escaping camera rays is unscaled.
         links: light linking as :attr:`Light.links` (None: every mesh).
         shadow_links: shadow linking as :attr:`Light.shadow_links` (None: every mesh shadows the dome).
+        shadow, shadow_color: UsdLuxShadowAPI on the dome, as :attr:`Light.shadow` and :attr:`Light.shadow_color`.
     """
 
     name: str
@@ -131,6 +132,8 @@ class Dome:
     specular: float = 1.0
     links: tuple[int, ...] | None = None
     shadow_links: tuple[int, ...] | None = None
+    shadow: bool = True
+    shadow_color: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True)

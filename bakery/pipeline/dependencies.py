@@ -81,6 +81,8 @@ def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN00
         parts.append((dome.name, dome.scale, dome.rotation, dome.layout, pixels)  # the later fields only when authored
                      + (() if response == (1.0, 1.0) else (response,)) + (() if links is None else (("links", links),))
                      + (() if casters is None else (("shadow_links", casters),))
+                     + (() if (getattr(dome, "shadow", True), tuple(getattr(dome, "shadow_color", (0.0,) * 3)))
+                        == (True, (0.0, 0.0, 0.0)) else (("shadow", dome.shadow, tuple(dome.shadow_color)),))
                      # a latlong dome is sampled as it is; every other layout is resampled to a cube first
                      + (() if dome.layout == "equirect" else (("resample", RESAMPLE_MODEL_VERSION),)))
     parts += [_light_fields(light) for light in scene.lights if light_model(light).is_global]

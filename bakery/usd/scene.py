@@ -683,8 +683,7 @@ class SceneReader:
         rotation = tuple(map(tuple, self.frame.rotation(matrix, pre)))
         name = str(prim.GetPath())
         response = self._response(prim)
-        if self._shadow(prim) != {"shadow": True, "shadow_color": (0.0, 0.0, 0.0)}:
-            self.issue("warning", prim, "shadow:enable and shadow:color of a DomeLight are not applied")
+        response = {**response, **self._shadow(prim)}  # ShadowAPI on the dome (Dome.shadow, Dome.shadow_color)
         texture = self._input(prim, "texture:file", None)
         fmt = str(self._input(prim, "texture:format", "automatic") or "automatic")
         if not isinstance(texture, Sdf.AssetPath) or not texture.path:

@@ -351,6 +351,34 @@ def test_a_dome_shadow_linked_past_a_roof_lights_the_floor_under_it(tmp_path):
     assert float(np.abs(plain[down]).max()) < 1e-3 * RHO * 1.5
 
 
+def test_dome_shadow_api_lets_the_sky_through_or_colours_its_shadow(tmp_path):
+    """ShadowAPI on a uniform dome L over a floor under a black infinite roof: shadow:enable = 0 lights the floor
+    with the whole sky (ρ·L, next-event estimation alone), shadow:color c with c·ρ·L (every next-event ray is
+    occluded, each delivering c), and the probe sees the roof's black underside either way; read and hashed."""
+    from bakery.pipeline.dependencies import environment_hash
+
+    def scene(extra: str) -> str:
+        return (header() + material("Ground", diffuse=(RHO,) * 3, diffuse_only=True)
+                + plane_mesh("Plane", 1e4, "/Ground") + material("Black", diffuse=(0.0, 0.0, 0.0), diffuse_only=True)
+                + plane_mesh("Roof", 1e4, "/Black", height=2.0)
+                + 'def DomeLight "Sky" (\n    prepend apiSchemas = ["ShadowAPI"]\n)\n'
+                + f'{{\n    float inputs:intensity = 1.5\n{extra}\n}}\n' + probe("P", (0.0, 0.5, 0.0)))
+    d = cube_texel_directions(N)
+    down, up = d[..., 1] < -0.3, d[..., 1] > 0.3
+    off = _capture(tmp_path, scene("    bool inputs:shadow:enable = 0"), "off", samples=64)
+    np.testing.assert_allclose(off[down].mean(axis=0), RHO * 1.5, rtol=0.01)
+    colour = (0.25, 0.5, 1.0)
+    tinted = _capture(tmp_path, scene(f"    color3f inputs:shadow:color = {colour}"), "coloured", samples=16)
+    np.testing.assert_allclose(tinted[down].mean(axis=0), np.array(colour) * RHO * 1.5, rtol=0.01)
+    for cube in (off, tinted):
+        assert float(np.abs(cube[up]).max()) == 0.0
+    readings = [read_scene(write(tmp_path / f"{name}.usda", scene(extra))) for name, extra in
+                (("plain", ""), ("off_read", "    bool inputs:shadow:enable = 0"))]
+    assert readings[0].scene.dome.shadow and not readings[1].scene.dome.shadow
+    assert not [i for i in readings[1].issues if "shadow" in i.message]
+    assert environment_hash(readings[0].scene) != environment_hash(readings[1].scene)
+
+
 def test_shadow_links_are_read_and_hashed_and_filters_reported(tmp_path):
     from bakery.pipeline.dependencies import environment_hash
 
