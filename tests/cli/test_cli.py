@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import OpenImageIO as oiio
+import pytest
 
 import bakery
 import bakery.store
@@ -131,3 +132,27 @@ def test_bench_irradiance_writes_a_table(tmp_path):
     data = json.loads((tmp_path / "out" / "irradiance.json").read_text())
     assert data["rows"][0]["environment"] == "city.hdr"
     assert "| city.hdr |" in (tmp_path / "out" / "irradiance.md").read_text()
+
+
+@pytest.mark.parametrize(("layout", "height", "width", "option"), [
+    ("vertical_cross", 4 * 48, 3 * 48, ()),  # detected from the 3:4 aspect ratio
+    ("mirrored_ball", 256, 256, ("--layout", "mirrored_ball")),  # 1:1 reads as angular unless named
+])
+def test_new_layouts_bake_from_the_command_line(tmp_path, layout, height, width, option):
+    """A vertical cross and a mirrored ball of L(ω) = 1 + 0.5 x − 0.25 y + 0.75 z: the baked irradiance is the
+    closed form E(n) = π + (2π/3)(0.5 n_x − 0.25 n_y + 0.75 n_z) (the SH2 of a linear function is exact)."""
+    from bakery.environment.layouts import layout_directions_and_density, layout_inside
+
+    rows, cols = np.meshgrid(np.arange(height) + 0.5, np.arange(width) + 0.5, indexing="ij")
+    directions, _ = layout_directions_and_density(layout, rows, cols, height, width)
+    radiance = 1 + directions @ np.array([0.5, -0.25, 0.75])
+    pixels = np.where(layout_inside(layout, rows, cols, height, width)[..., None], radiance[..., None], 0.0)
+    path = tmp_path / f"{layout}.exr"
+    write_image(path, np.repeat(pixels, 3, axis=-1))
+    store = tmp_path / f"{layout}.h5"
+    result = run("bake", path, "-o", store, "-e", "sh2", "--face-size", "32", *option)
+    assert result.returncode == 0, result.stderr
+    normals = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, -1.0]])
+    expected = np.pi + (2 * np.pi / 3) * (normals @ np.array([0.5, -0.25, 0.75]))
+    values = bakery.open_store(store).evaluate_irradiance("sh2", normals)
+    np.testing.assert_allclose(values[0], expected[:, None].repeat(3, axis=1), rtol=0.02)
