@@ -29,12 +29,13 @@ What is read (``docs/capture.md``)
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
+from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade
 
 from bakery.capture.ies import IesError, IesShaping, parse_ies
 from bakery.capture.lights import LIGHT_MODELS, Placement
@@ -90,7 +91,14 @@ def open_stage(path: str | Path) -> Usd.Stage:
     if not path.is_file():
         raise SceneError(f"{path}: scene not found")
     try:
-        stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
+        # usd-core prints each composition error as a warning while it opens the stage; SceneReader reports every
+        # one of them as an issue naming its prim (``_composition_issues``), so those prints are dropped here —
+        # every other diagnostic still reaches stderr
+        trap_type = getattr(Tf, "DiagnosticTrap", None)  # usd-core ≥ 25.x; older versions print them
+        with trap_type() if trap_type is not None else contextlib.nullcontext() as trap:
+            stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
+            if trap is not None:
+                trap.EraseMatching(lambda diagnostic: diagnostic.sourceFunction.endswith("UsdStage::_ReportErrors"))
     except Exception as exc:  # pxr raises Tf.ErrorException
         raise SceneError(f"{path}: USD cannot open it: {exc}") from exc
     if stage is None:

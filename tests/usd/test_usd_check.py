@@ -143,6 +143,10 @@ def Xform "Asset" (
     assert check_exit_code(issues) == CHECK_FAILED_EXIT_CODE
     with pytest.raises(SceneError, match="composition"):
         bakery.bake(path, tmp_path / "out.h5", face_size=8, samples=1)
+    # on the command line each is one line naming its prim; usd-core's own multi-line prints of them are dropped
+    result = subprocess.run([sys.executable, "-m", "bakery.cli", "check", str(path)], capture_output=True, text=True)
+    assert result.returncode == CHECK_FAILED_EXIT_CODE and "nothere.usda" in result.stdout + result.stderr
+    assert "_ReportErrors" not in result.stderr, result.stderr
 
 
 def test_check_reports_what_a_bake_would_silently_change(tmp_path):
