@@ -146,7 +146,8 @@ class Peaks:
 def split_peaks(image: EnvironmentImage) -> tuple[EnvironmentImage, Peaks | None]:
     """``image`` with every texel's luminance clamped to PEAK_RATIO × the mean, and the part clamped off."""
     omega = source_texel_solid_angles(image)
-    luminance = np.maximum(image.pixels.astype(np.float64) @ LUMINANCE_WEIGHTS, 0.0)
+    # in float32 (no float64 copy of the whole image: 800 MB for an 8K latlong), summed below in float64
+    luminance = np.maximum(image.pixels @ LUMINANCE_WEIGHTS.astype(np.float32), 0.0).astype(np.float64)
     mean = float(np.sum(luminance * omega)) / (4.0 * np.pi)
     threshold = PEAK_RATIO * mean
     mask = (luminance > threshold) & (omega > 0)
