@@ -51,8 +51,13 @@ from bakery.usd.materials import (
 _SUPPORTED = ("standard_surface", "open_pbr_surface", "UsdPreviewSurface", "gltf_pbr")
 #: Lobe weights the capture does not model: (input, neutral value).
 _UNMODELLED = {
-    "standard_surface": (("thin_film_thickness", 0.0),),
-    "open_pbr_surface": (("fuzz_weight", 0.0), ("thin_film_weight", 0.0)),
+    "standard_surface": (("thin_film_thickness", 0.0), ("diffuse_roughness", 0.0), ("specular_anisotropy", 0.0),
+                         ("coat_anisotropy", 0.0), ("coat_affect_color", 0.0), ("coat_affect_roughness", 0.0),
+                         ("transmission_extra_roughness", 0.0), ("transmission_dispersion", 0.0),
+                         ("transmission_scatter", 0.0)),
+    "open_pbr_surface": (("fuzz_weight", 0.0), ("thin_film_weight", 0.0), ("base_diffuse_roughness", 0.0),
+                         ("specular_roughness_anisotropy", 0.0), ("coat_roughness_anisotropy", 0.0),
+                         ("transmission_dispersion_scale", 0.0), ("transmission_scatter", 0.0)),
     "UsdPreviewSurface": (("displacement", 0.0),),
     "gltf_pbr": (("sheen_color", 0.0), ("iridescence", 0.0), ("specular", 1.0), ("specular_color", 1.0),
                  ("anisotropy_strength", 0.0)),
