@@ -19,6 +19,10 @@ Sheen (MaterialX ``standard_surface`` sheen w, sheen_color C, sheen_roughness r)
 layers them: ρ_d/π·(1 − w·E(n·v, r)) + w·C·f_sheen, weighted by 1 − F like the diffuse lobe it joins; it is
 sampled with it (cosine), its directional albedo w·C·E counting towards that lobe's choice.
 
+Rough diffuse (MaterialX ``diffuse_roughness``, ``base_diffuse_roughness``): the diffuse lobe is Oren–Nayar
+(:mod:`bakery.brdf.oren_nayar`): standard_surface's qualitative model, open_pbr_surface's energy-preserving EON;
+still sampled by cosine.
+
 Sampling: one lobe is picked with probability p_s = lum F(n·wo) / (lum F(n·wo) + lum ρ_d(1 − F(n·wo))) clamped to
 [0.05, 0.95] (0 or 1 when a lobe is absent); diffuse directions are cosine-distributed, specular ones follow the
 GGX distribution of visible normals (:func:`bakery.brdf.sampling.sample_ggx_vndf`). The returned pdf is the
@@ -33,6 +37,7 @@ import math
 
 import numpy as np
 
+from bakery.brdf import oren_nayar
 from bakery.brdf.sheen import directional_albedo, sheen_brdf
 from bakery.capture.vec import TINY, dot, frame, luminance, vmax
 
@@ -61,7 +66,8 @@ class Bsdf:
     def __init__(self, normals: np.ndarray, wo: np.ndarray, albedo: np.ndarray, f0: np.ndarray,
                  roughness: np.ndarray, geometric: np.ndarray | None = None,
                  coat: tuple[np.ndarray, np.ndarray] | None = None, f90: np.ndarray | None = None,
-                 sheen: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> None:
+                 sheen: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+                 rough_diffuse: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         self.n = normals
         #: the geometric normal (3, M) facing wo when ``normals`` are interpolated shading normals: directions
         #: below the geometric surface get no value and no pdf (a sampled one ends its path), so shading normals
@@ -84,6 +90,10 @@ class Bsdf:
         else:
             lobe_albedo = albedo
         self.albedo_pi = albedo * _INV_PI
+        #: Oren–Nayar roughness (M,) and energy compensation (M,) bool of the diffuse lobe, or None (Lambertian)
+        self.rough_diffuse = None
+        if rough_diffuse is not None and bool(np.any(rough_diffuse[0] > 0)):
+            self.rough_diffuse = (rough_diffuse[0].astype(albedo.dtype, copy=False), rough_diffuse[1])
         #: F90 (M,) from F0 (module docstring), or (3, M) as given (a tinted specular lobe: Surfaces.params_soa)
         self.f90 = np.minimum(1, 50 * luminance(f0)) if f90 is None else f90
         alpha = np.maximum(roughness * roughness, MIN_ALPHA)
@@ -158,7 +168,16 @@ class Bsdf:
         vh = np.clip((1 + c) * inv_h, 0, 1)
         f0 = e(self.f0)
         f = f0 + (e(self.f90) - f0) * _pow5(1 - vh)
-        diffuse = e(self.albedo_pi) * (1 - f) * nlc
+        if self.rough_diffuse is None:
+            diffuse = e(self.albedo_pi) * (1 - f) * nlc
+        else:  # Oren–Nayar (module docstring "Rough diffuse"): ρ/π × the qualitative factor, or EON's π·f / π
+            sigma, compensated = (e(a) for a in self.rough_diffuse)
+            nlr, nvr = np.clip(nl, 1e-6, 1), e(self.nv)
+            lobe = e(self.albedo_pi) * oren_nayar.qualitative(nlr, nvr, c, sigma)
+            if bool(np.any(self.rough_diffuse[1])):
+                eon = oren_nayar.energy_preserving(nlr, nvr, c, sigma, e(self.albedo_pi) * math.pi) * _INV_PI
+                lobe = np.where(compensated, eon.astype(lobe.dtype, copy=False), lobe)
+            diffuse = lobe * (1 - f) * nlc
         if self.sheen is not None:  # the sheen lobe, layered with the diffuse one under the specular lobe
             colour, sheen_roughness = self.sheen
             nh = (e(self.nv_raw) + nl) * inv_h

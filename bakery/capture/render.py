@@ -571,8 +571,10 @@ class ProbeRenderer:
             n *= 1 - 2 * back.astype(REAL)  # face the incoming ray
             points = hits + self.tracer.offset_soa(hits) * n  # offset along the geometric normal
             coat, sheen = self.surfaces.coat_soa(prim), self.surfaces.sheen_soa(prim)
+            rough = self.surfaces.rough_diffuse_soa(prim)
             if self.tracer.shading_soa is None and not self.surfaces.normal_maps:
-                bsdf = Bsdf(n, -directions, albedo, f0, roughness, coat=coat, f90=f90, sheen=sheen)
+                bsdf = Bsdf(n, -directions, albedo, f0, roughness, coat=coat, f90=f90, sheen=sheen,
+                            rough_diffuse=rough)
             else:  # authored and mapped normals shade; the geometric normal bounds what the surface lets through
                 shading = n if self.tracer.shading_soa is None else self.tracer.shading_normals(
                     prim, bu, bv, n, -directions)
@@ -581,7 +583,7 @@ class ProbeRenderer:
                         prim, bu, bv, t, self._primary_spread if depth == 0 else BOUNCE_SPREAD, shading, back,
                         -directions)
                 bsdf = Bsdf(shading, -directions, albedo, f0, roughness, geometric=n, coat=coat, f90=f90,
-                            sheen=sheen)
+                            sheen=sheen, rough_diffuse=rough)
             mesh = np.take(self.surfaces.mesh_of_soa, prim) if self._linking else None  # for light linking
             out_add = self._direct(points, bsdf, owners, mesh)
             if emission is not None:

@@ -149,6 +149,8 @@ class Material:
         ior: index of refraction of the dielectric Fresnel (F0 = ((ior − 1)/(ior + 1))²).
         clearcoat, clearcoat_roughness: a white GGX coat (F0 0.04) of that amount and roughness over the base
             (:mod:`bakery.capture.bsdf`, "Clearcoat").
+        diffuse_roughness, diffuse_energy_compensation: an Oren–Nayar diffuse lobe of that roughness (0: Lambertian),
+            the qualitative model or the energy-preserving EON (:mod:`bakery.brdf.oren_nayar`).
         sheen, sheen_color, sheen_roughness: a sheen layer (MaterialX standard_surface) of that weight, colour and
             roughness over the diffuse lobe (:mod:`bakery.capture.bsdf`, "Sheen"), on the dielectric share.
         clearcoat_f0: the coat's F0, ((ior − 1)/(ior + 1))² of a MaterialX coat's IOR (UsdPreviewSurface: 0.04).
@@ -185,6 +187,8 @@ class Material:
     clearcoat: float = 0.0
     clearcoat_roughness: float = 0.01
     clearcoat_f0: float = 0.04
+    diffuse_roughness: float = 0.0
+    diffuse_energy_compensation: bool = False
     sheen: float = 0.0
     sheen_color: tuple[float, float, float] = (1.0, 1.0, 1.0)
     sheen_roughness: float = 0.3

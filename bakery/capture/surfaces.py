@@ -335,6 +335,12 @@ class Surfaces:
             if any(m.clearcoat > 0 and m.clearcoat_f0 != 0.04 for m in self.materials):
                 rows.append([m.clearcoat_f0 for m in mats])
             self.coat_table = np.array(rows, dtype=np.float32)
+        #: (2, materials) float32 Oren–Nayar roughness and energy compensation (1/0), or None when every diffuse
+        #: lobe is Lambertian
+        self.rough_table = None
+        if any(m.diffuse_roughness > 0 for m in self.materials):
+            self.rough_table = np.array([[m.diffuse_roughness for m in mats],
+                                         [float(m.diffuse_energy_compensation) for m in mats]], dtype=np.float32)
         #: (5, materials) float32 sheen weight on the dielectric share (× 1 − metallic), colour (× the coat's tint)
         #: and roughness, or None when no material has sheen
         self.sheen_table = None
@@ -368,6 +374,13 @@ class Surfaces:
             return None
         mi = np.take(self.mesh_of_soa, prim)
         return tuple(np.take(row, mi) for row in self.coat_table)
+
+    def rough_diffuse_soa(self, prim: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """Oren–Nayar roughness (M,) and energy compensation (M,) bool at hits, or None (all Lambertian)."""
+        if self.rough_table is None:
+            return None
+        mi = np.take(self.mesh_of_soa, prim)
+        return np.take(self.rough_table[0], mi), np.take(self.rough_table[1], mi) > 0
 
     def sheen_soa(self, prim: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """Sheen weight (M,), colour (3, M) and roughness (M,) at hits, or None when no material has sheen."""

@@ -104,6 +104,9 @@ def _material_fields(material) -> dict:  # noqa: ANN001 - bakery.capture.scene.M
         fields.pop("clearcoat_f0", None)
     if fields.get("clearcoat_f0", 0.04) == 0.04:
         fields.pop("clearcoat_f0", None)
+    if fields.get("diffuse_roughness", 0.0) == 0.0:
+        fields.pop("diffuse_roughness", None)
+        fields.pop("diffuse_energy_compensation", None)
     if fields.get("sheen", 0.0) == 0.0:
         for name in ("sheen", "sheen_color", "sheen_roughness"):
             fields.pop(name, None)

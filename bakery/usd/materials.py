@@ -212,6 +212,8 @@ class MaterialReader:
             clearcoat=float(np.clip(np.mean(v["clearcoat"]), 0.0, 1.0)),
             clearcoat_roughness=float(np.clip(np.mean(v["clearcoatRoughness"]), 0.0, 1.0)),
             clearcoat_f0=float(surface.values.get("clearcoat_f0", 0.04)),
+            diffuse_roughness=float(surface.values.get("diffuse_roughness", 0.0)),
+            diffuse_energy_compensation=bool(surface.values.get("diffuse_energy_compensation", False)),
             sheen=float(surface.values.get("sheen", 0.0)),
             sheen_color=tuple(float(x) for x in surface.values.get("sheen_color", (1.0, 1.0, 1.0))),
             sheen_roughness=float(surface.values.get("sheen_roughness", 0.3)),

@@ -51,12 +51,11 @@ from bakery.usd.materials import (
 _SUPPORTED = ("standard_surface", "open_pbr_surface", "UsdPreviewSurface", "gltf_pbr")
 #: Lobe weights the capture does not model: (input, neutral value).
 _UNMODELLED = {
-    "standard_surface": (("thin_film_thickness", 0.0), ("diffuse_roughness", 0.0), ("specular_anisotropy", 0.0),
+    "standard_surface": (("thin_film_thickness", 0.0), ("specular_anisotropy", 0.0),
                          ("coat_anisotropy", 0.0), ("coat_affect_color", 0.0), ("coat_affect_roughness", 0.0),
                          ("transmission_extra_roughness", 0.0), ("transmission_dispersion", 0.0),
                          ("transmission_scatter", 0.0)),
-    "open_pbr_surface": (("fuzz_weight", 0.0), ("thin_film_weight", 0.0), ("base_diffuse_roughness", 0.0),
-                         ("specular_roughness_anisotropy", 0.0), ("coat_roughness_anisotropy", 0.0),
+    "open_pbr_surface": (("fuzz_weight", 0.0), ("thin_film_weight", 0.0), ("specular_roughness_anisotropy", 0.0), ("coat_roughness_anisotropy", 0.0),
                          ("transmission_dispersion_scale", 0.0), ("transmission_scatter", 0.0)),
     "UsdPreviewSurface": (("displacement", 0.0),),
     "gltf_pbr": (("sheen_color", 0.0), ("iridescence", 0.0), ("specular", 1.0), ("specular_color", 1.0),
@@ -67,6 +66,9 @@ _UNMODELLED = {
 #: graphs (:func:`_specular_and_coat_tints`)
 _TINTS = {"standard_surface": ("specular", "specular_color", "coat", "coat_color"),
           "open_pbr_surface": ("specular_weight", "specular_color", "coat_weight", "coat_color")}
+#: (diffuse roughness input, energy compensation) of the surfaces' oren_nayar_diffuse_bsdf (stdlib graphs)
+_DIFFUSE_ROUGHNESS = {"standard_surface": ("diffuse_roughness", False),
+                      "open_pbr_surface": ("base_diffuse_roughness", True)}
 #: (subsurface weight, subsurface colour): the dielectric base is mix(diffuse, subsurface, weight) in both
 #: surfaces' MaterialX graphs; the capture reads the subsurface lobe as its diffuse limit (:func:`_subsurface_as_diffuse`)
 _SUBSURFACE = {"standard_surface": ("subsurface", "subsurface_color"),
@@ -203,6 +205,14 @@ def _to_surface(category: str, values: dict[str, object], maps: dict[str, dict],
         _specular_and_coat_tints(category, d, maps, surface)
     if category == "standard_surface":
         _sheen(category, d, maps, surface)
+    if category in _DIFFUSE_ROUGHNESS:
+        name, compensated = _DIFFUSE_ROUGHNESS[category]
+        roughness = _mean(maps[name].get("_mean", d.get(name, 0.0)) if name in maps else d.get(name, 0.0))
+        if name in maps:
+            surface.notes.append(f"{category} {name} is textured; its mean is used")
+        if roughness > 0:
+            surface.values["diffuse_roughness"] = min(roughness, 1.0)
+            surface.values["diffuse_energy_compensation"] = compensated
     if category in _TRANSMISSION:
         _transmission_as_presence(category, d, maps, surface)
     surface.primvar = "st" if any("primvar" not in entry for entry in surface.maps.values()) else None

@@ -9,14 +9,12 @@ from usd_scenes import box_mesh, header, mtlx_material, probe, write
 from bakery.usd.scene import read_scene
 
 CASES = [("ND_standard_surface_surfaceshader", name, value) for name, value in (
-    ("diffuse_roughness", "float inputs:diffuse_roughness = 0.5"),
     ("specular_anisotropy", "float inputs:specular_anisotropy = 0.5"),
     ("coat_affect_color", "float inputs:coat_affect_color = 1"),
     ("thin_film_thickness", "float inputs:thin_film_thickness = 300"),
     ("transmission_scatter", "color3f inputs:transmission_scatter = (0.2, 0.2, 0.2)"),
 )] + [("ND_open_pbr_surface_surfaceshader", name, value) for name, value in (
     ("fuzz_weight", "float inputs:fuzz_weight = 1"),
-    ("base_diffuse_roughness", "float inputs:base_diffuse_roughness = 0.5"),
     ("specular_roughness_anisotropy", "float inputs:specular_roughness_anisotropy = 0.5"),
 )]
 
