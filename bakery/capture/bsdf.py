@@ -9,7 +9,8 @@ material is exactly Lambertian). A tinted lobe (MaterialX specular weight and co
 and F90 alike: its F90 (3, M) is given. α = roughness², clamped to ≥ :data:`MIN_ALPHA`.
 
 Clearcoat (UsdPreviewSurface ``clearcoat`` c, ``clearcoatRoughness`` r_c; MaterialX coat): a white GGX lobe with
-F0 = 0.04 (MaterialX: ((ior − 1)/(ior + 1))² of the coat's IOR, given per point) on top, F_c = c·Schlick(0.04, v·h), α_c = r_c² (≥ MIN_ALPHA); the base lobes are weighted by 1 − F_c (the
+F0 = 0.04 (MaterialX: ((ior − 1)/(ior + 1))² of the coat's IOR, given per point) on top, F_c = c·Schlick(0.04,
+v·h), α_c = r_c² (≥ MIN_ALPHA); the base lobes are weighted by 1 − F_c (the
 light the coat transmits, as the diffuse lobe is by 1 − F under the specular one). It is picked first with
 probability p_c = clip(F_c(n·v) / (F_c(n·v) + (1 − F_c(n·v))·(base weights)), 0.05, 0.95) and sampled by its visible
 normals; the mixture pdf is p_c·pdf_c + (1 − p_c)·pdf_base. Without a coat the BSDF is unchanged.

@@ -14,22 +14,27 @@ Mapping (metallic workflow of the capture; see ``docs/capture.md``)
     ior                  specular_IOR                                    specular_ior
     emission             emission · emission_color                       emission_luminance · emission_color
     opacity              mean(opacity)                                   geometry_opacity
+    coat (clearcoat)     coat, coat_roughness, F0 from coat_IOR          coat_weight, coat_roughness, coat_ior
+    specular_tint        specular · specular_color                       specular_weight · specular_color
+    coat_tint            mix(1, coat_color, coat)                        mix(1, coat_color, coat_weight)
+    diffuse roughness    diffuse_roughness (qualitative Oren–Nayar)      base_diffuse_roughness (EON)
+    subsurface           diffuse limit: mix(diffuse, subsurface_color)   the same, subsurface_weight
+    sheen                sheen, sheen_color, sheen_roughness             — (fuzz: reported)
     ===================  ==============================================  ==========================================
 
-    ``UsdPreviewSurface`` nodes map input for input; ``gltf_pbr`` maps base_color, metallic, roughness, emissive.
-    Inputs connected to ``image``/``tiledimage`` nodes (directly or through a nodegraph output) become texture maps
-    with the node's file, ``colorspace`` (colour inputs are converted with OpenColorIO), address modes and default;
-    a scalar weight multiplying a textured colour (base · base_color) folds into the map's scale. Lobes the
-    capture cannot represent (open_pbr fuzz, thin film, object-space normal maps, other node types in a graph) are
-    reported; subsurface is read as its diffuse limit (:func:`_subsurface_as_diffuse`), the specular weight and
-    colour and the coat colour as tints of the specular lobe and the base (:func:`_specular_and_coat_tints`); chains of ``multiply``/``add``/``subtract``/``mix``
-    with constant operands over one image (or ``geompropvalue``) fold into the map's scale and bias
-    (:func:`fold_affine`); a colour input fed by ``geompropvalue`` reads that primvar per hit (vertex colours);
-    image coordinates follow ``tiledimage`` tiling and a ``place2d``; a tangent-space ``normalmap`` of an image is
-    a normal map (2·in − 1, x and y times its ``scale``), and a ``normalize`` of an image through constant
-    arithmetic a world-space one. Transmission is read as thin, straight pass-through: the
-    presence (opacity) is multiplied by 1 − transmission·(1 − metalness), and the light that passes is tinted by
-    the transmission colour (reported: no refraction, no reflection of the transmitted light).
+    ``UsdPreviewSurface`` nodes map input for input; ``gltf_pbr`` maps base_color, metallic, roughness, ior,
+    emissive, clearcoat and alpha as its ``alpha_mode`` says. Inputs connected to ``image``/``tiledimage`` nodes
+    (directly or through a nodegraph output) become texture maps with the node's file, ``colorspace`` (colour inputs
+    are converted with OpenColorIO), address modes and default; a scalar weight multiplying a textured colour
+    (base · base_color) folds into the map's scale. Chains of ``multiply``/``add``/``subtract``/``mix`` with
+    constant operands over one image (or ``geompropvalue``) fold into the map's scale and bias (:func:`fold_affine`);
+    a colour input fed by ``geompropvalue`` reads that primvar per hit (vertex colours); image coordinates follow
+    ``tiledimage`` tiling and a ``place2d``; a tangent-space ``normalmap`` of an image is a normal map (2·in − 1, x
+    and y times its ``scale``), and a ``normalize`` of an image through constant arithmetic a world-space one.
+    Transmission is read as thin, straight pass-through: the presence (opacity) is multiplied by
+    1 − transmission·(1 − metalness), and the light that passes is tinted by the transmission colour (reported: no
+    refraction, no reflection of the transmitted light). What the capture cannot represent (:data:`_UNMODELLED`:
+    fuzz, thin film, anisotropy, dispersion, …; other node types in a graph) is reported per prim.
 """
 
 from __future__ import annotations
@@ -55,7 +60,8 @@ _UNMODELLED = {
                          ("coat_anisotropy", 0.0), ("coat_affect_color", 0.0), ("coat_affect_roughness", 0.0),
                          ("transmission_extra_roughness", 0.0), ("transmission_dispersion", 0.0),
                          ("transmission_scatter", 0.0)),
-    "open_pbr_surface": (("fuzz_weight", 0.0), ("thin_film_weight", 0.0), ("specular_roughness_anisotropy", 0.0), ("coat_roughness_anisotropy", 0.0),
+    "open_pbr_surface": (("fuzz_weight", 0.0), ("thin_film_weight", 0.0), ("specular_roughness_anisotropy", 0.0),
+                         ("coat_roughness_anisotropy", 0.0),
                          ("transmission_dispersion_scale", 0.0), ("transmission_scatter", 0.0)),
     "UsdPreviewSurface": (("displacement", 0.0),),
     "gltf_pbr": (("sheen_color", 0.0), ("iridescence", 0.0), ("specular", 1.0), ("specular_color", 1.0),
@@ -70,7 +76,8 @@ _TINTS = {"standard_surface": ("specular", "specular_color", "coat", "coat_color
 _DIFFUSE_ROUGHNESS = {"standard_surface": ("diffuse_roughness", False),
                       "open_pbr_surface": ("base_diffuse_roughness", True)}
 #: (subsurface weight, subsurface colour): the dielectric base is mix(diffuse, subsurface, weight) in both
-#: surfaces' MaterialX graphs; the capture reads the subsurface lobe as its diffuse limit (:func:`_subsurface_as_diffuse`)
+#: surfaces' MaterialX graphs; the capture reads the subsurface lobe as its diffuse limit
+#: (:func:`_subsurface_as_diffuse`)
 _SUBSURFACE = {"standard_surface": ("subsurface", "subsurface_color"),
                "open_pbr_surface": ("subsurface_weight", "subsurface_color")}
 #: (transmission weight, metalness) inputs: transmission is modelled as thin, straight pass-through — the surface's

@@ -1,5 +1,6 @@
 """UsdLux's non-physical light controls in the capture: the ``diffuse``/``specular`` multipliers, ShadowAPI's
-``shadow:enable`` and ``shadow:color``, light linking and shadow linking. References: the closed forms of a floor under a sun or a uniform dome, and
+``shadow:enable`` and ``shadow:color``, light linking and shadow linking. References: the closed forms of a floor
+under a sun or a uniform dome, and
 linearity (a capture with the multipliers (1, 0) plus one with (0, 1) is the capture with (1, 1), sample for
 sample, since the lobes are weighted apart on the same paths)."""
 

@@ -52,7 +52,8 @@ def test_resampling_preserves_flux():
     cube = resample_to_cube(image, 48)
     from bakery.environment.resample import cube_samples
 
-    np.testing.assert_allclose(cube_samples(cube).flux(), environment_samples(image).flux(), rtol=6e-8)  # exact by construction up to the float32 output's rounding (2⁻²⁴)
+    # exact by construction up to the float32 output's rounding (2⁻²⁴)
+    np.testing.assert_allclose(cube_samples(cube).flux(), environment_samples(image).flux(), rtol=6e-8)
 
 
 def test_sanitize_counts_and_replaces():
