@@ -40,6 +40,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
+import numpy as np
+
 from bakery.encodings.base import EncodingParams, NoParams
 from bakery.errors import ConfigError, InputError
 from bakery.export.profiles import Profile, get_profile
@@ -74,6 +76,32 @@ class ExportContext:
         return {"generator": "bakery", "store": os.path.basename(self.store.path),
                 "settings_hash": str(self.store.attributes.get("settings_hash", "")),
                 "conventions": CONVENTIONS}
+
+    def validity(self, probes: Iterable[str]) -> dict[str, dict[str, Any]]:
+        """Each rendered probe's validity, for engines that weight or skip probes inside geometry (DDGI's rule):
+        ``backface_fraction`` (the share of its camera rays that saw the back of single-sided surfaces),
+        ``inside_geometry`` (≥ the store's threshold) and, for a relocated volume probe, ``capture_offset`` (metres,
+        bake frame: where it was captured from, relative to its position). Probes without the diagnostic (loaded
+        images, older stores) are left out."""
+        from bakery.conventions import INSIDE_BACKFACE_FRACTION
+
+        diagnostics = self.store.diagnostics
+        fraction = diagnostics.get("capture/backface_fraction")
+        if fraction is None:
+            return {}
+        offsets = diagnostics.get("capture/offset")
+        threshold = float(self.store.attributes.get("inside_geometry_backface_fraction", INSIDE_BACKFACE_FRACTION))
+        names = list(self.store.probe_names)
+        out: dict[str, dict[str, Any]] = {}
+        for name in probes:
+            value = float(np.asarray(fraction)[names.index(name)])
+            if not np.isfinite(value):
+                continue
+            record: dict[str, Any] = {"backface_fraction": value, "inside_geometry": bool(value >= threshold)}
+            if offsets is not None and np.any(np.asarray(offsets)[names.index(name)] != 0):
+                record["capture_offset"] = [float(v) for v in np.asarray(offsets)[names.index(name)]]
+            out[name] = record
+        return out
 
 
 class ExportFormat(ABC):

@@ -155,7 +155,8 @@ class FilamentExport(ExportFormat):
         chains = profile_chains(context.store, context.probes, context.profile, p.levels, p.face_size)
         for name, chain, capture in chains:
             radiance, source = radiance_sh(context.store, name, capture)
-            meta = {**context.provenance(), "probe": name, "profile": chains.record, "irradiance_source": source}
+            meta = {**context.provenance(), "probe": name, "profile": chains.record, "irradiance_source": source,
+                    **({"validity": v} if (v := context.validity([name]).get(name)) else {})}
             cube = Ktx1Cube(p.gl_format, chain[0].shape[1], chain,
                             {"sh": sh_text(filament_sh(radiance)).encode() + b"\x00",
                              "bakery": json.dumps(meta, sort_keys=True).encode() + b"\x00"})

@@ -118,7 +118,8 @@ class GltfExport(ExportFormat):
             position = context.store.probe_positions[context.store.probe_names.index(name)]
             extras = {"bakery": {**context.provenance(), "probe": name, "profile": record,
                                  "irradiance_source": sh_source, "encoding": "RGBD (Babylon), 8-bit PNG",
-                                 "faces": "bakery (OpenGL) faces, each image flipped left-right as EXT_lights_image_based requires"}}
+                                 "faces": "bakery (OpenGL) faces, each image flipped left-right as EXT_lights_image_based requires",
+                                 **({"validity": v} if (v := context.validity([name]).get(name)) else {})}}
             light = {"name": name, "intensity": 1.0, "rotation": [0.0, 0.0, 0.0, 1.0],
                      "irradianceCoefficients": [[float(v) for v in row] for row in
                                                 irradiance_coefficients(radiance)],

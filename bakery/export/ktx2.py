@@ -371,7 +371,8 @@ def bakery_key_values(context: ExportContext, record: dict, probes: list[str], o
     from bakery import __version__
 
     provenance = context.provenance()
-    return {
+    validity = context.validity(probes)
+    return ({"bakery:validity": text_value(json.dumps(validity, sort_keys=True))} if validity else {}) | {
         "KTXorientation": text_value(orientation),
         "KTXwriter": text_value(f"bakery {__version__}"),
         "bakery:conventions": text_value(json.dumps(provenance["conventions"], sort_keys=True)),

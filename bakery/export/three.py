@@ -158,7 +158,8 @@ class ThreeExport(ExportFormat):
             grids.append({"name": prim, "texture": path, "position": [float(v) for v in centre],
                           "width": float(size[0]), "height": float(size[1]), "depth": float(size[2]),
                           "resolution": [int(v) for v in res],
-                          "probes": {p: [int(v) for v in ix] for p, ix in zip(members, index.tolist(), strict=True)}})
+                          "probes": {p: [int(v) for v in ix] for p, ix in zip(members, index.tolist(), strict=True)},
+                          **({"validity": v} if (v := context.validity(members)) else {})})
         if singles:
             children = []
             for p, radiance in zip(singles, self._radiance(store, singles), strict=True):
@@ -166,7 +167,9 @@ class ThreeExport(ExportFormat):
                 children.append({"uuid": _uuid(p), "type": "LightProbe", "name": p, "intensity": 1,
                                  "sh": [float(v) for v in to_three_sh(radiance).reshape(-1)],
                                  "matrix": [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, x, y, z, 1],
-                                 "userData": {"bakery": {"probe": p, "source": irradiance_encoding(store, p)}}})
+                                 "userData": {"bakery": {"probe": p, "source": irradiance_encoding(store, p),
+                                                         **({"validity": v} if (v := context.validity([p]).get(p))
+                                                            else {})}}})
             document = {"metadata": {"version": 4.6, "type": "Object", "generator": "bakery export"},
                         "object": {"uuid": _uuid("light probes"), "type": "Group", "name": "bakery light probes",
                                    "userData": {"bakery": context.provenance()}, "children": children}}

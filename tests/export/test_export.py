@@ -142,6 +142,45 @@ def test_conformance_every_format_writes_its_files_atomically_with_metadata(stor
     assert snapshot(out) == before
 
 
+def _exported_validity(out: Path, name: str) -> dict[str, dict]:
+    """{probe: validity record} as an exported file carries it (glTF extras, KTX2 KVD, three.js userData and grid
+    records, the KTX1 ``bakery`` key)."""
+    data = (out / name).read_bytes()
+    if name.endswith(".gltf"):
+        extras = json.loads(data)["extras"]["bakery"]
+        return {extras["probe"]: extras["validity"]} if "validity" in extras else {}
+    if name.endswith(".ktx2"):
+        value = k2.read_ktx2(data).key_values.get("bakery:validity")
+        return json.loads(value.rstrip(b"\x00")) if value else {}
+    if name == "lightprobes.json":
+        return {c["name"]: c["userData"]["bakery"]["validity"] for c in json.loads(data)["object"]["children"]
+                if "validity" in c["userData"]["bakery"]}
+    if name == "lightprobegrids.json":
+        return {p: v for grid in json.loads(data)["grids"] for p, v in grid.get("validity", {}).items()}
+    if name.endswith(".ktx"):
+        meta = json.loads(read_ktx1(data).key_values["bakery"].rstrip(b"\x00"))
+        return {meta["probe"]: meta["validity"]} if "validity" in meta else {}
+    return {}
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_conformance_every_format_carries_each_probes_validity(stores, fmt, tmp_path):
+    """Each exported probe's backface fraction (the store's ``capture/backface_fraction``, exactly) and whether it is
+    inside geometry (≥ the store's threshold), so an engine can weight or skip probes inside walls."""
+    out = tmp_path / "out"
+    result = export_store(stores["indoor"], out, fmt, layer=False)
+    store = bakery.open_store(stores["indoor"])
+    fraction = np.asarray(store.diagnostics["capture/backface_fraction"], dtype=np.float64)
+    threshold = float(store.attributes["inside_geometry_backface_fraction"])
+    found = {}
+    for name in result.files:
+        found.update(_exported_validity(out, name))
+    assert found, result.files
+    for probe, record in found.items():
+        value = float(np.float32(fraction[store.probe_names.index(probe)]))
+        assert record["backface_fraction"] == value and record["inside_geometry"] == (value >= threshold)
+
+
 @pytest.mark.parametrize("fmt", FORMATS)
 def test_conformance_bad_input_writes_nothing(stores, fmt, tmp_path):
     out = tmp_path / "out"
