@@ -221,6 +221,14 @@ class MaterialReader:
             specular_tint=tuple(float(x) for x in surface.values.get("specular_tint", (1.0, 1.0, 1.0))),
             coat_tint=tuple(float(x) for x in surface.values.get("coat_tint", (1.0, 1.0, 1.0))),
         )
+        numbers = {name: value for name, value in material.__dict__.items() if isinstance(value, float) or (
+            isinstance(value, tuple) and value and all(isinstance(x, (int, float)) for x in value))}
+        bad = sorted(name for name, value in numbers.items()
+                     if not np.all(np.isfinite(np.asarray(value, dtype=np.float64))))
+        bad += sorted(f"{entry['input']} map" for entry in maps if not all(
+            np.all(np.isfinite(np.asarray(entry.get(key, 0.0), dtype=np.float64))) for key in ("scale", "bias")))
+        if bad:  # NaN or ±inf would poison every ray that meets the surface
+            self._warn_once(path, f"material inputs are not finite: {', '.join(bad)}", severity="error")
         return material, False, surface.primvar if maps else None
 
     # ------------------------------------------------------------------------------------------------------------
