@@ -288,8 +288,31 @@ def _specular_and_coat_tints(category: str, values: dict[str, object], maps: dic
         surface.values["specular_tint"] = tuple(float(x) for x in specular)
     coat = min(max(float(np.mean(constant(coat_input, 0.0))), 0.0), 1.0)
     passed = np.clip((1.0 - coat) + coat * constant(coat_colour_input, 1.0), 0.0, 1.0)
+    if category == "open_pbr_surface" and coat > 0:
+        passed = passed * _open_pbr_coat_darkening(values, maps, coat)
     if np.any(passed != 1.0):
         surface.values["coat_tint"] = tuple(float(x) for x in passed)
+
+
+def _open_pbr_coat_darkening(values: dict[str, object], maps: dict[str, dict], coat: float) -> np.ndarray:
+    """OpenPBR's coat darkening (stdlib graph NG_open_pbr_surface_surfaceshader ``modulated_base_darkening``): light
+    the coat reflects back inside darkens a saturated base, (1 − K)/(1 − E_base·K) with K = 1 − (1 − F0_c)/n_c² the
+    coat's internal reflectance and E_base = mix(mix(base_color, subsurface_color, subsurface_weight),
+    specular_weight·base_color, base_metalness); mixed in by coat_weight·coat_darkening. Textured colours: means."""
+    def mean(name: str, fallback):  # noqa: ANN001, ANN202
+        value = maps[name].get("_mean", values.get(name, fallback)) if name in maps else values.get(name, fallback)
+        return np.broadcast_to(np.asarray(value, dtype=np.float64), 3)
+
+    n = max(_mean(values.get("coat_ior", 1.6)), 1e-6)
+    f0 = ((n - 1.0) / (n + 1.0)) ** 2
+    k = 1.0 - (1.0 - f0) / (n * n)
+    base = mean("base_color", (0.8, 0.8, 0.8))
+    dielectric = base + _mean(values.get("subsurface_weight", 0.0)) * (mean("subsurface_color", (0.8,) * 3) - base)
+    metal = _mean(values.get("specular_weight", 1.0)) * base
+    e_base = dielectric + _mean(values.get("base_metalness", 0.0)) * (metal - dielectric)
+    darkening = (1.0 - k) / (1.0 - e_base * k)
+    amount = coat * _mean(values.get("coat_darkening", 1.0))
+    return 1.0 + amount * (darkening - 1.0)
 
 
 def _sheen(category: str, values: dict[str, object], maps: dict[str, dict], surface: Surface) -> None:

@@ -36,7 +36,11 @@ def test_specular_and_coat_tints_are_read(tmp_path, category_id, names):
                        f"color3f inputs:{coat_colour} = (0.2, 0.4, 1)")
     material = reading.scene.meshes[0].material
     np.testing.assert_allclose(material.specular_tint, (0.5, 0.25, 0.125), rtol=1e-6)
-    np.testing.assert_allclose(material.coat_tint, 0.4 + 0.6 * np.array([0.2, 0.4, 1.0]), rtol=1e-6)
+    expected = 0.4 + 0.6 * np.array([0.2, 0.4, 1.0])
+    if coat == "coat_weight":  # OpenPBR also darkens the base under its coat (default base 0.8, coat_ior 1.6)
+        k = 1 - (1 - (0.6 / 2.6) ** 2) / 1.6 ** 2
+        expected = expected * (1 + 0.6 * ((1 - k) / (1 - 0.8 * k) - 1))
+    np.testing.assert_allclose(material.coat_tint, expected, rtol=1e-6)
     assert not [i for i in reading.issues if "not modelled" in i.message], reading.issues
     plain = _reading(tmp_path, category_id, "", name="plain").scene.meshes[0].material
     assert plain.specular_tint == (1.0, 1.0, 1.0) and plain.coat_tint == (1.0, 1.0, 1.0)
@@ -137,3 +141,20 @@ def test_the_capture_is_linear_in_the_coat_f0(tmp_path):
     share = (f0[1.6] - f0[1.5]) / (f0[2.0] - f0[1.5])
     np.testing.assert_allclose(floors[1.6], floors[1.5] + share * (floors[2.0] - floors[1.5]), rtol=1e-4)
     assert floors[2.0].mean() > 1.5 * floors[1.5].mean()
+
+
+def test_open_pbr_coat_darkening_is_folded_into_the_coat_tint(tmp_path):
+    """OpenPBR: the coat passes mix(1, coat_color, w) × mix(1, (1 − K)/(1 − E_base K), w·coat_darkening), K = 1 −
+    (1 − F0)/n² (the stdlib graph's ``coat_attenuation`` and ``modulated_base_darkening``); coat_darkening 0 leaves
+    the colour alone."""
+    inputs = ("float inputs:coat_weight = 0.8\n        color3f inputs:coat_color = (1, 0.5, 0.5)\n        "
+              "color3f inputs:base_color = (0.9, 0.3, 0.1)\n        float inputs:coat_ior = 1.5")
+    material = _reading(tmp_path, "ND_open_pbr_surface_surfaceshader", inputs, "dark").scene.meshes[0].material
+    k = 1 - (1 - 0.04) / 1.5 ** 2
+    base = np.array([0.9, 0.3, 0.1])
+    darkening = 1 + 0.8 * ((1 - k) / (1 - base * k) - 1)
+    attenuation = 0.2 + 0.8 * np.array([1.0, 0.5, 0.5])
+    np.testing.assert_allclose(material.coat_tint, attenuation * darkening, rtol=1e-6)  # float32 inputs
+    off = _reading(tmp_path, "ND_open_pbr_surface_surfaceshader", inputs + "\n        float inputs:coat_darkening = 0",
+                   "off").scene.meshes[0].material
+    np.testing.assert_allclose(off.coat_tint, attenuation, rtol=1e-6)
