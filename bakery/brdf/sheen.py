@@ -2,7 +2,7 @@
 (its default mode ``conty_kulla``, which ``standard_surface``'s sheen layer uses).
 
     D(h)    = (2 + 1/r) · sin(θ_h)^(1/r) / (2π)                      [EK17] Eq. 2, r = max(roughness, 0.005)
-    f(l, v) = D(h) / (4 (n·l + n·v − (n·l)(n·v)))                     [Kel13] the "smoother" visibility
+    f(l, v) = D(h) / (4 (n·l + n·v − (n·l)(n·v)))                     [NP13] the "smoother" visibility
     E(μ, r) = ∫ f(l, v) n·l dl over the hemisphere, μ = n·v           (directional albedo)
 
 A sheen layer of weight w and colour C over a base adds w·C·f·n·l and lets the base keep 1 − w·E(n·v, r) of its
@@ -12,7 +12,7 @@ rational fit of the same integral.
 
 References
     [EK17] A. Estevez, C. Kulla, "Production Friendly Microfacet Sheen BRDF", Sony Pictures Imageworks, 2017.
-    [Kel13] D. Neubelt, M. Pettineo, "Crafting a Next-Gen Material Pipeline for The Order: 1886", SIGGRAPH 2013
+    [NP13] D. Neubelt, M. Pettineo, "Crafting a Next-Gen Material Pipeline for The Order: 1886", SIGGRAPH 2013
     course notes (the denominator 4(n·l + n·v − n·l n·v)).
 """
 
@@ -37,7 +37,7 @@ def sheen_distribution(cos_h: np.ndarray, roughness: np.ndarray) -> np.ndarray:
 
 
 def sheen_brdf(nl: np.ndarray, nv: np.ndarray, nh: np.ndarray, roughness: np.ndarray) -> np.ndarray:
-    """f (…) = D / (4 (n·l + n·v − n·l n·v)) ([Kel13]); cosines clamped to [1e-6, 1] as MaterialX clamps them."""
+    """f (…) = D / (4 (n·l + n·v − n·l n·v)) ([NP13]); cosines clamped to [1e-6, 1] as MaterialX clamps them."""
     nl, nv = np.clip(nl, 1e-6, 1.0), np.clip(nv, 1e-6, 1.0)
     return sheen_distribution(np.clip(nh, 1e-6, 1.0), roughness) / (4.0 * (nl + nv - nl * nv))
 
