@@ -72,7 +72,7 @@ def test_an_eon_floor_has_its_closed_form_albedo(tmp_path):
               "float inputs:base_diffuse_roughness = 1")
     radiance, mu = _floor(tmp_path, "ND_open_pbr_surface_surfaceshader", inputs, "grey")
     expected = L * _eon_albedo(mu, 1.0, 0.5)
-    np.testing.assert_allclose(radiance.mean(axis=0), expected.mean(), rtol=0.015)
+    np.testing.assert_allclose(radiance.mean(axis=0), expected.mean(), rtol=5e-3)  # measured 0.1 %
     assert abs(expected.mean() - L * 0.5) > 0.03 * L * 0.5  # not the Lambertian floor
 
 
@@ -83,5 +83,5 @@ def test_a_qualitative_oren_nayar_floor_has_its_albedo(tmp_path, sigma):
     radiance, mu = _floor(tmp_path, "ND_standard_surface_surfaceshader", inputs, "clay")
     nodes = np.linspace(0.3, 1.0, 8)
     albedo = np.interp(mu, nodes, [_qualitative_albedo(float(m), sigma) for m in nodes])
-    np.testing.assert_allclose(radiance.mean(axis=0), L * 0.5 * albedo.mean(), rtol=0.015)
+    np.testing.assert_allclose(radiance.mean(axis=0), L * 0.5 * albedo.mean(), rtol=5e-3)  # measured ≤ 0.06 %
     assert albedo.mean() < 0.97  # darker than Lambertian

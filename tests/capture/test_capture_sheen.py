@@ -65,7 +65,7 @@ def _floor(tmp_path, inputs: str, name: str):
 def test_a_sheen_floor_under_a_uniform_dome_is_the_layers_closed_form(tmp_path, base, colour, roughness):
     """Black or white (0.8) diffuse base, specular 0, sheen 1: the floor seen at view cosine μ is
     L·(base·(1 − E(μ)) + C·E(μ)), averaged over the texels looking down steeply enough to see the floor far
-    from its horizon (64 rays per texel, 2 %)."""
+    from its horizon (64 rays per texel: 0.75 %; measured ≤ 0.25 %)."""
     inputs = (f"float inputs:base = 1\n        color3f inputs:base_color = ({base}, {base}, {base})\n        "
               f"float inputs:specular = 0\n        float inputs:sheen = 1\n        "
               f"color3f inputs:sheen_color = {colour}\n        float inputs:sheen_roughness = {roughness}")
@@ -79,7 +79,7 @@ def test_a_sheen_floor_under_a_uniform_dome_is_the_layers_closed_form(tmp_path, 
     nodes = np.linspace(0.25, 1.0, 16)  # brute-force E on a μ grid, interpolated to the texels' view cosines
     albedo = np.interp(-d[below][:, 1], nodes, [_brute_albedo(float(mu), roughness, 600) for mu in nodes])
     expected = L * (base * (1 - albedo)[:, None] + np.asarray(colour) * albedo[:, None])
-    np.testing.assert_allclose(cube[below].mean(axis=0), expected.mean(axis=0), rtol=0.02)
+    np.testing.assert_allclose(cube[below].mean(axis=0), expected.mean(axis=0), rtol=7.5e-3)
     grazing, steep = d[below][:, 1] > -0.5, d[below][:, 1] < -0.9  # the sheen rises towards grazing views
     if base == 0.0:
         assert cube[below][grazing].mean() > 1.5 * cube[below][steep].mean()
