@@ -162,6 +162,8 @@ class Material:
             ``transmission_color``); 1 for UsdPreviewSurface, whose opacity is colourless.
         specular_tint: (3,) the dielectric specular lobe's weight × colour (MaterialX ``specular``·``specular_color``):
             it scales that lobe's whole Fresnel curve, F0 and F90 alike (the metal's is unscaled).
+        specular_edge_tint: (3,) the tint of F90 alone when it differs from ``specular_tint``'s (glTF
+            KHR_materials_specular: F0 × specular·specular_color, F90 × specular); None: ``specular_tint``.
         coat_tint: (3,) what the coat lets through to the base, both ways (MaterialX mix(1, coat_color, coat)): it
             scales the base's diffuse and specular lobes.
         maps: textured inputs, each a dict {"input": name, "texture": index into CaptureScene.textures,
@@ -194,6 +196,7 @@ class Material:
     sheen_roughness: float = 0.3
     transmission_tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
     specular_tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    specular_edge_tint: tuple[float, float, float] | None = None
     coat_tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     @property

@@ -277,10 +277,13 @@ class Surfaces:
         self.specular_workflow = np.array([m.use_specular_workflow for m in mats], dtype=bool)
         #: (N, 3) each material's dielectric specular tint and coat tint (Material), or None when none is tinted:
         #: the BSDF then derives F90 from F0 alone, exactly as without them
-        self.specular_tint = self.coat_tint = None
-        if any(tuple(m.specular_tint) != (1.0, 1.0, 1.0) or tuple(m.coat_tint) != (1.0, 1.0, 1.0) for m in mats):
+        self.specular_tint = self.coat_tint = self.edge_tint = None
+        if any(tuple(m.specular_tint) != (1.0, 1.0, 1.0) or tuple(m.coat_tint) != (1.0, 1.0, 1.0)
+               or m.specular_edge_tint is not None for m in mats):
             self.specular_tint = np.array([m.specular_tint for m in mats], dtype=np.float64).reshape(-1, 3)
             self.coat_tint = np.array([m.coat_tint for m in mats], dtype=np.float64).reshape(-1, 3)
+            self.edge_tint = np.array([m.specular_tint if m.specular_edge_tint is None else m.specular_edge_tint
+                                       for m in mats], dtype=np.float64).reshape(-1, 3)
         self.threshold = np.array([m.opacity_threshold for m in mats], dtype=np.float64)
         self.textured = [i for i, m in enumerate(self.materials) if m.maps]
         #: materials of partial presence: opacity < 1 (or textured) without an opacityThreshold — a hit passes
@@ -533,9 +536,10 @@ class Surfaces:
         f90 = None
         if self.tinted:  # the tinted lobe: Material.specular_tint on the dielectric share, coat_tint on the base
             spec = self.specular_tint[k].astype(dtype).reshape(3, 1)
+            edge = self.edge_tint[k].astype(dtype).reshape(3, 1)
             coat = self.coat_tint[k].astype(dtype).reshape(3, 1)
             f90 = (np.minimum(1, 50 * (0.2126 * f0[0] + 0.7152 * f0[1] + 0.0722 * f0[2]))
-                   * (coat * (1 if self.specular_workflow[k] else (1 - metallic) * spec + metallic)))
+                   * (coat * (1 if self.specular_workflow[k] else (1 - metallic) * edge + metallic)))
             if not self.specular_workflow[k]:
                 f0 = (1 - metallic) * dielectric * spec + metallic * diffuse
             f0, albedo = np.clip(coat * f0, 0, 1), albedo * coat
@@ -631,8 +635,8 @@ class Surfaces:
         albedo = np.where(spec_wf[:, None], diffuse, diffuse * (1.0 - metallic)[:, None])
         f90 = None
         if self.tinted:  # Material.specular_tint scales the dielectric share of F0 and F90, coat_tint the whole base
-            spec, coat = self.specular_tint[mi], self.coat_tint[mi]
-            share = np.where(spec_wf[:, None], 1.0, (1.0 - metallic)[:, None] * spec + metallic[:, None])
+            spec, edge, coat = self.specular_tint[mi], self.edge_tint[mi], self.coat_tint[mi]
+            share = np.where(spec_wf[:, None], 1.0, (1.0 - metallic)[:, None] * edge + metallic[:, None])
             f90 = np.minimum(1.0, 50.0 * (f0 @ np.array([0.2126, 0.7152, 0.0722])))[:, None] * share * coat
             tinted = (1.0 - metallic)[:, None] * dielectric[:, None] * spec + metallic[:, None] * diffuse
             f0 = np.clip(coat * np.where(spec_wf[:, None], f0, tinted), 0.0, 1.0)

@@ -110,6 +110,8 @@ def _material_fields(material) -> dict:  # noqa: ANN001 - bakery.capture.scene.M
     if fields.get("sheen", 0.0) == 0.0:
         for name in ("sheen", "sheen_color", "sheen_roughness"):
             fields.pop(name, None)
+    if fields.get("specular_edge_tint") is None:
+        fields.pop("specular_edge_tint", None)
     for tint in ("transmission_tint", "specular_tint", "coat_tint"):
         if tuple(fields.get(tint, (1.0, 1.0, 1.0))) == (1.0, 1.0, 1.0):
             fields.pop(tint, None)

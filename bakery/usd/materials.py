@@ -219,6 +219,8 @@ class MaterialReader:
             sheen_roughness=float(surface.values.get("sheen_roughness", 0.3)),
             transmission_tint=tuple(float(x) for x in surface.values.get("transmission_tint", (1.0, 1.0, 1.0))),
             specular_tint=tuple(float(x) for x in surface.values.get("specular_tint", (1.0, 1.0, 1.0))),
+            specular_edge_tint=(None if surface.values.get("specular_edge_tint") is None else
+                                tuple(float(x) for x in surface.values["specular_edge_tint"])),
             coat_tint=tuple(float(x) for x in surface.values.get("coat_tint", (1.0, 1.0, 1.0))),
         )
         numbers = {name: value for name, value in material.__dict__.items() if isinstance(value, float) or (

@@ -23,7 +23,7 @@ Mapping (metallic workflow of the capture; see ``docs/capture.md``)
     ===================  ==============================================  ==========================================
 
     ``UsdPreviewSurface`` nodes map input for input; ``gltf_pbr`` maps base_color, metallic, roughness, ior,
-    emissive, clearcoat and alpha as its ``alpha_mode`` says. Inputs connected to ``image``/``tiledimage`` nodes
+    emissive, clearcoat, KHR specular (:func:`_gltf_specular`) and alpha as its ``alpha_mode`` says. Inputs connected to ``image``/``tiledimage`` nodes
     (directly or through a nodegraph output) become texture maps with the node's file, ``colorspace`` (colour inputs
     are converted with OpenColorIO), address modes and default; a scalar weight multiplying a textured colour
     (base · base_color) folds into the map's scale. Chains of ``multiply``/``add``/``subtract``/``mix`` with
@@ -64,8 +64,7 @@ _UNMODELLED = {
                          ("coat_roughness_anisotropy", 0.0),
                          ("transmission_dispersion_scale", 0.0), ("transmission_scatter", 0.0)),
     "UsdPreviewSurface": (("displacement", 0.0),),
-    "gltf_pbr": (("sheen_color", 0.0), ("iridescence", 0.0), ("specular", 1.0), ("specular_color", 1.0),
-                 ("anisotropy_strength", 0.0)),
+    "gltf_pbr": (("sheen_color", 0.0), ("iridescence", 0.0), ("anisotropy_strength", 0.0)),
 }
 #: (specular weight, specular colour, coat weight, coat colour): the dielectric specular lobe is weighted by
 #: weight × colour, and the coat lets mix(1, coat colour, coat weight) through to the base, both surfaces' stdlib
@@ -206,6 +205,7 @@ def _to_surface(category: str, values: dict[str, object], maps: dict[str, dict],
         put(target, colour_input, weight_input, scalar)
     if category == "gltf_pbr":
         _gltf_alpha_mode(d, surface)
+        _gltf_specular(d, maps, surface)
     if category in _SUBSURFACE:
         _subsurface_as_diffuse(category, d, maps, surface)
     if category in _TINTS:
@@ -235,6 +235,26 @@ def _gltf_alpha_mode(values: dict[str, object], surface: Surface) -> None:
         surface.maps.pop("opacity", None)
     elif mode == 1:
         surface.values["opacityThreshold"] = _mean(values.get("alpha_cutoff", 0.5))
+
+
+def _gltf_specular(values: dict[str, object], maps: dict[str, dict], surface: Surface) -> None:
+    """KHR_materials_specular (gltf_pbr ``specular``, ``specular_color``; the stdlib graph's dielectric_f0 and
+    dielectric_f90): F0 = min(F0(ior)·specular_color, 1)·specular and F90 = specular, so the dielectric lobe's F0 is
+    tinted by specular·specular_color and its F90 by specular alone. Textured: their means, reported."""
+    def constant(name: str) -> np.ndarray:
+        value = values.get(name, 1.0)
+        if name in maps:
+            value = maps[name].get("_mean", value)
+            surface.notes.append(f"gltf_pbr {name} is textured; its mean is used")
+        return np.broadcast_to(np.asarray(value, dtype=np.float64), 3)
+
+    weight, colour = constant("specular"), constant("specular_color")
+    ior = _mean(values.get("ior", 1.5))
+    f0 = ((ior - 1.0) / (ior + 1.0)) ** 2 if ior > 0 else 0.0
+    colour = np.minimum(colour, 1.0 / f0) if f0 > 0 else colour  # min(F0·C, 1)
+    if np.any(weight * colour != 1.0) or np.any(weight != 1.0):
+        surface.values["specular_tint"] = tuple(float(x) for x in np.clip(weight * colour, 0.0, None))
+        surface.values["specular_edge_tint"] = tuple(float(x) for x in np.clip(weight, 0.0, None))
 
 
 def _subsurface_as_diffuse(category: str, values: dict[str, object], maps: dict[str, dict],

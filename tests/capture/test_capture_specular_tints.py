@@ -158,3 +158,28 @@ def test_open_pbr_coat_darkening_is_folded_into_the_coat_tint(tmp_path):
     off = _reading(tmp_path, "ND_open_pbr_surface_surfaceshader", inputs + "\n        float inputs:coat_darkening = 0",
                    "off").scene.meshes[0].material
     np.testing.assert_allclose(off.coat_tint, attenuation, rtol=1e-6)
+
+
+def test_gltf_khr_specular_tints_f0_by_colour_and_f90_by_weight(tmp_path):
+    """KHR_materials_specular (the stdlib graph's dielectric_f0/f90): F0 = 0.04·specular·specular_color, F90 =
+    specular. On a black gltf_pbr floor (the specular lobe alone, the same paths) Schlick's F = F0·(1 − g) + F90·g
+    is linear in (F0, F90), so two plain floors (IOR 1.5 and 2) give each texel's two parts, and the KHR floor is
+    their combination at (0.04·s·C, s), texel for texel."""
+    gltf = "ND_gltf_pbr_surfaceshader"
+    base = "color3f inputs:base_color = (0, 0, 0)\n        float inputs:metallic = 0\n        float inputs:roughness = 0.4"
+    below = cube_texel_directions(N)[..., 1] < -0.2
+    floors = {}
+    for name, extra in (("ior15", "\n        float inputs:ior = 1.5"), ("ior2", "\n        float inputs:ior = 2"),
+                        ("khr", "\n        float inputs:specular = 0.5\n        color3f inputs:specular_color = "
+                                "(1, 0.5, 0.25)")):
+        reading = _reading(tmp_path, gltf, base + extra, name)
+        floors[name] = capture_probes(reading.scene, N, samples=16, bounces=0)[0][0].astype(np.float64)[below]
+        if name == "khr":
+            material = reading.scene.meshes[0].material
+            np.testing.assert_allclose(material.specular_tint, (0.5, 0.25, 0.125), rtol=1e-6)
+            np.testing.assert_allclose(material.specular_edge_tint, 0.5, rtol=1e-6)
+    f0a, f0b = 0.04, 1 / 9  # ((n − 1)/(n + 1))² at 1.5 and 2, F90 = 1 for both
+    grazing = (floors["ior2"] * f0a - floors["ior15"] * f0b) / (f0a - f0b)  # the F90 part b, per texel and channel
+    normal = (floors["ior15"] - grazing) / f0a  # the F0 part a
+    expected = normal * (0.04 * 0.5 * np.array([1.0, 0.5, 0.25])) + grazing * 0.5
+    np.testing.assert_allclose(floors["khr"], expected, rtol=2e-4, atol=1e-7)

@@ -29,7 +29,7 @@ def test_alpha_mode_decides_what_alpha_means(tmp_path, mode, opacity, threshold)
 
 def test_mask_uses_the_nodedef_cutoff_and_unmodelled_lobes_are_reported(tmp_path):
     material, reading = _material(tmp_path, "float inputs:alpha = 0.3\n        int inputs:alpha_mode = 1\n        "
-                                            "float inputs:iridescence = 1\n        float inputs:specular = 0.5")
+                                            "float inputs:iridescence = 1")
     assert material.opacity_threshold == pytest.approx(0.5)  # alpha_cutoff's default
     messages = " ".join(i.message for i in reading.issues)
-    assert "gltf_pbr iridescence is not modelled" in messages and "gltf_pbr specular is not modelled" in messages
+    assert "gltf_pbr iridescence is not modelled" in messages
