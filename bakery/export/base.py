@@ -68,6 +68,7 @@ class ExportContext:
     profile: Profile
     params: EncodingParams
     format_name: str
+    _validity: dict[str, dict[str, Any]] | None = field(default=None, repr=False)
 
     def provenance(self) -> dict[str, Any]:
         """What every exported file records about its origin (metadata / KVD / extras)."""
@@ -83,23 +84,29 @@ class ExportContext:
         ``inside_geometry`` (≥ the store's threshold) and, for a relocated volume probe, ``capture_offset`` (metres,
         bake frame: where it was captured from, relative to its position). Probes without the diagnostic (loaded
         images, older stores) are left out."""
+        if self._validity is None:  # every probe's, once per export (formats ask per file)
+            self._validity = self._all_validity()
+        return {name: self._validity[name] for name in probes if name in self._validity}
+
+    def _all_validity(self) -> dict[str, dict[str, Any]]:
         from bakery.conventions import INSIDE_BACKFACE_FRACTION
 
         diagnostics = self.store.diagnostics
         fraction = diagnostics.get("capture/backface_fraction")
         if fraction is None:
             return {}
+        fraction = np.asarray(fraction, dtype=np.float64)
         offsets = diagnostics.get("capture/offset")
+        offsets = None if offsets is None else np.asarray(offsets, dtype=np.float64)
         threshold = float(self.store.attributes.get("inside_geometry_backface_fraction", INSIDE_BACKFACE_FRACTION))
-        names = list(self.store.probe_names)
         out: dict[str, dict[str, Any]] = {}
-        for name in probes:
-            value = float(np.asarray(fraction)[names.index(name)])
+        for i, name in enumerate(self.store.probe_names):
+            value = float(np.float32(fraction[i]))
             if not np.isfinite(value):
                 continue
             record: dict[str, Any] = {"backface_fraction": value, "inside_geometry": bool(value >= threshold)}
-            if offsets is not None and np.any(np.asarray(offsets)[names.index(name)] != 0):
-                record["capture_offset"] = [float(v) for v in np.asarray(offsets)[names.index(name)]]
+            if offsets is not None and np.any(offsets[i] != 0):
+                record["capture_offset"] = [float(np.float32(v)) for v in offsets[i]]
             out[name] = record
         return out
 
