@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bakery.capture.scene import CaptureScene, Material
-from bakery.conventions import stage_to_bake_axes
+from bakery.conventions import LUMINANCE_WEIGHTS, stage_to_bake_axes
 
 #: Angular spread (radians) assumed for bounce rays (diffuse-like): textures seen after a bounce are blurred.
 BOUNCE_SPREAD = 0.05
@@ -538,7 +538,7 @@ class Surfaces:
             spec = self.specular_tint[k].astype(dtype).reshape(3, 1)
             edge = self.edge_tint[k].astype(dtype).reshape(3, 1)
             coat = self.coat_tint[k].astype(dtype).reshape(3, 1)
-            f90 = (np.minimum(1, 50 * (0.2126 * f0[0] + 0.7152 * f0[1] + 0.0722 * f0[2]))
+            f90 = (np.minimum(1, 50 * np.tensordot(LUMINANCE_WEIGHTS.astype(dtype), np.asarray(f0), axes=1))
                    * (coat * (1 if self.specular_workflow[k] else (1 - metallic) * edge + metallic)))
             if not self.specular_workflow[k]:
                 f0 = (1 - metallic) * dielectric * spec + metallic * diffuse
@@ -637,7 +637,7 @@ class Surfaces:
         if self.tinted:  # Material.specular_tint scales the dielectric share of F0 and F90, coat_tint the whole base
             spec, edge, coat = self.specular_tint[mi], self.edge_tint[mi], self.coat_tint[mi]
             share = np.where(spec_wf[:, None], 1.0, (1.0 - metallic)[:, None] * edge + metallic[:, None])
-            f90 = np.minimum(1.0, 50.0 * (f0 @ np.array([0.2126, 0.7152, 0.0722])))[:, None] * share * coat
+            f90 = np.minimum(1.0, 50.0 * (f0 @ LUMINANCE_WEIGHTS))[:, None] * share * coat
             tinted = (1.0 - metallic)[:, None] * dielectric[:, None] * spec + metallic[:, None] * diffuse
             f0 = np.clip(coat * np.where(spec_wf[:, None], f0, tinted), 0.0, 1.0)
             albedo = albedo * coat

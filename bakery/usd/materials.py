@@ -230,7 +230,8 @@ class MaterialReader:
         bad += sorted(f"{entry['input']} map" for entry in maps if not all(
             np.all(np.isfinite(np.asarray(entry.get(key, 0.0), dtype=np.float64))) for key in ("scale", "bias")))
         if bad:  # NaN or ±inf would poison every ray that meets the surface
-            self._warn_once(path, f"material inputs are not finite: {', '.join(bad)}", severity="error")
+            self._warn_once(path, f"material inputs are not finite: {', '.join(bad)}; author finite values",
+                            severity="error")
         return material, False, surface.primvar if maps else None
 
     # ------------------------------------------------------------------------------------------------------------

@@ -196,6 +196,26 @@ def _twin(scale: float) -> str:
                                   f"float4 inputs:bias = ({-scale}, {-scale}, -1, 0)")
 
 
+def _authored_floor(normal: str, lobe: str, shaders: str) -> str:
+    """The standard_surface floor as ND_ shaders in USD: albedo ρ, the specular input line ``lobe``, its ``normal``
+    connected to the shader ``normal`` among ``shaders`` (usda of the graph under /Floor)."""
+    return f"""
+def Material "Floor"
+{{
+    token outputs:mtlx:surface.connect = </Floor/Surf.outputs:out>
+    def Shader "Surf"
+    {{
+        uniform token info:id = "ND_standard_surface_surfaceshader"
+        float inputs:base = 1
+        color3f inputs:base_color = ({RHO}, {RHO}, {RHO})
+        {lobe}
+        float3 inputs:normal.connect = </Floor/{normal}.outputs:out>
+        token outputs:out
+    }}
+{shaders}}}
+"""
+
+
 @pytest.mark.parametrize("scale", [1.0, 0.5])
 def test_materialx_normalmap_matches_its_preview_surface_twin(tmp_path, scale):
     """A standard_surface whose ``normal`` is a tangent-space ``normalmap`` (xy × scale) of an image captures as the
@@ -221,19 +241,7 @@ def Scope "Looks" (
     assert entry["scale"] == (2 * scale, 2 * scale, 2.0, 1.0) and entry["bias"] == (-scale, -scale, -1.0, 0.0)
     from_document, _ = capture_probes(reading.scene, N, samples=4, bounces=0)
     np.testing.assert_allclose(from_document[0], twin, rtol=1e-5, atol=1e-8)
-    authored = f"""
-def Material "Floor"
-{{
-    token outputs:mtlx:surface.connect = </Floor/Surf.outputs:out>
-    def Shader "Surf"
-    {{
-        uniform token info:id = "ND_standard_surface_surfaceshader"
-        float inputs:base = 1
-        color3f inputs:base_color = ({RHO}, {RHO}, {RHO})
-        float inputs:specular_roughness = 0.4
-        float3 inputs:normal.connect = </Floor/Mapped.outputs:out>
-        token outputs:out
-    }}
+    authored = _authored_floor("Mapped", "float inputs:specular_roughness = 0.4", f"""
     def Shader "Mapped"
     {{
         uniform token info:id = "ND_normalmap_float"
@@ -247,8 +255,7 @@ def Material "Floor"
         asset inputs:file = @./n.exr@
         float3 outputs:out
     }}
-}}
-"""
+""")
     in_usd, reading = _capture(tmp_path, authored, "authored")
     assert not [i for i in reading.issues if "normal" in i.message], reading.issues
     np.testing.assert_allclose(in_usd, twin, rtol=1e-5, atol=1e-8)
@@ -350,47 +357,34 @@ def test_a_world_space_normal_graph_authored_in_usd_captures_as_the_document(tmp
     """The same graph as ND_ shaders in USD (ND_normalize_vector3 over ND_subtract_vector3FA / ND_multiply_vector3FA
     of ND_image_vector3) captures as the document's."""
     document, _ = _world_scene(tmp_path, "document")
-    authored = f"""
-def Material "Floor"
-{{
-    token outputs:mtlx:surface.connect = </Floor/Surf.outputs:out>
-    def Shader "Surf"
-    {{
-        uniform token info:id = "ND_standard_surface_surfaceshader"
-        float inputs:base = 1
-        color3f inputs:base_color = ({RHO}, {RHO}, {RHO})
-        float inputs:specular = 0
-        float3 inputs:normal.connect = </Floor/Unit.outputs:out>
-        token outputs:out
-    }}
+    authored = _authored_floor("Unit", "float inputs:specular = 0", """
     def Shader "Unit"
-    {{
+    {
         uniform token info:id = "ND_normalize_vector3"
         float3 inputs:in.connect = </Floor/Centred.outputs:out>
         float3 outputs:out
-    }}
+    }
     def Shader "Centred"
-    {{
+    {
         uniform token info:id = "ND_subtract_vector3FA"
         float3 inputs:in1.connect = </Floor/Twice.outputs:out>
         float inputs:in2 = 1
         float3 outputs:out
-    }}
+    }
     def Shader "Twice"
-    {{
+    {
         uniform token info:id = "ND_multiply_vector3FA"
         float3 inputs:in1.connect = </Floor/Normals.outputs:out>
         float inputs:in2 = 2
         float3 outputs:out
-    }}
+    }
     def Shader "Normals"
-    {{
+    {
         uniform token info:id = "ND_image_vector3"
         asset inputs:file = @./w.exr@
         float3 outputs:out
-    }}
-}}
-"""
+    }
+""")
     in_usd, reading = _capture(tmp_path, authored, "authored_world")
     assert not [i for i in reading.issues if "normal" in i.message], reading.issues
     np.testing.assert_allclose(in_usd, document, rtol=1e-5, atol=1e-8)
