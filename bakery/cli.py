@@ -335,6 +335,12 @@ def inspect(store: Path, as_json: bool, pattern: str | None, region: str | None)
             if moved.size:
                 out.print(f"relocated: {moved.size} probe(s) captured from outside the geometry they were in "
                           f"(bakery:volume:relocate; largest offset {offset[moved].max():.3g} m)")
+        from bakery.pipeline.dilate import NEIGHBOURS_KEY
+
+        sources = np.nan_to_num(np.asarray(s.diagnostics.get(NEIGHBOURS_KEY, ()), dtype=np.float64))
+        if np.any(sources > 0):
+            out.print(f"dilated: {np.count_nonzero(sources > 0)} probe(s) inside geometry store the inverse-square-"
+                      "distance-weighted mean of their volume's valid probes (bakery:volume:dilate)")
 
 
 @main.group()

@@ -105,3 +105,34 @@ class ProbeBatch:
             solid_angles=cube_texel_solid_angles(n).reshape(-1),
             radiance=self.cubes[index].reshape(-1, 3).astype(np.float64),
         )
+
+
+class RadianceSHBatch(ProbeBatch):
+    """Probes known only by their radiance SH bands 0–2 (P, 9, 3), e.g. dilated ones
+    (:mod:`bakery.pipeline.dilate`). Every irradiance encoding is a function of these alone and encodes such a
+    batch exactly as the batch of the captures they were projected from (conformance suite); anything that needs
+    the radiance itself (the reflection fits, the reference quadrature) raises ``ValueError``."""
+
+    def __init__(self, radiance_sh: np.ndarray) -> None:  # noqa: D107 - no cubes (ProbeBatch.__init__ not called)
+        radiance_sh = np.asarray(radiance_sh, dtype=np.float64)
+        if radiance_sh.ndim != 3 or radiance_sh.shape[1:] != (9, 3):
+            raise ValueError(f"radiance SH must be (P, 9, 3), got {radiance_sh.shape}")
+        self._sh = {2: radiance_sh}
+        self.reference_samples = None
+
+    @property
+    def cubes(self) -> np.ndarray:  # type: ignore[override]
+        raise ValueError("these probes are known by their radiance SH bands 0-2 alone; no cube to read")
+
+    @property
+    def count(self) -> int:
+        return int(self._sh[2].shape[0])
+
+    @property
+    def face_size(self) -> int:
+        raise ValueError("these probes are known by their radiance SH bands 0-2 alone; they have no face size")
+
+    def radiance_sh(self, max_band: int = 2) -> np.ndarray:
+        if max_band > 2:
+            raise ValueError(f"radiance SH up to band {max_band} requested; these probes hold bands 0-2")
+        return self._sh[2][:, : (max_band + 1) ** 2]

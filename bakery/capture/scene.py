@@ -283,6 +283,9 @@ class ProbeSpec:
         relocate: search radius (metres) of the relocation of a probe inside geometry
             (:mod:`bakery.capture.validity`; a volume's ``bakery:volume:relocate``: half its smallest spacing);
             0: captured where it is.
+        dilation: search radius (metres) of the dilation of a probe inside geometry from its volume's valid
+            probes (:mod:`bakery.pipeline.dilate`; a volume's ``bakery:volume:dilate``); 0: no dilation.
+        dilation_passes: the dilation's passes (``bakery:volume:dilationIterations``).
     """
 
     name: str
@@ -296,6 +299,8 @@ class ProbeSpec:
     volume_index: tuple[int, int, int] = (0, 0, 0)
     influence: dict = field(default_factory=dict)
     relocate: float = 0.0
+    dilation: float = 0.0
+    dilation_passes: int = 1
 
 
 @dataclass(frozen=True)

@@ -82,14 +82,16 @@ class ExportContext:
         """Each rendered probe's validity, for engines that weight or skip probes inside geometry (DDGI's rule):
         ``backface_fraction`` (the share of its camera rays that saw the back of single-sided surfaces),
         ``inside_geometry`` (≥ the store's threshold) and, for a relocated volume probe, ``capture_offset`` (metres,
-        bake frame: where it was captured from, relative to its position). Probes without the diagnostic (loaded
-        images, older stores) are left out."""
+        bake frame: where it was captured from, relative to its position) and, for a dilated one, ``dilated_from``
+        (how many valid probes of its volume it stores the weighted mean of; :mod:`bakery.pipeline.dilate`).
+        Probes without the diagnostic (loaded images, older stores) are left out."""
         if self._validity is None:  # every probe's, once per export (formats ask per file)
             self._validity = self._all_validity()
         return {name: self._validity[name] for name in probes if name in self._validity}
 
     def _all_validity(self) -> dict[str, dict[str, Any]]:
         from bakery.conventions import INSIDE_BACKFACE_FRACTION
+        from bakery.pipeline.dilate import NEIGHBOURS_KEY
 
         diagnostics = self.store.diagnostics
         fraction = diagnostics.get("capture/backface_fraction")
@@ -99,6 +101,8 @@ class ExportContext:
         offsets = diagnostics.get("capture/offset")
         offsets = None if offsets is None else np.asarray(offsets, dtype=np.float64)
         threshold = float(self.store.attributes.get("inside_geometry_backface_fraction", INSIDE_BACKFACE_FRACTION))
+        sources = diagnostics.get(NEIGHBOURS_KEY)
+        sources = None if sources is None else np.nan_to_num(np.asarray(sources, dtype=np.float64))
         out: dict[str, dict[str, Any]] = {}
         for i, name in enumerate(self.store.probe_names):
             value = float(np.float32(fraction[i]))
@@ -107,6 +111,8 @@ class ExportContext:
             record: dict[str, Any] = {"backface_fraction": value, "inside_geometry": bool(value >= threshold)}
             if offsets is not None and np.any(offsets[i] != 0):
                 record["capture_offset"] = [float(np.float32(v)) for v in offsets[i]]
+            if sources is not None and sources[i] > 0:
+                record["dilated_from"] = int(sources[i])
             out[name] = record
         return out
 

@@ -8,6 +8,8 @@ Diagnostics (arrays (P, ...) aligned with the batch's probes; NaN where an entry
     ``band_energy``              per-band irradiance energy (skip decisions, :mod:`bakery.pipeline.skip`)
     ``finalize/<enc>/<field>``   inputs of an encoding's parent-side ``finalize`` (its ``aux_specs``), kept in the
                                  store so that an incremental bake finalizes over every probe again
+    ``dilation/radiance_sh``     radiance SH bands 0–2 (P, 9, 3) of the probes of dilating volumes, kept so that
+                                 every bake dilates over every probe again (:mod:`bakery.pipeline.dilate`)
 """
 
 from __future__ import annotations
@@ -66,6 +68,11 @@ class EncodedBatch:
 
 #: ``EncodedBatch.transient`` key of the exact irradiance (P, N, 3) at the quality directions.
 REFERENCE_IRRADIANCE = "reference_irradiance"
+#: ``Probe.settings`` key of a dilating volume's probes: {"volume": prim path, "radius_m": d, "passes": k}
+#: (:mod:`bakery.pipeline.dilate`).
+DILATION_SETTING = "dilation"
+#: Diagnostics key of each dilating probe's captured radiance SH (P, 9, 3) float32, NaN for the other probes.
+CAPTURED_SH_KEY = "dilation/radiance_sh"
 
 
 def aux_key(encoding: str, field_name: str) -> str:
@@ -187,6 +194,10 @@ def encode_batch(
                     transient[REFERENCE_IRRADIANCE] = full_length(reference, rows, len(probes))
                 all_diagnostics["band_energy"] = full_length(irradiance_band_energy(sub.radiance_sh(2)), rows,
                                                              len(probes))
+                dilating = np.array([DILATION_SETTING in probes[r].settings for r in rows], dtype=bool)
+                if dilating.any():  # the dilation's input (bakery.pipeline.dilate), kept for every later bake
+                    all_diagnostics[CAPTURED_SH_KEY] = full_length(
+                        sub.radiance_sh(2)[dilating].astype(np.float32), rows[dilating], len(probes))
                 timings["diagnostics/irradiance"] = time.perf_counter() - start
     caught = [BakeWarning(w.category.__name__, str(w.message)) for w in recorded
               if issubclass(w.category, BakeryWarning)]

@@ -14,6 +14,7 @@ import numpy as np
 from bakery.conventions import INSIDE_BACKFACE_FRACTION
 from bakery.encodings import Encoding, get_encoding
 from bakery.errors import ConfigError
+from bakery.pipeline.dilate import NEIGHBOURS_KEY
 from bakery.pipeline.encode import (
     REFERENCE_IRRADIANCE,
     BakeWarning,
@@ -43,9 +44,20 @@ def inside_geometry(diagnostics: dict[str, np.ndarray], threshold: float = INSID
         return np.flatnonzero(np.asarray(fraction, dtype=np.float64) >= threshold)
 
 
+def dilated(diagnostics: dict[str, np.ndarray]) -> np.ndarray:
+    """(P,) bool: the probes that store a dilation of their volume's valid probes (:mod:`bakery.pipeline.dilate`)."""
+    neighbours = diagnostics.get(NEIGHBOURS_KEY)
+    if neighbours is None:
+        return np.zeros(len(next(iter(diagnostics.values()), ())), dtype=bool)
+    with np.errstate(invalid="ignore"):
+        return np.asarray(neighbours, dtype=np.float64) > 0
+
+
 def inside_geometry_warning(merged: EncodedBatch, shown: int = 3) -> BakeWarning | None:
-    """One warning naming the probes that are likely inside geometry (:func:`inside_geometry`), or None."""
-    probes = [merged.probes[i] for i in inside_geometry(merged.diagnostics)]
+    """One warning naming the probes that are likely inside geometry (:func:`inside_geometry`) and store what they
+    captured there (dilated probes store their neighbours'), or None."""
+    filled = dilated(merged.diagnostics)
+    probes = [merged.probes[i] for i in inside_geometry(merged.diagnostics) if not filled[i]]
     if not probes:
         return None
     names = [probe.name for probe in probes]
@@ -56,7 +68,8 @@ def inside_geometry_warning(merged: EncodedBatch, shown: int = 3) -> BakeWarning
                   "or author")
     else:
         also = f" ({relocated} of them already relocate and found no point outside)" if relocated else ""
-        advice = f"Move them, set bakery:volume:relocate on their volume{also}, or author"
+        advice = (f"Move them, set bakery:volume:relocate or bakery:volume:dilate on their volume{also}, or "
+                  "author")
     return BakeWarning("SceneWarning", (
         f"{len(names)} of {len(merged.probes)} probes are likely inside geometry: ≥ "
         f"{INSIDE_BACKFACE_FRACTION:.0%} of their camera rays see the back of single-sided surfaces ({listed}); "

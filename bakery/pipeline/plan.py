@@ -22,6 +22,7 @@ from typing import Any
 
 from bakery.encodings import get_encoding
 from bakery.files import stable_hash
+from bakery.pipeline.dilate import hashed_settings
 from bakery.pipeline.settings import BakeSettings, default_encodings
 from bakery.probe import Probe
 from bakery.sources.base import PlannedProbe, SourceHandle, SourcePlan
@@ -84,7 +85,8 @@ def probe_content_hash(source_kind: str, planned: PlannedProbe, encodings: tuple
     """The content hash of the module docstring."""
     probe = planned.probe
     versions = sorted((name, get_encoding(name).version) for name in encodings)  # a new encoding version re-bakes
-    return stable_hash(probe.name, probe.kinds, probe.position, probe.settings, source_kind, planned.capture,
+    return stable_hash(probe.name, probe.kinds, probe.position, hashed_settings(probe.settings), source_kind,
+                       planned.capture,
                        planned.inputs, versions, settings_hash)
 
 

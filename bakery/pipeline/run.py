@@ -59,6 +59,7 @@ from bakery.files import (
     staged_path,
     with_filename,
 )
+from bakery.pipeline.dilate import dilate_volumes
 from bakery.pipeline.encode import EncodedBatch
 from bakery.pipeline.executors import Executor, SerialExecutor
 from bakery.pipeline.journal import Journal
@@ -303,10 +304,15 @@ def finalize_and_write(request: BakeRequest, source: Source, plan: Plan, batches
               else EncodedBatch([], {}, {}, {}))
     given.clear()
     batches.clear()
+    planned = {task.probe.name: task.probe for task in plan.tasks}  # reused probes come back without their settings
+    merged.probes = [planned.get(probe.name, probe) for probe in merged.probes]
     _reemit(merged)
     # Warnings about this machine rather than the results (a rebuilt operator cache) are shown, not stored: the
     # store must not depend on the state of the machine that baked it.
     merged.warnings = [w for w in merged.warnings if w.category not in MACHINE_WARNINGS]
+    for record in dilate_volumes(merged, settings):  # probes inside geometry, from their volume's valid probes
+        merged.warnings.append(record)
+        warnings.warn(record.message, bakery.errors.SceneWarning, stacklevel=2)
     inside = inside_geometry_warning(merged)  # probe validity: recorded in the store's warnings, shown
     if inside is not None:
         merged.warnings.append(inside)

@@ -241,6 +241,7 @@ def _capture_validity(store: Any, listed: int = 20) -> dict[str, Any] | None:
     """The threshold, count and (up to ``listed``) names of the probes likely inside geometry, with the summary of
     every rendered probe's backface fraction (``capture/backface_fraction``), or None when the store has none."""
     from bakery.conventions import INSIDE_BACKFACE_FRACTION
+    from bakery.pipeline.dilate import NEIGHBOURS_KEY
     from bakery.pipeline.merge import BACKFACE_KEY, inside_geometry
 
     if BACKFACE_KEY not in store.diagnostics:
@@ -251,10 +252,13 @@ def _capture_validity(store: Any, listed: int = 20) -> dict[str, Any] | None:
     offset = np.linalg.norm(np.asarray(store.diagnostics.get("capture/offset", np.zeros((len(fraction), 3))),
                                        dtype=np.float64), axis=-1)
     moved = np.flatnonzero(offset > 0)
+    sources = np.nan_to_num(np.asarray(store.diagnostics.get(NEIGHBOURS_KEY, np.zeros(len(fraction))),
+                                       dtype=np.float64))
     return {"threshold": threshold, "summary": quality.summarise(fraction), "inside_count": int(inside.size),
-            "inside": [{"probe": store.probe_names[i], "backface_fraction": float(fraction[i])}
-                       for i in inside[:listed]],
-            "relocated_count": int(moved.size), "largest_offset_m": float(offset[moved].max()) if moved.size else 0.0}
+            "inside": [{"probe": store.probe_names[i], "backface_fraction": float(fraction[i]),
+                        "dilated_from": int(sources[i])} for i in inside[:listed]],
+            "relocated_count": int(moved.size), "largest_offset_m": float(offset[moved].max()) if moved.size else 0.0,
+            "dilated_count": int(np.count_nonzero(sources > 0))}
 
 
 def _capture_noise(store: Any) -> dict[str, Any] | None:

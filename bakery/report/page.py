@@ -154,17 +154,20 @@ def render_page(data: dict[str, Any], plots: dict[str, str], previews: dict[str,
     if validity and validity["summary"].get("count"):
         parts.append("<h3>Probe validity</h3>")
         parts.append(_table(["rendered probes", f"likely inside geometry (≥ {validity['threshold']:.0%})",
-                             "mean backface fraction", "max", "relocated", "largest offset (m)"],
+                             "mean backface fraction", "max", "relocated", "largest offset (m)", "dilated"],
                             [[validity["summary"]["count"], validity["inside_count"], validity["summary"]["mean"],
                               validity["summary"]["max"], validity["relocated_count"],
-                              validity["largest_offset_m"]]], left=0))
+                              validity["largest_offset_m"], validity.get("dilated_count", 0)]], left=0))
         if validity["inside"]:
-            parts.append(_table(["probe inside geometry (prim path)", "backface fraction"],
-                                [[w["probe"], w["backface_fraction"]] for w in validity["inside"]]))
+            parts.append(_table(["probe inside geometry (prim path)", "backface fraction", "dilated from"],
+                                [[w["probe"], w["backface_fraction"], w.get("dilated_from", 0) or "—"]
+                                 for w in validity["inside"]]))
         parts.append('<p class="note">Share of each probe\'s camera rays whose first hit is the back of a '
                      "single-sided surface (inside closed geometry, or a surface wound away from the probe); such a "
-                     "probe stores what the inside looks like. Move it, or author <code>doubleSided</code> on open "
-                     "sheets seen from both sides.</p>")
+                     "probe stores what the inside looks like unless its volume dilates it (it then stores the "
+                     "inverse-square-distance-weighted mean of the valid probes within reach; "
+                     "<code>bakery:volume:dilate</code>). Move it, relocate or dilate its volume, or author "
+                     "<code>doubleSided</code> on open sheets seen from both sides.</p>")
     if data["quantization"]:
         parts.append("<h3>Quantization error</h3>")
         rows = [[n, q["source"], q["summary"].get("mean"), q["summary"].get("max")]

@@ -38,6 +38,7 @@ import numpy as np
 from bakery.encodings import ENCODINGS
 from bakery.environment.resample import RESAMPLE_MODEL_VERSION
 from bakery.errors import SceneError, SceneWarning
+from bakery.pipeline.dilate import DILATION_SETTING, DilationSettings
 from bakery.pipeline.settings import CaptureSettings
 from bakery.probe import Probe
 from bakery.sources.base import (
@@ -132,6 +133,9 @@ class UsdSceneSource(Source):
                 probe_settings["influence"] = spec.influence
             if spec.relocate > 0:  # where it is captured depends on the search radius
                 probe_settings["relocate"] = spec.relocate
+            if spec.dilation > 0:  # applied in the parent (bakery.pipeline.dilate); only "on" enters the hash
+                probe_settings[DILATION_SETTING] = DilationSettings(spec.volume, spec.dilation,
+                                                                    spec.dilation_passes).as_setting()
             if spec.kind == "reflection" and ranged:
                 if bounds is None:
                     bounds = TriangleBounds.of(reading.scene.meshes)

@@ -43,7 +43,8 @@ def check_scene(path: str | Path) -> list[Issue]:
 
 def inside_geometry_issues(scene: CaptureScene, shown: int = 3) -> list[Issue]:
     """Warnings for the rendered probes of ``scene`` whose backface fraction over the relocation search's rays is
-    ≥ the threshold: one per probe prim, one per volume (count and first members); volumes that relocate say so."""
+    ≥ the threshold: one per probe prim, one per volume (count and first members); volumes that relocate or dilate
+    say so."""
     from bakery.capture.validity import SEARCH_DIRECTIONS, Relocator  # Embree: only with probes and geometry
 
     probes = [p for p in scene.probes if not p.image]
@@ -52,11 +53,13 @@ def inside_geometry_issues(scene: CaptureScene, shown: int = 3) -> list[Issue]:
     relocator = Relocator.of_scene(scene)
     inside: dict[str, list[tuple[str, float]]] = {}
     relocating: dict[str, bool] = {}
+    dilating: dict[str, bool] = {}
     for spec in probes:
         fraction = relocator.backface_fraction(spec.position)
         if fraction >= INSIDE_BACKFACE_FRACTION:
             inside.setdefault(spec.volume or spec.name, []).append((spec.name, fraction))
             relocating[spec.volume or spec.name] = spec.relocate > 0
+            dilating[spec.volume or spec.name] = spec.dilation > 0
     issues = []
     rule = f"≥ {INSIDE_BACKFACE_FRACTION:.0%} of {SEARCH_DIRECTIONS} rays see the back of single-sided surfaces"
     for prim, members in inside.items():
@@ -66,8 +69,11 @@ def inside_geometry_issues(scene: CaptureScene, shown: int = 3) -> list[Issue]:
             continue
         names = ", ".join(f"{name} {fraction:.0%}" for name, fraction in members[:shown])
         more = f" and {len(members) - shown} more" if len(members) > shown else ""
-        fix = ("the bake relocates them (bakery:volume:relocate)" if relocating[prim] else
-               "set bakery:volume:relocate, move the volume, or author doubleSided on open sheets")
+        done = [what for what, on in (("relocates", relocating[prim]), ("dilates", dilating[prim])) if on]
+        fix = (f"the bake {' and then '.join(done)} them (bakery:volume:{'relocate' if relocating[prim] else 'dilate'}"
+               f"{', bakery:volume:dilate' if len(done) == 2 else ''})" if done else
+               "set bakery:volume:relocate or bakery:volume:dilate, move the volume, or author doubleSided on open "
+               "sheets")
         issues.append(Issue("warning", prim, f"{len(members)} of its probes are likely inside geometry ({rule}: "
                             f"{names}{more}); {fix}"))
     return issues

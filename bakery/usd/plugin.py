@@ -53,6 +53,10 @@ FALLBACKS: dict[str, object] = {
     "bakery:capture:resolution": 0,
     "bakery:volume:extent": (1.0, 1.0, 1.0),
     "bakery:volume:counts": (2, 2, 2),
+    "bakery:volume:relocate": False,
+    "bakery:volume:dilate": False,
+    "bakery:volume:dilationDistance": 0.0,
+    "bakery:volume:dilationIterations": 1,
 }
 
 #: Markers of the generated block of ``schema.usda`` (inside ``BakeryBakedProbeAPI``).

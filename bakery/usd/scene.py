@@ -419,6 +419,7 @@ class SceneReader:
             if relocate == 0.0:
                 self.issue("warning", prim, "bakery:volume:relocate needs two probes or more along an axis of "
                            "non-zero extent (the search radius is half the spacing); the probes are not relocated")
+        dilation, passes = self._volume_dilation(prim, extent, counts, matrix)
         for (a, b, c), position in zip(ijk.tolist(), positions):
             self.probes.append(
                 ProbeSpec(
@@ -431,8 +432,36 @@ class SceneReader:
                     volume=path,
                     volume_index=(a, b, c),
                     relocate=relocate,
+                    dilation=dilation,
+                    dilation_passes=passes,
                 )
             )
+
+    def _volume_dilation(self, prim: Usd.Prim, extent: np.ndarray, counts: np.ndarray,
+                         matrix: np.ndarray) -> tuple[float, int]:
+        """(search radius in bake-frame metres, passes) of a volume's ``bakery:volume:dilate``; (0, 1) when off."""
+        if not bool(self._attr(prim, "bakery:volume:dilate")):
+            return 0.0, 1
+        distance = float(self._attr(prim, "bakery:volume:dilationDistance"))
+        passes = int(self._attr(prim, "bakery:volume:dilationIterations"))
+        if not np.isfinite(distance) or distance < 0:
+            self.issue("error", prim, f"bakery:volume:dilationDistance must be a finite number >= 0, got {distance}")
+            return 0.0, 1
+        if passes < 1:
+            self.issue("error", prim, f"bakery:volume:dilationIterations must be >= 1, got {passes}")
+            return 0.0, 1
+        if distance > 0:  # stage units → bake-frame metres
+            return distance * self.frame.mpu, passes
+        cell = np.zeros(3)  # the cell diagonal: every axis with two probes or more contributes its spacing
+        for a in range(3):
+            if counts[a] > 1:
+                cell += np.eye(3)[a] * 2.0 * extent[a] / (counts[a] - 1)
+        radius = float(np.linalg.norm(self.frame.vectors(cell, matrix)))
+        if radius == 0.0:
+            self.issue("warning", prim, "bakery:volume:dilate needs two probes or more along an axis of non-zero "
+                       "extent (or a bakery:volume:dilationDistance); the probes are not dilated")
+            return 0.0, 1
+        return radius * (1.0 + 1e-6), passes  # the diagonal neighbours themselves are within reach
 
     # ------------------------------------------------------------------------------------------------------------
     # Lights

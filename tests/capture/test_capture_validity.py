@@ -106,7 +106,7 @@ def test_inspect_and_report_list_the_probes_inside_geometry(tmp_path):
     data, html = build_report(tmp_path / "scene.h5", previews=False)
     validity = data["capture_validity"]
     assert validity["threshold"] == 0.25 and validity["inside_count"] == 1
-    assert validity["inside"] == [{"probe": "/Inside", "backface_fraction": 1.0}]
+    assert validity["inside"] == [{"probe": "/Inside", "backface_fraction": 1.0, "dilated_from": 0}]
     assert "Probe validity" in html and "/Inside" in html
     result = subprocess.run([sys.executable, "-m", "bakery.cli", "inspect", str(tmp_path / "scene.h5")],
                             capture_output=True, text=True)

@@ -142,6 +142,31 @@ def test_encoding_is_deterministic(name):
         assert first[key].tobytes() == second[key].tobytes()
 
 
+@pytest.mark.parametrize("name", [n for n, cls in ENCODINGS.items() if cls.kind == "irradiance"])
+def test_irradiance_encodings_are_functions_of_the_band_0_to_2_radiance_sh(name):
+    """What the dilation of probes inside geometry relies on (bakery.pipeline.dilate): an irradiance encoding of
+    probes known by their radiance SH alone is, bit for bit, the encoding of the captures it was projected from."""
+    from bakery.probe import RadianceSHBatch
+
+    for params in ({}, STORED_VARIANTS.get(name, {})):
+        encoding = ENCODINGS[name](ENCODINGS[name].Params(**params))
+        batch = ProbeBatch(_cubes())
+        from_cubes = encoding.encode(batch)
+        from_sh = encoding.encode(RadianceSHBatch(batch.radiance_sh(2)))
+        assert set(from_sh) == set(from_cubes)
+        for key in from_cubes:
+            assert from_sh[key].dtype == from_cubes[key].dtype and from_sh[key].tobytes() == from_cubes[key].tobytes()
+
+
+def test_reflection_encodings_refuse_probes_known_by_sh_alone():
+    from bakery.probe import RadianceSHBatch
+
+    batch = RadianceSHBatch(ProbeBatch(_cubes()).radiance_sh(2))
+    for name in [n for n, cls in ENCODINGS.items() if cls.kind == "reflection"]:
+        with pytest.raises(ValueError, match="radiance SH bands 0-2 alone"):
+            ENCODINGS[name](ENCODINGS[name].Params(**_settings(name))).encode(batch)
+
+
 # ----------------------------------------------------------------------------------------- stores the CLI writes
 #: Parameters that change what is stored, each baked by the CLI from a recipe and evaluated through the API.
 STORED_VARIANTS = {
