@@ -15,10 +15,16 @@ light the coat transmits, as the diffuse lobe is by 1 − F under the specular o
 probability p_c = clip(F_c(n·v) / (F_c(n·v) + (1 − F_c(n·v))·(base weights)), 0.05, 0.95) and sampled by its visible
 normals; the mixture pdf is p_c·pdf_c + (1 − p_c)·pdf_base. Without a coat the BSDF is unchanged.
 
-Sheen (MaterialX ``standard_surface`` sheen w, sheen_color C, sheen_roughness r): the Imageworks sheen lobe
-(:mod:`bakery.brdf.sheen`) layered over the diffuse lobe, both under the specular one, as the stdlib graph
-layers them: ρ_d/π·(1 − w·E(n·v, r)) + w·C·f_sheen, weighted by 1 − F like the diffuse lobe it joins; it is
-sampled with it (cosine), its directional albedo w·C·E counting towards that lobe's choice.
+Sheen (weight w, colour C, roughness r; :class:`Sheen`): a lobe S = w·C·f_sheen·n·l whose layer lets what lies
+under it keep 1 − w·E(n·v, r) (MaterialX ``layer`` over ``sheen_bsdf``; E its directional albedo), where the
+stdlib graphs put it:
+    * over the diffuse lobe, both under the specular one (``standard_surface``):
+      (1 − F)·(ρ_d/π·(1 − w·E)·n·l + S) + specular;
+    * over diffuse and specular, under the coat (``gltf_pbr``): ρ_d/π·(1 − w·E)(1 − F)·n·l + (1 − w·E)·specular + S;
+    * over everything, the coat included (``open_pbr_surface`` fuzz): (1 − w·E)·(coated base) + S.
+The lobe is the Imageworks one (:mod:`bakery.brdf.sheen`, mode ``conty_kulla``) or Zeltner's LTC fuzz
+(:mod:`bakery.brdf.sheen_ltc`, mode ``zeltner``). It is sampled with the diffuse lobe (cosine), its directional
+albedo w·C·E counting towards that lobe's choice.
 
 Rough diffuse (MaterialX ``diffuse_roughness``, ``base_diffuse_roughness``): the diffuse lobe is Oren–Nayar
 (:mod:`bakery.brdf.oren_nayar`): standard_surface's qualitative model, open_pbr_surface's energy-preserving EON;
@@ -38,7 +44,9 @@ import math
 
 import numpy as np
 
-from bakery.brdf import oren_nayar
+from dataclasses import dataclass
+
+from bakery.brdf import oren_nayar, sheen_ltc
 from bakery.brdf.sheen import directional_albedo, sheen_brdf
 from bakery.capture.vec import TINY, dot, frame, luminance, vmax
 
@@ -46,6 +54,23 @@ MIN_ALPHA = 1e-3
 #: F0 of the clearcoat lobe (UsdPreviewSurface: an IOR of 1.5)
 COAT_F0 = 0.04
 _INV_PI = 1.0 / math.pi
+
+
+#: What a sheen layer lies over (``Material.sheen_layer``), by index: its ``Sheen.layer`` codes
+SHEEN_LAYERS = ("diffuse", "base", "coat")
+
+
+@dataclass(frozen=True)
+class Sheen:
+    """The sheen layer at M shading points (module docstring "Sheen"): weight w (M,), colour C (3, M), roughness
+    (M,), ``layer`` (M,) int8 :data:`SHEEN_LAYERS` codes and ``zeltner`` (M,) bool (the LTC lobe), each None where
+    every point has the default (over the diffuse lobe; the Imageworks lobe)."""
+
+    weight: np.ndarray
+    colour: np.ndarray
+    roughness: np.ndarray
+    layer: np.ndarray | None = None
+    zeltner: np.ndarray | None = None
 
 
 def _pow5(x: np.ndarray) -> np.ndarray:
@@ -67,7 +92,7 @@ class Bsdf:
     def __init__(self, normals: np.ndarray, wo: np.ndarray, albedo: np.ndarray, f0: np.ndarray,
                  roughness: np.ndarray, geometric: np.ndarray | None = None,
                  coat: tuple[np.ndarray, np.ndarray] | None = None, f90: np.ndarray | None = None,
-                 sheen: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+                 sheen: Sheen | None = None,
                  rough_diffuse: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         self.n = normals
         #: the geometric normal (3, M) facing wo when ``normals`` are interpolated shading normals: directions
@@ -76,14 +101,23 @@ class Bsdf:
         self.geometric = geometric
         self.wo = wo
         self.f0 = f0
-        #: the sheen layer over the diffuse lobe (module docstring "Sheen"): None, or w·C (3, M) and roughness (M,)
+        #: the sheen layer (module docstring "Sheen"): None, or (w·C (3, M), roughness (M,), zeltner (M,) bool or
+        #: None, layer (M,) or None, 1 − w·E (M,))
         self.sheen = None
-        if sheen is not None and bool(np.any(sheen[0] > 0)):
-            weight, colour, sheen_roughness = sheen
+        keep_sheen = None  # (M,) what lies under a sheen over the specular lobe keeps, or None
+        if sheen is not None and bool(np.any(sheen.weight > 0)):
+            weight, sheen_roughness = sheen.weight, sheen.roughness
             nv_sheen = np.clip(dot(normals, wo), 0, 1)
-            throughput = 1 - weight * directional_albedo(nv_sheen, sheen_roughness).astype(albedo.dtype)
+            sheen_albedo = directional_albedo(nv_sheen, sheen_roughness)
+            if sheen.zeltner is not None:
+                sheen_albedo = np.where(sheen.zeltner, sheen_ltc.directional_albedo(nv_sheen, sheen_roughness),
+                                        sheen_albedo)
+            throughput = 1 - weight * sheen_albedo.astype(albedo.dtype)
             albedo_layer = albedo * throughput  # what the base keeps under the sheen
-            self.sheen = ((weight * colour).astype(albedo.dtype, copy=False), sheen_roughness)
+            self.sheen = ((weight * sheen.colour).astype(albedo.dtype, copy=False), sheen_roughness, sheen.zeltner,
+                          sheen.layer, throughput)
+            if sheen.layer is not None:
+                keep_sheen = np.where(sheen.layer >= 1, throughput, 1).astype(albedo.dtype, copy=False)
             # the lobe's share of the diffuse branch's choice: its directional albedo, w·C·E
             sheen_albedo = self.sheen[0] * (1 - throughput) / np.maximum(weight, TINY)
             albedo = albedo_layer
@@ -110,7 +144,7 @@ class Bsdf:
         #: matter; chosen per point, so a point's value does not depend on the other points of the batch
         self.sharp = np.flatnonzero(specular & (alpha < 0.03))
         fv = self._fresnel(nv)
-        spec_w = luminance(fv)
+        spec_w = luminance(fv) if keep_sheen is None else luminance(fv) * keep_sheen
         total = spec_w + luminance(lobe_albedo * (1 - fv))
         with np.errstate(divide="ignore", invalid="ignore"):
             ps = np.clip(np.where(total > 0, spec_w / total, 0.5), 0.05, 0.95)
@@ -179,16 +213,31 @@ class Bsdf:
                 eon = oren_nayar.energy_preserving(nlr, nvr, c, sigma, e(self.albedo_pi) * math.pi) * _INV_PI
                 lobe = np.where(compensated, eon.astype(lobe.dtype, copy=False), lobe)
             diffuse = lobe * (1 - f) * nlc
-        if self.sheen is not None:  # the sheen lobe, layered with the diffuse one under the specular lobe
-            colour, sheen_roughness = self.sheen
+        top = keep_sheen = keep_coat = None
+        if self.sheen is not None:  # the sheen lobe where its layer lies (module docstring "Sheen")
+            colour, sheen_roughness, zeltner, layer, throughput = self.sheen
             nh = (e(self.nv_raw) + nl) * inv_h
             lobe = sheen_brdf(nlc, e(self.nv), nh, e(sheen_roughness)).astype(diffuse.dtype, copy=False)
-            diffuse = diffuse + e(colour) * ((1 - f) * (lobe * nlc))
+            lobe_cos = lobe * nlc
+            if zeltner is not None:  # [ZBD22]: E·D already holds n·l
+                fuzz = sheen_ltc.sheen_lobe(nl, e(self.nv), c, e(sheen_roughness)).astype(diffuse.dtype, copy=False)
+                lobe_cos = np.where(e(zeltner), fuzz, lobe_cos)
+            if layer is None:  # over the diffuse lobe, under the specular one
+                diffuse = diffuse + e(colour) * ((1 - f) * lobe_cos)
+            else:
+                code = e(layer)
+                sheen_cos = e(colour) * lobe_cos
+                diffuse = diffuse + np.where(code == 0, 1 - f, (code == 1).astype(diffuse.dtype)) * sheen_cos
+                top = (code == 2) * sheen_cos  # over the coat: added last
+                keep_sheen = e(np.where(layer >= 1, throughput, 1).astype(diffuse.dtype, copy=False))
+                keep_coat = e(np.where(layer == 2, throughput, 1).astype(diffuse.dtype, copy=False))
         specular = None
         pdf = (1 - e(self.p_spec)) * _INV_PI * nlc
         if self.any_specular:
             d, vis = self._ggx(e, n, wo, wi, nl, nlc, inv_h, e(self.a2), e(self.sqv), self.sharp)
             specular = f * (d * vis * nlc)
+            if keep_sheen is not None:  # under a sheen over the specular lobe
+                specular = specular * keep_sheen
             pdf = pdf + e(self.spec_pdf_scale) * d
         if self.coat is not None:  # [UsdPreviewSurface] clearcoat: a white GGX lobe (F0 0.04) over the base
             amount, _alpha, a2c, sqvc, pdf_scale, sharp, f0c = self.coat
@@ -197,9 +246,12 @@ class Bsdf:
             d, vis = self._ggx(e, n, wo, wi, nl, nlc, inv_h, e(a2c), e(sqvc), sharp)
             keep = 1 - fc  # the base sees what the coat transmits
             diffuse = diffuse * keep
-            coat = np.broadcast_to(fc * (d * vis * nlc), diffuse.shape)
+            coat = fc * (d * vis * nlc)
+            coat = np.broadcast_to(coat if keep_coat is None else coat * keep_coat, diffuse.shape)
             specular = coat if specular is None else specular * keep + coat
             pdf = (1 - e(self.p_coat)) * pdf + e(pdf_scale) * d
+        if top is not None:  # a fuzz layer over the coat
+            diffuse = diffuse + top
         return diffuse, specular, pdf, above
 
     def _ggx(self, e, n, wo, wi, nl, nlc, inv_h, a2, sqv, sharp):  # noqa: ANN001, ANN202

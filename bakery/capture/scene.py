@@ -151,8 +151,13 @@ class Material:
             (:mod:`bakery.capture.bsdf`, "Clearcoat").
         diffuse_roughness, diffuse_energy_compensation: an Oren–Nayar diffuse lobe of that roughness (0: Lambertian),
             the qualitative model or the energy-preserving EON (:mod:`bakery.brdf.oren_nayar`).
-        sheen, sheen_color, sheen_roughness: a sheen layer (MaterialX standard_surface) of that weight, colour and
-            roughness over the diffuse lobe (:mod:`bakery.capture.bsdf`, "Sheen"), on the dielectric share.
+        sheen, sheen_color, sheen_roughness: a sheen layer of that weight, colour and roughness
+            (:mod:`bakery.capture.bsdf`, "Sheen").
+        sheen_layer: what the sheen lies over: ``"diffuse"`` (MaterialX standard_surface: the diffuse lobe of the
+            dielectric share, under the specular lobe and the coat), ``"base"`` (gltf_pbr: diffuse, specular and
+            metal, under the coat) or ``"coat"`` (open_pbr_surface fuzz: everything, the coat included).
+        sheen_mode: the lobe, MaterialX ``sheen_bsdf``'s mode: ``"conty_kulla"`` (the Imageworks lobe,
+            :mod:`bakery.brdf.sheen`) or ``"zeltner"`` (the LTC fuzz, :mod:`bakery.brdf.sheen_ltc`).
         clearcoat_f0: the coat's F0, ((ior − 1)/(ior + 1))² of a MaterialX coat's IOR (UsdPreviewSurface: 0.04).
         opacity, opacity_threshold: cut-outs: a hit whose opacity is below the threshold (threshold > 0) is
             passed through; without a threshold, opacity is the surface's presence: a hit is passed through with
@@ -194,6 +199,8 @@ class Material:
     sheen: float = 0.0
     sheen_color: tuple[float, float, float] = (1.0, 1.0, 1.0)
     sheen_roughness: float = 0.3
+    sheen_layer: str = "diffuse"
+    sheen_mode: str = "conty_kulla"
     transmission_tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
     specular_tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
     specular_edge_tint: tuple[float, float, float] | None = None

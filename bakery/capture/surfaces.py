@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bakery.capture.bsdf import SHEEN_LAYERS, Sheen
 from bakery.capture.scene import CaptureScene, Material
 from bakery.conventions import LUMINANCE_WEIGHTS, stage_to_bake_axes
 
@@ -344,14 +345,23 @@ class Surfaces:
         if any(m.diffuse_roughness > 0 for m in self.materials):
             self.rough_table = np.array([[m.diffuse_roughness for m in mats],
                                          [float(m.diffuse_energy_compensation) for m in mats]], dtype=np.float32)
-        #: (5, materials) float32 sheen weight on the dielectric share (× 1 − metallic), colour (× the coat's tint)
-        #: and roughness, or None when no material has sheen
+        #: (7, materials) float32 sheen weight (× 1 − metallic over the dielectric's diffuse lobe alone), colour
+        #: (× the coat's tint, unless the sheen lies over the coat), roughness, layer (SHEEN_LAYERS index) and mode
+        #: (1: zeltner), or None when no material has sheen
         self.sheen_table = None
         if any(m.sheen > 0 for m in self.materials):
+            def over_dielectric(m: Material) -> float:
+                return 1.0 - min(max(m.metallic, 0.0), 1.0) if m.sheen_layer == "diffuse" else 1.0
+
+            def under_coat(m: Material, c: int) -> float:
+                return 1.0 if m.sheen_layer == "coat" else m.coat_tint[c]
+
             self.sheen_table = np.array(
-                [[m.sheen * (1.0 - min(max(m.metallic, 0.0), 1.0)) for m in mats]]
-                + [[m.sheen_color[c] * m.coat_tint[c] for m in mats] for c in range(3)]
-                + [[m.sheen_roughness for m in mats]], dtype=np.float32)
+                [[m.sheen * over_dielectric(m) for m in mats]]
+                + [[m.sheen_color[c] * under_coat(m, c) for m in mats] for c in range(3)]
+                + [[m.sheen_roughness for m in mats]]
+                + [[SHEEN_LAYERS.index(m.sheen_layer) for m in mats]]
+                + [[float(m.sheen_mode == "zeltner") for m in mats]], dtype=np.float32)
         #: materials with a UsdPreviewSurface ``normal`` map, and each one's map entry
         self.normal_maps = {k: next(e for e in m.maps if e.get("input") == "normal")
                             for k, m in enumerate(self.materials) if any(e.get("input") == "normal" for e in m.maps)}
@@ -385,12 +395,15 @@ class Surfaces:
         mi = np.take(self.mesh_of_soa, prim)
         return np.take(self.rough_table[0], mi), np.take(self.rough_table[1], mi) > 0
 
-    def sheen_soa(self, prim: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """Sheen weight (M,), colour (3, M) and roughness (M,) at hits, or None when no material has sheen."""
+    def sheen_soa(self, prim: np.ndarray) -> Sheen | None:
+        """The sheen layer at hits (:class:`~bakery.capture.bsdf.Sheen`), or None when no material has sheen;
+        its layer and mode are None where every material's are the defaults (over the diffuse lobe, Imageworks)."""
         if self.sheen_table is None:
             return None
         rows = [np.take(row, np.take(self.mesh_of_soa, prim)) for row in self.sheen_table]
-        return rows[0], np.stack(rows[1:4]), rows[4]
+        layer = rows[5].astype(np.int8) if bool(np.any(self.sheen_table[5] > 0)) else None
+        zeltner = rows[6] > 0 if bool(np.any(self.sheen_table[6] > 0)) else None
+        return Sheen(rows[0], np.stack(rows[1:4]), rows[4], layer, zeltner)
 
     def mapped_normals(self, prim: np.ndarray, bu: np.ndarray, bv: np.ndarray, t: np.ndarray, spread: float,
                        shading: np.ndarray, back: np.ndarray, wo: np.ndarray) -> np.ndarray:

@@ -108,7 +108,10 @@ def _material_fields(material) -> dict:  # noqa: ANN001 - bakery.capture.scene.M
         fields.pop("diffuse_roughness", None)
         fields.pop("diffuse_energy_compensation", None)
     if fields.get("sheen", 0.0) == 0.0:
-        for name in ("sheen", "sheen_color", "sheen_roughness"):
+        for name in ("sheen", "sheen_color", "sheen_roughness", "sheen_layer", "sheen_mode"):
+            fields.pop(name, None)
+    for name, fallback in (("sheen_layer", "diffuse"), ("sheen_mode", "conty_kulla")):
+        if fields.get(name, fallback) == fallback:
             fields.pop(name, None)
     if fields.get("specular_edge_tint") is None:
         fields.pop("specular_edge_tint", None)

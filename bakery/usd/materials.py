@@ -217,6 +217,8 @@ class MaterialReader:
             sheen=float(surface.values.get("sheen", 0.0)),
             sheen_color=tuple(float(x) for x in surface.values.get("sheen_color", (1.0, 1.0, 1.0))),
             sheen_roughness=float(surface.values.get("sheen_roughness", 0.3)),
+            sheen_layer=str(surface.values.get("sheen_layer", "diffuse")),
+            sheen_mode=str(surface.values.get("sheen_mode", "conty_kulla")),
             transmission_tint=tuple(float(x) for x in surface.values.get("transmission_tint", (1.0, 1.0, 1.0))),
             specular_tint=tuple(float(x) for x in surface.values.get("specular_tint", (1.0, 1.0, 1.0))),
             specular_edge_tint=(None if surface.values.get("specular_edge_tint") is None else

@@ -19,11 +19,13 @@ Mapping (metallic workflow of the capture; see ``docs/capture.md``)
     coat_tint            mix(1, coat_color, coat)                        mix(1, coat_color, coat_weight)
     diffuse roughness    diffuse_roughness (qualitative Oren–Nayar)      base_diffuse_roughness (EON)
     subsurface           diffuse limit: mix(diffuse, subsurface_color)   the same, subsurface_weight
-    sheen                sheen, sheen_color, sheen_roughness             — (fuzz: reported)
+    sheen (Material.sheen*) sheen, sheen_color, sheen_roughness: over the   fuzz_weight, fuzz_color, fuzz_roughness:
+                         diffuse lobe (Imageworks)                       over the coat (Zeltner's LTC)
     ===================  ==============================================  ==========================================
 
     ``UsdPreviewSurface`` nodes map input for input; ``gltf_pbr`` maps base_color, metallic, roughness, ior,
-    emissive, clearcoat, KHR specular (:func:`_gltf_specular`) and alpha as its ``alpha_mode`` says. Inputs connected to ``image``/``tiledimage`` nodes
+    emissive, clearcoat, KHR specular (:func:`_gltf_specular`), KHR sheen (over diffuse and specular, under the
+    coat; :func:`_sheen`) and alpha as its ``alpha_mode`` says. Inputs connected to ``image``/``tiledimage`` nodes
     (directly or through a nodegraph output) become texture maps with the node's file, ``colorspace`` (colour inputs
     are converted with OpenColorIO), address modes and default; a scalar weight multiplying a textured colour
     (base · base_color) folds into the map's scale. Chains of ``multiply``/``add``/``subtract``/``mix`` with
@@ -34,7 +36,7 @@ Mapping (metallic workflow of the capture; see ``docs/capture.md``)
     Transmission is read as thin, straight pass-through: the presence (opacity) is multiplied by
     1 − transmission·(1 − metalness), and the light that passes is tinted by the transmission colour (reported: no
     refraction, no reflection of the transmitted light). What the capture cannot represent (:data:`_UNMODELLED`:
-    fuzz, thin film, anisotropy, dispersion, …; other node types in a graph) is reported per prim.
+    thin film, anisotropy, dispersion, …; other node types in a graph) is reported per prim.
 """
 
 from __future__ import annotations
@@ -60,11 +62,11 @@ _UNMODELLED = {
                          ("coat_anisotropy", 0.0), ("coat_affect_color", 0.0), ("coat_affect_roughness", 0.0),
                          ("transmission_extra_roughness", 0.0), ("transmission_dispersion", 0.0),
                          ("transmission_scatter", 0.0)),
-    "open_pbr_surface": (("fuzz_weight", 0.0), ("thin_film_weight", 0.0), ("specular_roughness_anisotropy", 0.0),
+    "open_pbr_surface": (("thin_film_weight", 0.0), ("specular_roughness_anisotropy", 0.0),
                          ("coat_roughness_anisotropy", 0.0),
                          ("transmission_dispersion_scale", 0.0), ("transmission_scatter", 0.0)),
     "UsdPreviewSurface": (("displacement", 0.0),),
-    "gltf_pbr": (("sheen_color", 0.0), ("iridescence", 0.0), ("anisotropy_strength", 0.0)),
+    "gltf_pbr": (("iridescence", 0.0), ("anisotropy_strength", 0.0)),
 }
 #: (specular weight, specular colour, coat weight, coat colour): the dielectric specular lobe is weighted by
 #: weight × colour, and the coat lets mix(1, coat colour, coat weight) through to the base, both surfaces' stdlib
@@ -79,6 +81,11 @@ _DIFFUSE_ROUGHNESS = {"standard_surface": ("diffuse_roughness", False),
 #: (:func:`_subsurface_as_diffuse`)
 _SUBSURFACE = {"standard_surface": ("subsurface", "subsurface_color"),
                "open_pbr_surface": ("subsurface_weight", "subsurface_color")}
+#: (weight or None, colour, roughness inputs, what the layer lies over, sheen_bsdf mode) of each surface's sheen
+#: (:func:`_sheen`; Material.sheen_layer / sheen_mode)
+_SHEEN = {"standard_surface": ("sheen", "sheen_color", "sheen_roughness", "diffuse", "conty_kulla"),
+          "gltf_pbr": (None, "sheen_color", "sheen_roughness", "base", "conty_kulla"),
+          "open_pbr_surface": ("fuzz_weight", "fuzz_color", "fuzz_roughness", "coat", "zeltner")}
 #: (transmission weight, metalness) inputs: transmission is modelled as thin, straight pass-through — the surface's
 #: presence (opacity) is multiplied by 1 − t·(1 − metalness), the share of the base that is not transmitted
 _TRANSMISSION = {"standard_surface": ("transmission", "metalness"),
@@ -210,7 +217,7 @@ def _to_surface(category: str, values: dict[str, object], maps: dict[str, dict],
         _subsurface_as_diffuse(category, d, maps, surface)
     if category in _TINTS:
         _specular_and_coat_tints(category, d, maps, surface)
-    if category == "standard_surface":
+    if category in _SHEEN:
         _sheen(category, d, maps, surface)
     if category in _DIFFUSE_ROUGHNESS:
         name, compensated = _DIFFUSE_ROUGHNESS[category]
@@ -336,22 +343,35 @@ def _open_pbr_coat_darkening(values: dict[str, object], maps: dict[str, dict], c
 
 
 def _sheen(category: str, values: dict[str, object], maps: dict[str, dict], surface: Surface) -> None:
-    """standard_surface's sheen layer (weight ``sheen``, ``sheen_color``, ``sheen_roughness``: the stdlib graph's
-    sheen_bsdf in mode conty_kulla over the diffuse base) → Material.sheen*; textured inputs: their means."""
+    """A surface's sheen layer (:data:`_SHEEN`, the stdlib graphs' ``sheen_bsdf`` and where their ``layer`` puts
+    it) → Material.sheen*; textured inputs: their means. gltf_pbr's graph weighs the lobe by max(sheen_color),
+    colours it sheen_color / max(sheen_color) and squares its roughness."""
+    weight_input, colour_input, roughness_input, layer, mode = _SHEEN[category]
     read = {}
-    for name, fallback in (("sheen", 0.0), ("sheen_color", (1.0, 1.0, 1.0)), ("sheen_roughness", 0.3)):
-        value = values.get(name, fallback)
+    for name in (weight_input, colour_input, roughness_input):
+        if name is None:
+            continue
+        value = values.get(name)
         if name in maps:
             value = maps[name].get("_mean", value)
             surface.notes.append(f"{category} {name} is textured; its mean is used")
         read[name] = value
-    weight = min(max(_mean(read["sheen"]), 0.0), 1.0)
+    colour = np.clip(np.broadcast_to(np.asarray(read[colour_input], dtype=np.float64), 3), 0.0, None)
+    roughness = min(max(_mean(read[roughness_input]), 0.0), 1.0)
+    if weight_input is None:  # gltf_pbr: sheen_intensity = max(sheen_color), colour / intensity, roughness²
+        weight = float(colour.max())
+        colour = colour / weight if weight > 0 else colour
+        roughness = roughness * roughness
+    else:
+        weight = _mean(read[weight_input])
+    weight = min(max(weight, 0.0), 1.0)
     if weight <= 0:
         return
     surface.values["sheen"] = weight
-    surface.values["sheen_color"] = tuple(float(x) for x in np.clip(
-        np.broadcast_to(np.asarray(read["sheen_color"], dtype=np.float64), 3), 0.0, None))
-    surface.values["sheen_roughness"] = min(max(_mean(read["sheen_roughness"]), 0.0), 1.0)
+    surface.values["sheen_color"] = tuple(float(x) for x in colour)
+    surface.values["sheen_roughness"] = roughness
+    surface.values["sheen_layer"] = layer
+    surface.values["sheen_mode"] = mode
 
 
 def _rgb_affine(factor: float, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

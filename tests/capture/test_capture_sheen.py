@@ -83,3 +83,99 @@ def test_a_sheen_floor_under_a_uniform_dome_is_the_layers_closed_form(tmp_path, 
     grazing, steep = d[below][:, 1] > -0.5, d[below][:, 1] < -0.9  # the sheen rises towards grazing views
     if base == 0.0:
         assert cube[below][grazing].mean() > 1.5 * cube[below][steep].mean()
+
+
+# ------------------------------------------------------------- gltf_pbr sheen (over the base) and OpenPBR fuzz
+def _zeltner_albedo(mu, roughness):
+    """MaterialX's mx_zeltner_sheen_dir_albedo (pbrlib/genglsl/lib/mx_microfacet_sheen.glsl), roughness clamped."""
+    x, y = np.asarray(mu, dtype=np.float64), min(max(roughness, 0.01), 1.0)
+    s = y * (0.0206607 + 1.58491 * y) / (0.0379424 + y * (1.32227 + y))
+    m = y * (-0.193854 + y * (-1.14885 + y * (1.7932 - 0.95943 * y * y))) / (0.046391 + y)
+    o = y * (0.000654023 + (-0.0207818 + 0.119681 * y) * y) / (1.26264 + y * (-1.92021 + y))
+    return np.exp(-0.5 * ((x - m) / s) ** 2) / (s * math.sqrt(2 * math.pi)) + o
+
+
+def _capture_floor(tmp_path, node: str, inputs: str, name: str):
+    text = header() + f'def DomeLight "Sky"\n{{\n    float inputs:intensity = {L}\n}}\n'
+    text += mtlx_material("Cloth", node, inputs) + plane_mesh("Floor", 1e4, "/Cloth")
+    reading = read_scene(write(tmp_path / f"{name}.usda", text + probe("P", (0.0, 1.0, 0.0))))
+    assert not reading.errors, reading.errors
+    cube = capture_probes(reading.scene, N, samples=64, bounces=0)[0][0].astype(np.float64)
+    d = cube_texel_directions(N)
+    below = d[..., 1] < -0.3
+    return reading, cube[below], -d[below][:, 1]
+
+
+@pytest.mark.parametrize(("colour", "roughness"), [((1.0, 0.5, 0.25), 0.55), ((0.3, 0.6, 0.9), 0.8)])
+def test_gltf_sheen_is_weighted_by_its_colours_maximum_and_squares_its_roughness(tmp_path, colour, roughness):
+    """KHR_materials_sheen as gltf_pbr's graph builds it: intensity w = max(C), lobe colour C/w, roughness r²; over
+    a white (0.8) diffuse base with specular 0 the floor is L·(0.8·(1 − w·E(μ, r²)) + C·E(μ, r²))."""
+    inputs = (f"color3f inputs:base_color = (0.8, 0.8, 0.8)\n        float inputs:metallic = 0\n        "
+              f"float inputs:specular = 0\n        "
+              f"color3f inputs:sheen_color = {colour}\n        float inputs:sheen_roughness = {roughness}")
+    reading, seen, mu = _capture_floor(tmp_path, "ND_gltf_pbr_surfaceshader", inputs, "gltf")
+    material = reading.scene.meshes[0].material
+    assert (material.sheen_layer, material.sheen_mode) == ("base", "conty_kulla")
+    assert not [i for i in reading.issues if "sheen" in i.message], reading.issues
+    nodes = np.linspace(0.25, 1.0, 16)
+    albedo = np.interp(mu, nodes, [_brute_albedo(float(m), roughness**2, 600) for m in nodes])[:, None]
+    w = max(colour)
+    expected = L * (0.8 * (1 - w * albedo) + np.asarray(colour) * albedo)
+    np.testing.assert_allclose(seen.mean(axis=0), expected.mean(axis=0), rtol=7.5e-3)
+
+
+def _layered_floor(tmp_path, node: str, base: str, sheen: str, name: str, albedo, weight: float, colour: float):  # noqa: ANN001
+    """(floor with the layer, what the closed form makes of the floor without it — L·w·C·E(μ) + (1 − w·E(μ))·bare
+    per texel if the layer lies over everything the base reflects —, and the floor if the layer did not dim the
+    base); ``albedo(μ)`` is the layer lobe's E."""
+    _, without, mu = _capture_floor(tmp_path, node, base, name + "_bare")
+    _, with_layer, _ = _capture_floor(tmp_path, node, base + "\n        " + sheen, name)
+    e = albedo(mu)[:, None]
+    expected = (L * weight * colour * e + (1 - weight * e) * without).mean(axis=0)
+    return with_layer.mean(axis=0), expected, (L * weight * colour * e + without).mean(axis=0)
+
+
+def test_gltf_sheen_lies_over_a_metals_specular_lobe(tmp_path):
+    """A rough gold metal under a grey sheen (w = 0.5, C/w = 1): the metal's reflection keeps 1 − w·E(μ, r²) (the
+    standard_surface sheen would leave a metal untouched): the two floors' closed-form relation to 1 %."""
+    roughness = 0.7
+    base = ("color3f inputs:base_color = (1.0, 0.8, 0.3)\n        float inputs:metallic = 1\n        "
+            "float inputs:roughness = 0.5")
+    sheen = f"color3f inputs:sheen_color = (0.5, 0.5, 0.5)\n        float inputs:sheen_roughness = {roughness}"
+    nodes = np.linspace(0.25, 1.0, 16)
+    table = [_brute_albedo(float(m), roughness**2, 600) for m in nodes]
+    seen, expected, undimmed = _layered_floor(tmp_path, "ND_gltf_pbr_surfaceshader", base, sheen, "metal",
+                                              lambda mu: np.interp(mu, nodes, table), 0.5, 1.0)
+    np.testing.assert_allclose(seen, expected, rtol=0.01)
+    assert np.all(undimmed > 1.05 * seen)
+
+
+@pytest.mark.parametrize(("weight", "colour", "roughness"), [(1.0, (1.0, 1.0, 1.0), 0.5), (0.6, (0.9, 0.4, 0.2), 0.3)])
+def test_open_pbr_fuzz_over_a_diffuse_base_is_the_layers_closed_form(tmp_path, weight, colour, roughness):
+    """Zeltner's LTC fuzz over a white (0.8) diffuse base, no specular: L·(0.8·(1 − w·E(μ)) + w·C·E(μ)), E the
+    paper's albedo fit (the LTC integrates to 1: tests/math/test_sheen_ltc.py). White fuzz of weight 1 over a white
+    base would reflect all of L: the layer conserves energy."""
+    inputs = (f"float inputs:base_weight = 1\n        color3f inputs:base_color = (0.8, 0.8, 0.8)\n        "
+              f"float inputs:specular_weight = 0\n        float inputs:fuzz_weight = {weight}\n        "
+              f"color3f inputs:fuzz_color = {colour}\n        float inputs:fuzz_roughness = {roughness}")
+    reading, seen, mu = _capture_floor(tmp_path, "ND_open_pbr_surface_surfaceshader", inputs, "fuzz")
+    material = reading.scene.meshes[0].material
+    assert (material.sheen_layer, material.sheen_mode) == ("coat", "zeltner")
+    assert not [i for i in reading.issues if "fuzz" in i.message], reading.issues
+    albedo = _zeltner_albedo(mu, roughness)[:, None]
+    expected = L * (0.8 * (1 - weight * albedo) + weight * np.asarray(colour) * albedo)
+    np.testing.assert_allclose(seen.mean(axis=0), expected.mean(axis=0), rtol=7.5e-3)
+
+
+def test_open_pbr_fuzz_lies_over_the_coat(tmp_path):
+    """A coated dark base under fuzz: the coat's reflection keeps 1 − w·E(μ) too: the two floors' closed-form
+    relation to 1 %."""
+    base = ("float inputs:base_weight = 1\n        color3f inputs:base_color = (0.05, 0.05, 0.05)\n        "
+            "float inputs:specular_weight = 0\n        float inputs:coat_weight = 1\n        "
+            "float inputs:coat_roughness = 0.3")
+    sheen = "float inputs:fuzz_weight = 1\n        color3f inputs:fuzz_color = (0.5, 0.5, 0.5)\n        " \
+            "float inputs:fuzz_roughness = 0.6"
+    seen, expected, undimmed = _layered_floor(tmp_path, "ND_open_pbr_surface_surfaceshader", base, sheen, "coated",
+                                              lambda mu: _zeltner_albedo(mu, 0.6), 1.0, 0.5)
+    np.testing.assert_allclose(seen, expected, rtol=0.01)
+    assert np.all(undimmed > 1.05 * seen)

@@ -13,8 +13,9 @@ CASES = [("ND_standard_surface_surfaceshader", name, value) for name, value in (
     ("coat_affect_color", "float inputs:coat_affect_color = 1"),
     ("thin_film_thickness", "float inputs:thin_film_thickness = 300"),
     ("transmission_scatter", "color3f inputs:transmission_scatter = (0.2, 0.2, 0.2)"),
-)] + [("ND_open_pbr_surface_surfaceshader", name, value) for name, value in (
-    ("fuzz_weight", "float inputs:fuzz_weight = 1"),
+)] + [("ND_gltf_pbr_surfaceshader", "iridescence", "float inputs:iridescence = 1")] + [
+    ("ND_open_pbr_surface_surfaceshader", name, value) for name, value in (
+    ("thin_film_weight", "float inputs:thin_film_weight = 1"),
     ("specular_roughness_anisotropy", "float inputs:specular_roughness_anisotropy = 0.5"),
 )]
 

@@ -52,6 +52,9 @@ def test_materialx_documents_read_as_their_native_usdpreviewsurface_twins(shared
         for key in fa:
             if (case, key) == ("clearcoat", "clearcoat_roughness") and b.name.endswith(("_06", "_07", "_08")):
                 continue  # the two OpenUSD files disagree there: clearcoatRoughness 1.0 in the .mtlx, 0.01 native
+            if isinstance(fa[key], str):
+                assert fb[key] == fa[key], f"{b.name}: {key}"
+                continue
             np.testing.assert_allclose(np.asarray(fb[key], dtype=float), np.asarray(fa[key], dtype=float), rtol=1e-6,
                                        err_msg=f"{b.name}: {key}")
 
