@@ -68,7 +68,7 @@ from bakery.capture.lights import (
     LightSet,
     RectLightModel,
 )
-from bakery.capture.scene import CaptureScene, Light
+from bakery.capture.scene import CaptureScene, Dome, Light
 from bakery.capture.surfaces import BOUNCE_SPREAD, Surfaces
 from bakery.capture.tracer import FAR, SceneTracer
 from bakery.capture.validity import Relocator, back_facing, triangle_fronts
@@ -156,6 +156,23 @@ def _jittered_texel_directions(face_size: int, samples: int, rng: np.random.Gene
     shape = (samples, 6, n * n)
     d = _FACE_AXIS + u.reshape(shape) * _FACE_DU + v.reshape(shape) * _FACE_DV
     return (d / np.sqrt(dot(d, d))).reshape(3, samples, 6, n, n)
+
+
+def _shadow_range(light: Light | Dome) -> tuple[float, float, float] | None:
+    """(d, f, γ) of a light's ShadowAPI shadow distance (:attr:`Light.shadow_distance`), or None (unlimited)."""
+    distance = float(getattr(light, "shadow_distance", -1.0))
+    if distance <= 0:
+        return None
+    return distance, max(float(light.shadow_falloff), 0.0), float(light.shadow_falloff_gamma)
+
+
+def shadow_strength(t: np.ndarray, distance: np.ndarray, falloff: np.ndarray, gamma: np.ndarray) -> np.ndarray:
+    """UsdLuxShadowAPI: the strength (…) of a shadow cast by an occluder at distance t from the shaded point —
+    1 nearer than d − f, ((d − t)/f)^γ in the falloff zone, 0 from d on (f = 0: no zone)."""
+    start = distance - falloff
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ramp = np.clip((distance - t) / np.where(falloff > 0, falloff, 1), 0, 1) ** gamma
+    return np.where(t < start, 1, np.where(t < distance, ramp, 0)).astype(REAL, copy=False)
 
 
 def _take(a: np.ndarray, index: np.ndarray) -> np.ndarray:
@@ -289,14 +306,18 @@ class ProbeRenderer:
                          for m in self.lights.models]
         #: lights sampled by next-event estimation alone, without MIS: a BSDF-sampled ray cannot pass the meshes
         #: their shadow rays pass (shadowless, or shadow-linked), so it must not count them
-        self._nee_only = [shadowless or casters is not None
-                          for shadowless, casters in zip(self._shadowless, self._casters)]
+        # ShadowAPI shadow:distance/falloff/falloffGamma per analytic light, then the dome's: (d, f, γ) or None
+        self._shadow_ranges = [_shadow_range(m.light) for m in self.lights.models]
+        self._dome_shadow_range = None if dome is None else _shadow_range(dome)
+        self._nee_only = [shadowless or casters is not None or ranged is not None
+                          for shadowless, casters, ranged in zip(self._shadowless, self._casters, self._shadow_ranges)]
         self._dome_casters = None if dome is None or dome.shadow_links is None else np.isin(meshes, dome.shadow_links)
         # ShadowAPI on the dome: shadowless, or a shadow colour, as for the analytic lights
         self._dome_shadowless = dome is not None and not dome.shadow
         self._dome_shadow_color = (0.0, 0.0, 0.0) if dome is None or not dome.shadow else tuple(
             map(float, dome.shadow_color))
-        self._dome_nee_only = self._dome_casters is not None or self._dome_shadowless
+        self._dome_nee_only = (self._dome_casters is not None or self._dome_shadowless
+                               or self._dome_shadow_range is not None)
         self._shadow_color = [tuple(map(float, m.light.shadow_color)) if m.light.shadow else (0.0, 0.0, 0.0)
                               for m in self.lights.models]
 
@@ -787,8 +808,8 @@ class ProbeRenderer:
         tint = None
         if idx.size:
             sp, sw, sd = _take(points, idx % m), _take(wi.reshape(3, -1), idx), short.reshape(-1)[idx]
-            casters = self._caster_table(count)
-            if self.surfaces.cutout or casters is not None:
+            casters, ranges = self._caster_table(count), self._range_table(count)
+            if self.surfaces.cutout or casters is not None or ranges is not None:
                 _p, t_hit, _u, _v, tint = self._intersect_through(
                     sp, sw, owners.take(idx % m), sd, None if casters is None else (casters, idx // m))
                 visible = t_hit >= sd
@@ -796,6 +817,10 @@ class ProbeRenderer:
                 visible = ~self.tracer.occluded(sp, sw, sd, soa=True)
                 owners.traced(idx % m)
             scale[idx[visible]] = 1
+            if ranges is not None:  # ShadowAPI shadow:distance: the nearest occluder shadows by its distance
+                blocked = np.flatnonzero(~visible)
+                row = ranges[idx[blocked] // m]
+                scale[idx[blocked]] = 1 - shadow_strength(t_hit[blocked], row[:, 0], row[:, 1], row[:, 2])
         scale = scale.reshape(count, m)
         transmittance = None  # (3, J, M): the tint of the surfaces visible segments pass through
         if tint is not None:
@@ -811,12 +836,20 @@ class ProbeRenderer:
             terms *= transmittance
         for j, colour in enumerate(shadow_colors):  # ShadowAPI shadow:color: occluded segments deliver
             if any(colour):                                # that fraction, by next-event estimation alone
-                occluded = (valid[j] & (scale[j] == 0)).astype(REAL) * inv[j]
+                occluded = (valid[j] * (1 - scale[j])).astype(REAL) * inv[j]  # the shadowed share
                 terms[:, j] += value[:, j] * radiance[:, j] * (np.array(colour, dtype=REAL)[:, None] * occluded)
         total = terms[:, 0]
         for j in range(1, count):  # in strategy order, element by element (a reduction's order may depend on M)
             total = total + terms[:, j]
         return total
+
+    def _range_table(self, count: int) -> np.ndarray | None:
+        """(J, 3) float32 (d, f, γ) of ShadowAPI's shadow:distance/falloff/falloffGamma per next-event strategy
+        (d = FAR: unlimited); None when no light limits its shadows."""
+        rows = self._shadow_ranges + [self._dome_shadow_range] * (count - len(self._shadow_ranges))
+        if all(r is None for r in rows):
+            return None
+        return np.array([(FAR, 0.0, 1.0) if r is None else r for r in rows], dtype=REAL)
 
     def _caster_table(self, count: int) -> np.ndarray | None:
         """(J, meshes) bool: whether each mesh casts the shadows of next-event strategy j (the analytic lights, then

@@ -53,6 +53,11 @@ class Light:
         shadow: UsdLuxShadowAPI ``shadow:enable``: False lets the light's next-event rays through every occluder
             (the light is then sampled by next-event estimation alone, without MIS).
         shadow_color: ``shadow:color``: the fraction of the light (RGB) an occluded next-event ray still delivers.
+        shadow_distance, shadow_falloff, shadow_falloff_gamma: ``shadow:distance`` d, ``shadow:falloff`` f (metres;
+            ≤ 0: no limit, no falloff zone) and ``shadow:falloffGamma`` γ: an occluder nearer to the shaded point than
+            d − f shadows fully, one between d − f and d with strength ((d − t)/f)^γ at distance t, one beyond d not
+            at all (the nearest occluder along the next-event ray counts; the light is then sampled by next-event
+            estimation alone, as a BSDF ray cannot pass the far occluders).
         links: UsdLux light linking (``collection:lightLink``): indices into :attr:`CaptureScene.meshes` of the
             meshes the light illuminates; None: every mesh. A probe still sees an unlinked light directly.
         shadow_links: UsdLux shadow linking (``collection:shadowLink``): indices of the meshes that cast the light's
@@ -78,6 +83,9 @@ class Light:
     shadow_color: tuple[float, float, float] = (0.0, 0.0, 0.0)
     links: tuple[int, ...] | None = None
     shadow_links: tuple[int, ...] | None = None
+    shadow_distance: float = -1.0
+    shadow_falloff: float = -1.0
+    shadow_falloff_gamma: float = 1.0
 
     def __post_init__(self) -> None:
         if self.kind not in LIGHT_TYPES:
@@ -119,7 +127,8 @@ class Dome:
             (:class:`Light`); the dome seen by escaping camera rays is unscaled.
         links: light linking as :attr:`Light.links` (None: every mesh).
         shadow_links: shadow linking as :attr:`Light.shadow_links` (None: every mesh shadows the dome).
-        shadow, shadow_color: UsdLuxShadowAPI on the dome, as :attr:`Light.shadow` and :attr:`Light.shadow_color`.
+        shadow, shadow_color, shadow_distance, shadow_falloff, shadow_falloff_gamma: UsdLuxShadowAPI on the dome,
+            as on a :class:`Light`.
     """
 
     name: str
@@ -134,6 +143,9 @@ class Dome:
     shadow_links: tuple[int, ...] | None = None
     shadow: bool = True
     shadow_color: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    shadow_distance: float = -1.0
+    shadow_falloff: float = -1.0
+    shadow_falloff_gamma: float = 1.0
 
 
 @dataclass(frozen=True)

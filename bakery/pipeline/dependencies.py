@@ -83,6 +83,8 @@ def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN00
                      + (() if casters is None else (("shadow_links", casters),))
                      + (() if (getattr(dome, "shadow", True), tuple(getattr(dome, "shadow_color", (0.0,) * 3)))
                         == (True, (0.0, 0.0, 0.0)) else (("shadow", dome.shadow, tuple(dome.shadow_color)),))
+                     + (() if getattr(dome, "shadow_distance", -1.0) <= 0 else (
+                        ("shadow_distance", dome.shadow_distance, dome.shadow_falloff, dome.shadow_falloff_gamma),))
                      # a latlong dome is sampled as it is; every other layout is resampled to a cube first
                      + (() if dome.layout == "equirect" else (("resample", RESAMPLE_MODEL_VERSION),)))
     parts += [_light_fields(light) for light in scene.lights if light_model(light).is_global]
@@ -133,7 +135,8 @@ def _light_fields(light) -> dict:  # noqa: ANN001 - bakery.capture.scene.Light
 
 #: Light fields hashed only when they differ from these (the fields added after the light table's first format)
 _LIGHT_DEFAULTS = {"ies": None, "diffuse": 1.0, "specular": 1.0, "shadow": True, "shadow_color": (0.0, 0.0, 0.0),
-                   "links": None, "shadow_links": None}
+                   "links": None, "shadow_links": None, "shadow_distance": -1.0, "shadow_falloff": -1.0,
+                   "shadow_falloff_gamma": 1.0}
 
 
 def _texture_peak(scene, light) -> float:  # noqa: ANN001

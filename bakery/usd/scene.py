@@ -53,7 +53,10 @@ _POLE_Y_TO_Z = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  #
 #: Time at which the scene is read: authored defaults, else the first time sample.
 _T = Usd.TimeCode.EarliestTime()
 #: UsdLuxShadowAPI inputs the capture does not apply (reported per light)
-_SHADOW_UNAPPLIED = {"shadow:distance": -1.0, "shadow:falloff": -1.0, "shadow:falloffGamma": 1.0}  # and fallbacks
+
+
+#: :meth:`_SceneReader._shadow` of a light without ShadowAPI opinions
+_NO_SHADOW_API = {"shadow": True, "shadow_color": (0.0, 0.0, 0.0)}
 
 
 @dataclass(frozen=True)
@@ -482,17 +485,6 @@ class SceneReader:
         scale = intensity * 2.0**exposure * color
         if bool(self._input(prim, "enableColorTemperature", False)):
             scale = scale * blackbody_rgb(float(self._input(prim, "colorTemperature", 6500.0)))
-        def shadow_input(name: str) -> str | None:
-            return name if name in _SHADOW_UNAPPLIED else name.split(":", 1)[-1] if name.startswith("inputs:") \
-                and name.split(":", 1)[-1] in _SHADOW_UNAPPLIED else None
-
-        unapplied = sorted(  # authored away from the schema fallback
-            a.GetName() for a in prim.GetAuthoredAttributes()
-            if shadow_input(a.GetName()) and a.Get(self.time) is not None
-            and float(a.Get(self.time)) != _SHADOW_UNAPPLIED[shadow_input(a.GetName())]
-        )
-        if unapplied:
-            self.issue("warning", prim, f"not applied by the capture: {', '.join(unapplied)}")
         if not np.all(np.isfinite(scale)) or (scale < 0).any():
             raise SceneError(f"light emission {scale.tolist()} is negative or not finite")
         return scale
@@ -506,12 +498,25 @@ class SceneReader:
         return values
 
     def _shadow(self, prim: Usd.Prim) -> dict[str, object]:
-        """UsdLuxShadowAPI ``shadow:enable`` and ``shadow:color`` (shadow:distance/falloff are reported as not
-        applied)."""
+        """UsdLuxShadowAPI: ``shadow:enable``, ``shadow:color`` and, when authored, ``shadow:distance``,
+        ``shadow:falloff`` (stage units → metres; the falloff zone never exceeds the distance) and
+        ``shadow:falloffGamma`` (:attr:`bakery.capture.scene.Light.shadow_distance`)."""
         color = tuple(float(c) for c in self._input(prim, "shadow:color", (0.0, 0.0, 0.0)))
         if not all(np.isfinite(color)) or min(color) < 0:
             raise SceneError(f"shadow:color {color} must be finite and ≥ 0")
-        return {"shadow": bool(self._input(prim, "shadow:enable", True)), "shadow_color": color}
+        out: dict[str, object] = {"shadow": bool(self._input(prim, "shadow:enable", True)), "shadow_color": color}
+        distance = float(self._input(prim, "shadow:distance", -1.0))
+        falloff = float(self._input(prim, "shadow:falloff", -1.0))
+        gamma = float(self._input(prim, "shadow:falloffGamma", 1.0))
+        if not all(np.isfinite([distance, falloff, gamma])) or gamma <= 0:
+            raise SceneError(f"shadow:distance {distance}, shadow:falloff {falloff} and shadow:falloffGamma {gamma} "
+                             "must be finite, the gamma > 0")
+        if distance > 0:  # ≤ 0 (the fallback −1): no limit
+            out["shadow_distance"] = distance * self.frame.mpu
+            if falloff > 0:  # ≤ 0: no falloff zone
+                out["shadow_falloff"] = min(falloff, distance) * self.frame.mpu
+                out["shadow_falloff_gamma"] = gamma
+        return out
 
     def _shaping(self, prim: Usd.Prim) -> tuple[float, ...]:
         """UsdLuxShapingAPI inputs as (cone angle°, softness, focus, tint r, g, b), or () if not shaped."""
@@ -555,8 +560,8 @@ class SceneReader:
                 self._linked.append(("dome", len(self.domes) - 1, prim))
             return
         if prim.IsA(UsdLux.GeometryLight):
-            if self._response(prim) != {"diffuse": 1.0, "specular": 1.0} or self._shadow(prim)["shadow"] is False:
-                self.issue("warning", prim, "diffuse/specular multipliers and shadow:enable of a GeometryLight are "
+            if self._response(prim) != {"diffuse": 1.0, "specular": 1.0} or self._shadow(prim) != _NO_SHADOW_API:
+                self.issue("warning", prim, "diffuse/specular multipliers and ShadowAPI of a GeometryLight are "
                                             "not applied (its meshes emit as surfaces)")
             targets = [str(t) for t in UsdLux.GeometryLight(prim).GetGeometryRel().GetTargets()]
             if not targets:
@@ -651,8 +656,8 @@ class SceneReader:
         """UsdLuxMeshLightAPI on a mesh or gprim: recorded, and applied to its meshes by
         :meth:`_apply_geometry_lights`."""
         scale = self._emission_scale(prim)
-        if self._response(prim) != {"diffuse": 1.0, "specular": 1.0} or self._shadow(prim)["shadow"] is False:
-            self.issue("warning", prim, "diffuse/specular multipliers and shadow:enable of a mesh light are not "
+        if self._response(prim) != {"diffuse": 1.0, "specular": 1.0} or self._shadow(prim) != _NO_SHADOW_API:
+            self.issue("warning", prim, "diffuse/specular multipliers and ShadowAPI of a mesh light are not "
                                         "applied (it emits as a surface)")
         attr = prim.GetAttribute("light:materialSyncMode")
         mode = str(attr.Get()) if attr and attr.Get() else str(UsdLux.Tokens.materialGlowTintsLight)

@@ -145,6 +145,54 @@ def test_shadows_disabled_and_coloured(tmp_path):
     np.testing.assert_allclose(tinted[outside], lit, rtol=1e-3)
 
 
+@pytest.mark.parametrize(("shadow", "strength"), [
+    ("float inputs:shadow:distance = 2", 1.0),  # the plate (1 m above the floor) is within reach
+    ("float inputs:shadow:distance = 0.5", 0.0),  # beyond it: no shadow
+    ("float inputs:shadow:distance = 0.9\n    float inputs:shadow:falloff = 3", 0.0),  # the zone is clipped at d
+    ("float inputs:shadow:distance = 1.5\n    float inputs:shadow:falloff = 1", 0.5),  # in the zone, linear
+    ("float inputs:shadow:distance = 1.5\n    float inputs:shadow:falloff = 1\n    float inputs:shadow:falloffGamma = 2",
+     0.25),
+    ("float inputs:shadow:distance = 1.2\n    float inputs:shadow:falloff = 0.1", 1.0),  # nearer than d − f
+])
+def test_shadow_distance_and_falloff(tmp_path, shadow, strength):
+    """ShadowAPI's distance d, falloff f and gamma γ: the plate at t = 1 m above the floor shadows it with strength
+    1 (t < d − f), ((d − t)/f)^γ (in the zone) or 0 (t ≥ d): the floor under it is (1 − s)·ρE/π, and with a
+    shadow colour c, (1 − s + c·s)·ρE/π; outside the shadow ρE/π."""
+    inside, outside = _shadow_masks()
+    lit = RHO * E / math.pi
+    cube = _capture(tmp_path, _shadowed_scene("    " + shadow), "ranged")
+    np.testing.assert_allclose(cube[inside], (1 - strength) * lit, rtol=1e-3, atol=1e-7)
+    np.testing.assert_allclose(cube[outside], lit, rtol=1e-3)
+    colour = np.array([0.25, 0.5, 1.0])
+    tinted = _capture(tmp_path, _shadowed_scene(f"    {shadow}\n    color3f inputs:shadow:color = (0.25, 0.5, 1.0)"),
+                      "ranged_tinted")
+    np.testing.assert_allclose(tinted[inside], np.broadcast_to((1 - strength + colour * strength) * lit,
+                                                               tinted[inside].shape), rtol=1e-3, atol=1e-7)
+
+
+def test_a_dome_whose_shadow_distance_stops_short_of_a_plate_is_unshadowed(tmp_path):
+    """A uniform dome L over a floor under a wide plate h = 1 m up: with shadow:distance 0.5 the plate casts nothing
+    and the floor is ρL; with d = 2 it shadows the directions within θ₀ = acos(h/d) = 60° of the zenith (farther
+    along the others), so the floor is ρL·cos²θ₀ = ρL/4 — the irradiance of the sky beyond θ₀."""
+    def scene(distance: float) -> str:
+        plate = material("Black", diffuse=(0.0, 0.0, 0.0), diffuse_only=True)
+        plate += plane_mesh("Plate", 20, "/Black", height=1.0)
+        return (header() + material("Ground", diffuse=(RHO,) * 3, diffuse_only=True)
+                + plane_mesh("Plane", 100, "/Ground") + plate + f"""
+def DomeLight "Sky" (
+    prepend apiSchemas = ["ShadowAPI"]
+)
+{{
+    float inputs:intensity = 2
+    float inputs:shadow:distance = {distance}
+}}
+""" + probe("P", (0.0, 0.5, 0.0)))
+    near = _capture(tmp_path, scene(0.5), "near", samples=64)
+    np.testing.assert_allclose(near[_floor()].mean(axis=0), RHO * 2.0, rtol=0.01)
+    far = _capture(tmp_path, scene(2.0), "far", samples=64)
+    np.testing.assert_allclose(far[_floor()].mean(axis=0), RHO * 2.0 * 0.25, rtol=0.02)
+
+
 def test_shadow_disabled_sphere_light_counts_once(tmp_path):
     """A shadowless SphereLight over an unoccluded floor delivers what the shadowed one does (next-event estimation
     alone instead of MIS: no double counting), E = π·L·(r/d)²·cos β on the floor."""
@@ -170,8 +218,8 @@ def SphereLight "Lamp" (
 
 def test_multipliers_and_shadows_are_read_hashed_and_bounded(tmp_path):
     """The reader fills the Light fields; the light table's radiance bound takes max(1, diffuse, specular); a light
-    at the defaults hashes without the new fields; shadow:distance is still reported as not applied; negative
-    multipliers are errors."""
+    at the defaults hashes without the new fields; shadow:distance is read (stage units → metres: 4 cm at
+    metersPerUnit 0.01); negative multipliers and a non-positive falloff gamma are errors."""
     text = header() + plane_mesh("Plane", 10, "/Ground") + material("Ground") + """
 def SphereLight "Lamp" (
     prepend apiSchemas = ["ShadowAPI"]
@@ -189,7 +237,14 @@ def SphereLight "Lamp" (
     light = reading.scene.lights[0]
     assert (light.diffuse, light.specular, light.shadow) == (2.0, 0.5, False)
     assert light.shadow_color == pytest.approx((0.1, 0.2, 0.3))
-    assert any("shadow:distance" in i.message for i in reading.issues)
+    assert not [i for i in reading.issues if "shadow" in i.message], reading.issues
+    assert (light.shadow_distance, light.shadow_falloff) == (4.0, -1.0)
+    centimetres = read_scene(write(tmp_path / "cm.usda", text.replace("metersPerUnit = 1.0", "metersPerUnit = 0.01")
+                                   .replace("float inputs:shadow:distance = 4", "float inputs:shadow:distance = 4\n"
+                                            "    float inputs:shadow:falloff = 9\n    float inputs:shadow:falloffGamma"
+                                            " = 2"))).scene.lights[0]
+    assert (centimetres.shadow_distance, centimetres.shadow_falloff, centimetres.shadow_falloff_gamma) == \
+        pytest.approx((0.04, 0.04, 2.0))  # the falloff zone never exceeds the distance
     record = light_table(reading.scene)[0]
     np.testing.assert_allclose(record["radiance"], np.asarray(light.radiance) * 2.0)
     import dataclasses
@@ -197,7 +252,13 @@ def SphereLight "Lamp" (
     default = dataclasses.replace(light, diffuse=1.0, specular=1.0, shadow=True, shadow_color=(0.0, 0.0, 0.0))
     from bakery.pipeline.dependencies import _light_fields
 
-    assert not {"diffuse", "specular", "shadow", "shadow_color", "ies"} & set(_light_fields(default))
+    default = dataclasses.replace(default, shadow_distance=-1.0)
+    assert not {"diffuse", "specular", "shadow", "shadow_color", "ies", "shadow_distance", "shadow_falloff",
+                "shadow_falloff_gamma"} & set(_light_fields(default))
+    gamma = text.replace("float inputs:shadow:distance = 4", "float inputs:shadow:distance = 4\n"
+                         "    float inputs:shadow:falloffGamma = 0")
+    errors = [i for i in read_scene(write(tmp_path / "gamma.usda", gamma)).issues if i.severity == "error"]
+    assert len(errors) == 1 and errors[0].prim == "/Lamp" and "falloffGamma 0" in errors[0].message
     bad = text.replace("float inputs:diffuse = 2", "float inputs:diffuse = -1")
     errors = [i for i in read_scene(write(tmp_path / "bad.usda", bad)).issues if i.severity == "error"]
     assert len(errors) == 1 and errors[0].prim == "/Lamp" and "diffuse -1" in errors[0].message
