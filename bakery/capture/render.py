@@ -15,9 +15,11 @@ Probe texels
     surfaces are estimated by rays. Distant lights wider than a texel are seen by escaping rays.
 
 Surfaces (unidirectional path tracing with multiple importance sampling)
-    At every hit: emission of the surface (triangles are not sampled as lights), next-event estimation of every
-    analytic light (:mod:`bakery.capture.lights`), of the dome's rest and of its sun, each with a shadow ray against
-    the triangles and the (opaque) light shapes; and a BSDF-sampled continuation ray
+    At every hit: emission of the surface (weighted by the power heuristic against the emissive triangles'
+    next-event pdf, except where a camera ray hits it), next-event estimation of every analytic light
+    (:mod:`bakery.capture.lights`), of the dome's rest and of its sun, and of the emissive triangles
+    (:mod:`bakery.capture.emitters`), each with a shadow ray against the triangles and the (opaque) light shapes;
+    and a BSDF-sampled continuation ray
     (:class:`bakery.capture.bsdf.Bsdf`). A continuation ray that reaches a light shape, the dome or a distant light's
     disc adds that radiance with the power-heuristic weight against the light's next-event pdf, and ends; one that
     hits a surface continues. ``bounces`` is the largest number of continuations (0: direct light only); after
@@ -62,6 +64,7 @@ import numpy as np
 
 from bakery.capture.bsdf import Bsdf
 from bakery.capture.dome import DomeSampler, bilinear_weights, splat_bilinear
+from bakery.capture.emitters import EmissiveTriangles
 from bakery.capture.lights import (
     SHADOW_EPSILON,
     DistantLightModel,
@@ -267,6 +270,8 @@ class ProbeRenderer:
         self.max_samples = int(max_samples) if max_samples else max(samples, 64 * samples if target_noise else samples)
         self.tracer = SceneTracer(scene)
         self.surfaces = Surfaces(scene, self.tracer)
+        #: emissive triangles sampled as area lights (:mod:`bakery.capture.emitters`), or None when nothing emits
+        self.emitters = EmissiveTriangles.of(self.surfaces, self.tracer)
         self._front_soa = triangle_fronts(scene, self.tracer)
         self.relocator = Relocator(self.tracer, self._front_soa)
         self.dome = DomeSampler(scene.dome)
@@ -579,6 +584,7 @@ class ProbeRenderer:
         out = np.zeros((3, m), dtype=REAL)
         throughput = None  # ones
         ray_index = None  # arange(m)
+        pdf_prev = None  # (M,) the BSDF pdf of the continuation that reached these hits (None: camera rays)
         normals = self.tracer.normals_soa
         for depth in range(self.bounces + 1):
             k = prim.shape[0]
@@ -608,6 +614,9 @@ class ProbeRenderer:
             mesh = np.take(self.surfaces.mesh_of_soa, prim) if self._linking else None  # for light linking
             out_add = self._direct(points, bsdf, owners, mesh)
             if emission is not None:
+                if pdf_prev is not None and self.emitters is not None and self.emitters.sampled:  # MIS, BSDF half
+                    cos = np.abs(dot(n, directions))
+                    emission = emission * power(pdf_prev, self.emitters.pdf_soa(prim, t, cos))
                 out_add += emission
             # BSDF continuation: also the BSDF half of the MIS estimate of lights and dome at this vertex
             u = owners.random(3)
@@ -642,6 +651,15 @@ class ProbeRenderer:
                 elif found is not None:
                     _add_at(out_add, ai, _take(weight, ai) * found)
                 prim2[ai[on_light]] = -1  # light shapes are opaque and do not reflect: the path ends there
+                if depth == self.bounces and self.emitters is not None:  # the emitters' BSDF half, last vertex
+                    h = np.flatnonzero((p2 >= 0) & ~on_light)
+                    h = h[np.take(self.emitters.emissive, p2[h])]
+                    if h.size:
+                        ph, th = p2[h], tt[h]
+                        found_e = self.surfaces.params_soa(ph, uu[h], vv[h], th, BOUNCE_SPREAD)[3]
+                        cos = np.abs(dot(np.take(normals, ph, axis=1), _take(wa, h)))
+                        found_e = found_e * power(pdf_b[ai[h]], self.emitters.pdf_soa(ph, th, cos))
+                        _add_at(out_add, ai[h], _take(weight, ai[h]) * found_e)
             contribution = out_add if throughput is None else throughput * out_add
             if ray_index is None:
                 out += contribution
@@ -661,6 +679,7 @@ class ProbeRenderer:
             throughput = _take(throughput, ki)
             origins, directions = _take(points, ki), _take(wi, ki)
             prim, t, bu, bv = prim2[ki], t2[ki], bu2[ki], bv2[ki]
+            pdf_prev = pdf_b[ki]
         return out
 
     def _emitted_along(self, points: np.ndarray, wi: np.ndarray, t: np.ndarray, escaped: np.ndarray,
@@ -733,8 +752,9 @@ class ProbeRenderer:
 
     def _direct(self, points: np.ndarray, bsdf: Bsdf, owners: _Owners, mesh: np.ndarray | None = None
                 ) -> np.ndarray:
-        """Next-event estimates (3, M) of every light, the dome's rest and its sun (MIS-weighted, shadowed); with
-        light linking, ``mesh`` (M,) is each point's mesh, and an emitter not linked to it delivers nothing.
+        """Next-event estimates (3, M) of every light, the dome's rest and its sun, and the emissive triangles
+        (MIS-weighted, shadowed); with light linking, ``mesh`` (M,) is each point's mesh, and an emitter not linked
+        to it delivers nothing.
 
         All strategies' samples (J per point) are evaluated as one (3, J, M) batch and their shadow rays traced in
         one occlusion query."""
@@ -771,29 +791,42 @@ class ProbeRenderer:
                 wi, radiance, pdf = self.dome.sample_sun_soa(u0, u[0], u[1])
                 wis.append(wi), dists.append(far), radiances.append(radiance), pdfs.append(pdf)
                 can_hit.append(True), shapes.append(-1)
+        if self.emitters is not None and self.emitters.sampled:  # the emissive triangles, last (capture.emitters)
+            u0 = owners.random(dtype=np.float64)
+            u = owners.random(3)
+            prims, b1, b2, wi, dist, pdf = self.emitters.sample_soa(points, u0, u[0], u[1], u[2])
+            radiance = np.zeros((3, m), dtype=REAL)
+            sel = np.flatnonzero(pdf > 0)  # the vertices that sample the triangles (share q) and are not degenerate
+            if sel.size:
+                radiance[:, sel] = self.surfaces.params_soa(prims[sel], b1[sel], b2[sel], dist[sel],
+                                                            BOUNCE_SPREAD)[3]
+            wis.append(wi), dists.append(dist), radiances.append(radiance), pdfs.append(pdf)
+            can_hit.append(True), shapes.append(-1)
         count = len(wis)
         if count == 0:
             return np.zeros((3, m), dtype=REAL)
         wi = np.stack(wis, axis=1)  # (3, J, M)
         radiance = np.stack(radiances, axis=1)
         pdf = np.stack(pdfs)  # (J, M)
-        lights = len(self.lights.models)  # strategies 0…lights−1 are the analytic lights, then the dome's
+        # strategies: the analytic lights, the dome's (rest, sun), the emissive triangles (_per_strategy)
         if self._lobes:  # each strategy's diffuse and specular multipliers weight the lobes apart
             value_d, value_s, pdf_b = bsdf.evaluate_lobes(wi)
-            lobes = np.array(self._light_lobes + [self._dome_lobes] * (count - lights), dtype=REAL)  # (J, 2)
+            lobes = np.array(self._per_strategy(self._light_lobes, self._dome_lobes, (1.0, 1.0), count),
+                             dtype=REAL)  # (J, 2)
             value = value_d * lobes[:, 0, None] + value_s * lobes[:, 1, None]
         else:
             value, pdf_b = bsdf.evaluate(wi)
         valid = (pdf > 0) & (vmax(radiance) > 0) & (vmax(value) > 0)
         if mesh is not None:  # light linking
-            for j, links in enumerate(self._light_links + [self._dome_links] * (count - lights)):
+            for j, links in enumerate(self._per_strategy(self._light_links, self._dome_links, None, count)):
                 if links is not None:
                     valid[j] &= links[mesh]
         weight = power(pdf, pdf_b)
-        shadowless = np.array(self._shadowless + [self._dome_shadowless] * (count - lights))
-        shadow_colors = self._shadow_color + [self._dome_shadow_color] * (count - lights)
+        shadowless = np.array(self._per_strategy(self._shadowless, self._dome_shadowless, False, count))
+        shadow_colors = self._per_strategy(self._shadow_color, self._dome_shadow_color, (0.0, 0.0, 0.0), count)
+        nee_only = self._per_strategy(self._nee_only, self._dome_nee_only, False, count)
         for j in range(count):
-            if not can_hit[j] or (self._nee_only[j] if j < lights else self._dome_nee_only):
+            if not can_hit[j] or nee_only[j]:
                 weight[j] = 1  # found by next-event estimation alone
         with np.errstate(divide="ignore"):
             inv = np.where(np.isinf(pdf), 1, np.where(pdf > 0, 1 / pdf, 0)).astype(REAL, copy=False)
@@ -843,10 +876,16 @@ class ProbeRenderer:
             total = total + terms[:, j]
         return total
 
+    def _per_strategy(self, per_light: list, dome: object, emitters: object, count: int) -> list:
+        """A value per next-event strategy of :meth:`_direct`: the analytic lights', the dome's for each of its
+        strategies (its rest, its sun), then the emissive triangles' (``count`` strategies in all)."""
+        tail = 1 if self.emitters is not None and self.emitters.sampled else 0
+        return list(per_light) + [dome] * (count - len(per_light) - tail) + [emitters] * tail
+
     def _range_table(self, count: int) -> np.ndarray | None:
         """(J, 3) float32 (d, f, γ) of ShadowAPI's shadow:distance/falloff/falloffGamma per next-event strategy
         (d = FAR: unlimited); None when no light limits its shadows."""
-        rows = self._shadow_ranges + [self._dome_shadow_range] * (count - len(self._shadow_ranges))
+        rows = self._per_strategy(self._shadow_ranges, self._dome_shadow_range, None, count)
         if all(r is None for r in rows):
             return None
         return np.array([(FAR, 0.0, 1.0) if r is None else r for r in rows], dtype=REAL)
@@ -854,8 +893,7 @@ class ProbeRenderer:
     def _caster_table(self, count: int) -> np.ndarray | None:
         """(J, meshes) bool: whether each mesh casts the shadows of next-event strategy j (the analytic lights, then
         the dome's ``count − lights`` strategies); None when no light is shadow-linked."""
-        lights = len(self._casters)
-        rows = self._casters + [self._dome_casters] * (count - lights)
+        rows = self._per_strategy(self._casters, self._dome_casters, None, count)
         linked = [casters for casters in rows if casters is not None]
         if not linked:
             return None

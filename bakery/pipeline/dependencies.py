@@ -59,6 +59,11 @@ def file_digest(path: str) -> str:
         return "<unreadable>"
 
 
+#: Version of the capture's treatment of emissive triangles as lights (next-event sampling, the last vertex lit by
+#: them; hashed only for scenes that emit: any other scene keeps its hash)
+EMITTER_SAMPLING_VERSION = 1
+
+
 def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN001 - bakery.capture.scene.CaptureScene
     """Hash of everything that can affect every probe (module docstring)."""
     from bakery.capture.lights import light_model
@@ -90,6 +95,8 @@ def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN00
     parts += [_light_fields(light) for light in scene.lights if light_model(light).is_global]
     parts += [_light_fields(portal) for portal in getattr(scene, "portals", ())]
     parts.append((getattr(scene, "time_code", None), getattr(scene, "working_space", "lin_rec709")))
+    if any(mesh.material.emits for mesh in scene.meshes):  # emissive triangles as lights (bakery.capture.emitters)
+        parts.append(("emitter_sampling", EMITTER_SAMPLING_VERSION))
     parts += [file_digest(asset) for asset in sorted(set(assets))]
     parts.append((scene.meters_per_unit, scene.up_axis))
     parts.append(("capture model", CAPTURE_MODEL_VERSION))  # what the same scene captures to

@@ -24,15 +24,20 @@ def capture(path, face_size=16, samples=2, bounces=1):
     return reading, cubes.astype(np.float64), report
 
 
-@pytest.mark.parametrize(("albedo", "bounces"), [(0.0, 0), (0.5, 2), (0.8, 1)])
+@pytest.mark.parametrize(("albedo", "bounces"), [(0.0, 0), (0.5, 2), (0.8, 1), (0.8, 0)])
 def test_white_furnace_closed_emissive_box(tmp_path, albedo, bounces):
-    """Inside a closed box of emission Le and albedo a, every path sees Le·(1 + a + … + a^b) exactly."""
+    """Inside a closed box of emission Le and albedo a, a path of b continuations sees Le·(1 + a + … + a^(b+1)):
+    its last vertex is lit directly by the emissive walls (sampled as area lights, as UsdLux lights are). The
+    next-event and BSDF halves are MIS-weighted, so the estimate is no longer exact per sample: the mean over the
+    cube to 0.5 % (measured ≤ 0.1 % at 32 rays per texel); a black box is exact."""
     le = (1.0, 2.0, 3.0)
     text = header() + material("M", diffuse=(albedo,) * 3, emissive=le, diffuse_only=True) + box_mesh("Box", 2.0, "/M")
     text += probe("P", (0.3, -0.2, 0.5))
-    _, cubes, report = capture(write(tmp_path / "furnace.usda", text), face_size=8, samples=2, bounces=bounces)
-    expected = np.asarray(le) * sum(albedo**k for k in range(bounces + 1))
-    np.testing.assert_allclose(cubes[0], np.broadcast_to(expected, cubes[0].shape), rtol=1e-5)
+    _, cubes, report = capture(write(tmp_path / "furnace.usda", text), face_size=8, samples=32, bounces=bounces)
+    expected = np.asarray(le) * sum(albedo**k for k in range(bounces + 2))
+    np.testing.assert_allclose(cubes[0].reshape(-1, 3).mean(axis=0), expected, rtol=5e-3)
+    if albedo == 0.0:
+        np.testing.assert_allclose(cubes[0], np.broadcast_to(expected, cubes[0].shape), rtol=1e-6)
     assert report.rays > 0 and report.rays_per_second > 0
 
 

@@ -130,7 +130,8 @@ def test_textured_floor_under_a_distant_light_matches_per_texel_radiance(tmp_pat
 
 def test_white_furnace_with_textures(tmp_path):
     """A closed box whose albedo comes from a uniform sRGB texture with scale and bias: a = 0.9·dec(188) + 0.05,
-    so every path sees Le·(1 + a + a²) at 2 bounces exactly (texture lookups, sRGB decoding, scale/bias)."""
+    so paths of 2 continuations see Le·(1 + a + a² + a³) (the last vertex lit directly by the emissive walls;
+    texture lookups, sRGB decoding, scale/bias): the cube's mean to 0.5 % at 32 rays per texel."""
     _write_png(tmp_path / "grey.png", np.full((8, 8, 3), 188, dtype=np.uint8))
     a = 0.9 * float(_srgb(188)) + 0.05
     le = (1.0, 0.5, 0.25)
@@ -147,9 +148,9 @@ def test_white_furnace_with_textures(tmp_path):
         quads.append(_uv_quad(name, corners, [(-1.5, 0), (2.5, 0), (2.5, 3), (-1.5, 3)], "/M"))  # repeat wrap
     text = header() + mat + "".join(quads) + probe("P", (0.3, -0.2, 0.5))
     reading = read_scene(write(tmp_path / "furnace.usda", text))
-    cubes, _ = capture_probes(reading.scene, 8, samples=2, bounces=2)
-    expected = np.asarray(le) * (1 + a + a * a)
-    np.testing.assert_allclose(cubes[0], np.broadcast_to(expected, cubes[0].shape), rtol=2e-5)
+    cubes, _ = capture_probes(reading.scene, 8, samples=32, bounces=2)
+    expected = np.asarray(le) * (1 + a + a * a + a**3)
+    np.testing.assert_allclose(cubes[0].reshape(-1, 3).mean(axis=0), expected, rtol=5e-3)
 
 
 def _gradient_dome(path):
