@@ -800,6 +800,9 @@ class ProbeRenderer:
             if sel.size:
                 radiance[:, sel] = self.surfaces.params_soa(prims[sel], b1[sel], b2[sel], dist[sel],
                                                             BOUNCE_SPREAD)[3]
+                if self.surfaces.cutout:  # a cut-out or half-present emitter delivers its expected presence
+                    radiance[:, sel] *= self.surfaces.presence(prims[sel], b1[sel].astype(np.float64),
+                                                               b2[sel].astype(np.float64))
             wis.append(wi), dists.append(dist), radiances.append(radiance), pdfs.append(pdf)
             can_hit.append(True), shapes.append(-1)
         count = len(wis)

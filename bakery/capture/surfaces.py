@@ -605,6 +605,22 @@ class Surfaces:
                 result[sel] = u[sel] >= self.at(prim[sel], bu[sel], bv[sel]).opacity
         return result
 
+    def presence(self, prim: np.ndarray, bu: np.ndarray, bv: np.ndarray) -> np.ndarray:
+        """The expected presence (M,) float32 of surface points, what :meth:`cut` keeps on average: 0 or 1 on
+        cut-out materials (opacity against opacityThreshold), the opacity on materials of partial presence, else
+        1 (the emissive triangles' next-event estimate, :mod:`bakery.capture.emitters`)."""
+        result = np.ones(prim.shape, dtype=np.float32)
+        if not self.cutout:
+            return result
+        mi = self.mesh_of[prim]
+        sel = np.flatnonzero((self.threshold[mi] > 0) | (self.partial[mi] if self.stochastic else False))
+        if sel.size:
+            point = self.at(prim[sel], bu[sel], bv[sel])
+            opacity = np.clip(np.asarray(point.opacity, dtype=np.float64), 0.0, 1.0)
+            threshold = np.asarray(point.threshold, dtype=np.float64)
+            result[sel] = np.where(threshold > 0, (opacity >= threshold).astype(np.float64), opacity)
+        return result
+
     def _apply_maps(self, k: int, sel: np.ndarray, prim: np.ndarray, bu: np.ndarray, bv: np.ndarray,
                     t: np.ndarray | None, spread, values: dict[str, np.ndarray]) -> None:  # noqa: ANN001
         uv = self.uvs[prim]

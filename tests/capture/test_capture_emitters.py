@@ -133,3 +133,18 @@ def SphereLight "Lamp"
     e_lamp = math.pi * 100 * (radius / math.hypot(500, 40)) ** 2 * (40 / math.hypot(500, 40))
     assert e_lamp < 1e-3 * e.mean()
     np.testing.assert_allclose(cube[3].mean(axis=(0, 1)), RHO * (e + e_lamp).mean() / math.pi, rtol=0.03)
+
+
+@pytest.mark.parametrize(("opacity", "presence"), [("float inputs:opacity = 0.5", 0.5),
+                                                   ("float inputs:opacity = 0.2\n        float inputs:opacityThreshold"
+                                                    " = 0.5", 0.0)])
+def test_a_half_present_or_cut_out_panel_lights_by_its_presence(tmp_path, opacity, presence):
+    """Opacity 0.5 without a threshold (stochastic presence): the floor gets half the panel's light, from the
+    next-event estimate (× the expected presence) and the BSDF rays (which pass it half the time) together; a panel
+    cut out by its threshold lights nothing."""
+    glow = material("Glow", diffuse=(0.0, 0.0, 0.0), emissive=(LE, LE, LE), diffuse_only=True, inputs=opacity)
+    text = _floor() + glow + plane_mesh("Panel", HALF, "/Glow", height=HEIGHT) + probe("P", (0.0, 0.5, 0.0))
+    cube = _capture(tmp_path, text, "present", samples=64)
+    centre = cube[3][N // 2 - 1 : N // 2 + 1, N // 2 - 1 : N // 2 + 1].mean(axis=(0, 1))
+    e = 4 * math.pi * LE * _corner_factor(HALF / HEIGHT, HALF / HEIGHT)
+    np.testing.assert_allclose(centre, presence * RHO * e / math.pi, rtol=0.03, atol=1e-6)

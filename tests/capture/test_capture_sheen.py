@@ -113,14 +113,22 @@ def test_gltf_sheen_is_weighted_by_its_colours_maximum_and_squares_its_roughness
     inputs = (f"color3f inputs:base_color = (0.8, 0.8, 0.8)\n        float inputs:metallic = 0\n        "
               f"float inputs:specular = 0\n        "
               f"color3f inputs:sheen_color = {colour}\n        float inputs:sheen_roughness = {roughness}")
-    reading, seen, mu = _capture_floor(tmp_path, "ND_gltf_pbr_surfaceshader", inputs, "gltf")
-    material = reading.scene.meshes[0].material
-    assert (material.sheen_layer, material.sheen_mode) == ("base", "conty_kulla")
-    assert not [i for i in reading.issues if "sheen" in i.message], reading.issues
     nodes = np.linspace(0.25, 1.0, 16)
-    albedo = np.interp(mu, nodes, [_brute_albedo(float(m), roughness**2, 600) for m in nodes])[:, None]
-    w = max(colour)
-    expected = L * (0.8 * (1 - w * albedo) + np.asarray(colour) * albedo)
+    table = [_brute_albedo(float(m), roughness**2, 600) for m in nodes]
+    _white_base_floor(tmp_path, "ND_gltf_pbr_surfaceshader", inputs, ("base", "conty_kulla"), "sheen", max(colour),
+                      np.asarray(colour) / max(colour), lambda mu: np.interp(mu, nodes, table))
+
+
+def _white_base_floor(tmp_path, node: str, inputs: str, model: tuple[str, str], word: str, weight: float,
+                      colour: np.ndarray, albedo) -> None:  # noqa: ANN001
+    """The floor of a layer (weight w, colour C, albedo E(μ)) over a white (0.8) diffuse base without specular is
+    L·(0.8·(1 − w·E(μ)) + w·C·E(μ)) (0.75 %); the material reads as ``model`` (layer, mode), unreported."""
+    reading, seen, mu = _capture_floor(tmp_path, node, inputs, word)
+    material = reading.scene.meshes[0].material
+    assert (material.sheen_layer, material.sheen_mode) == model
+    assert not [i for i in reading.issues if word in i.message], reading.issues
+    e = albedo(mu)[:, None]
+    expected = L * (0.8 * (1 - weight * e) + weight * np.asarray(colour) * e)
     np.testing.assert_allclose(seen.mean(axis=0), expected.mean(axis=0), rtol=7.5e-3)
 
 
@@ -158,13 +166,8 @@ def test_open_pbr_fuzz_over_a_diffuse_base_is_the_layers_closed_form(tmp_path, w
     inputs = (f"float inputs:base_weight = 1\n        color3f inputs:base_color = (0.8, 0.8, 0.8)\n        "
               f"float inputs:specular_weight = 0\n        float inputs:fuzz_weight = {weight}\n        "
               f"color3f inputs:fuzz_color = {colour}\n        float inputs:fuzz_roughness = {roughness}")
-    reading, seen, mu = _capture_floor(tmp_path, "ND_open_pbr_surface_surfaceshader", inputs, "fuzz")
-    material = reading.scene.meshes[0].material
-    assert (material.sheen_layer, material.sheen_mode) == ("coat", "zeltner")
-    assert not [i for i in reading.issues if "fuzz" in i.message], reading.issues
-    albedo = _zeltner_albedo(mu, roughness)[:, None]
-    expected = L * (0.8 * (1 - weight * albedo) + weight * np.asarray(colour) * albedo)
-    np.testing.assert_allclose(seen.mean(axis=0), expected.mean(axis=0), rtol=7.5e-3)
+    _white_base_floor(tmp_path, "ND_open_pbr_surface_surfaceshader", inputs, ("coat", "zeltner"), "fuzz", weight,
+                      np.asarray(colour), lambda mu: _zeltner_albedo(mu, roughness))
 
 
 def test_open_pbr_fuzz_lies_over_the_coat(tmp_path):
