@@ -86,8 +86,7 @@ def probe_content_hash(source_kind: str, planned: PlannedProbe, encodings: tuple
     probe = planned.probe
     versions = sorted((name, get_encoding(name).version) for name in encodings)  # a new encoding version re-bakes
     return stable_hash(probe.name, probe.kinds, probe.position, hashed_settings(probe.settings), source_kind,
-                       planned.capture,
-                       planned.inputs, versions, settings_hash)
+                       planned.capture, planned.inputs, versions, settings_hash)
 
 
 def make_batches(tasks: list[ProbeTask], batch_size: int, settings_json: str) -> list[BatchTask]:

@@ -798,16 +798,22 @@ class SceneReader:
             scheme = str(scheme_attr.Get()) if scheme_attr and scheme_attr.HasAuthoredValue() else "none"
             if scheme not in ("none", "bilinear"):
                 levels = self.subdivision
-                if levels > 0 and scheme == "catmullClark":
-                    points, counts, indices, cage = catmull_clark(points, counts, indices, levels, with_faces=True)
-                    self.issue("warning", prim, f"catmullClark subdivision refined {levels} level(s) (creases and "
+                refine = {"catmullClark": catmull_clark, "loop": loop_subdivide}.get(scheme)
+                if scheme == "loop" and counts.size and bool(np.any(counts != 3)):
+                    refine = None  # Loop subdivides triangles (OpenSubdiv: non-triangles are an error)
+                    self.issue("warning", prim, "subdivisionScheme 'loop' on faces that are not triangles: baked as "
+                               "its control cage")
+                elif levels > 0 and refine is not None:
+                    points, counts, indices, cage = refine(points, counts, indices, levels, with_faces=True)
+                    self.issue("warning", prim, f"{scheme} subdivision refined {levels} level(s) (creases and "
                                "boundary rules simplified; primvars are read on the control cage)")
                     tris, corners, faces = self._triangulate(prim, points, counts, indices)
                     self._cage_faces[str(prim.GetPath())] = cage[faces]  # for GeomSubsets
                     return points[tris], None
-                self.issue("warning", prim, f"subdivisionScheme {scheme!r}: baked as its control cage "
-                           + ("(set the recipe's capture.subdivision to refine)" if scheme == "catmullClark" else
-                              "(only catmullClark can be refined)"))
+                else:
+                    self.issue("warning", prim, f"subdivisionScheme {scheme!r}: baked as its control cage "
+                               + ("(set the recipe's capture.subdivision to refine)" if refine is not None else
+                                  "(only catmullClark and loop can be refined)"))
             tris, corners, faces = self._triangulate(prim, points, counts, indices)
             return points[tris], (tris, corners, faces, counts.size)
         return self._implicit_surface(prim), None
@@ -1076,6 +1082,59 @@ def catmull_clark(points: np.ndarray, counts: np.ndarray, indices: np.ndarray, l
         counts = np.full(indices.size // 4, 4, dtype=np.int64)
         parent = parent[face_of]  # one quad per face-vertex of the previous level
     return (points, counts, indices, parent) if with_faces else (points, counts, indices)
+
+
+def loop_subdivide(points: np.ndarray, counts: np.ndarray, indices: np.ndarray, levels: int,
+                   with_faces: bool = False) -> tuple[np.ndarray, ...]:
+    """``levels`` steps of Loop subdivision of a triangle mesh (points (P, 3), faceVertexCounts all 3,
+    faceVertexIndices) → a triangle mesh, each triangle split in four (C. Loop, "Smooth Subdivision Surfaces Based
+    on Triangles", 1987; the weights OpenSubdiv uses):
+
+        edge point      3/8·(a + b) + 1/8·(c + d)        (c, d opposite the edge; a boundary edge: its midpoint)
+        vertex point    (1 − n·β)·v + β·Σ neighbours,   β = (5/8 − (3/8 + ¼·cos(2π/n))²)/n
+                        (a boundary vertex: ¾·v + ⅛·(its two boundary neighbours))
+
+    ``with_faces``: also the control-cage triangle (T,) each triangle comes from (for GeomSubsets)."""
+    parent = np.arange(np.asarray(counts).size)
+    tri = np.asarray(indices, dtype=np.int64).reshape(-1, 3)
+    for _ in range(levels):
+        n_pts = len(points)
+        a, b = tri.reshape(-1), np.roll(tri, -1, axis=1).reshape(-1)  # the directed edges a → b of every triangle
+        opposite = np.roll(tri, -2, axis=1).reshape(-1)  # the third corner of each edge's triangle
+        key = np.minimum(a, b) * n_pts + np.maximum(a, b)
+        edges, edge_of = np.unique(key, return_inverse=True)
+        e0, e1 = edges // n_pts, edges % n_pts
+        edge_faces = np.bincount(edge_of, minlength=edges.size)
+        boundary = edge_faces == 1
+        opposite_sum = np.zeros((edges.size, 3))
+        np.add.at(opposite_sum, edge_of, points[opposite])
+        edge_points = np.where(boundary[:, None], 0.5 * (points[e0] + points[e1]),
+                               0.375 * (points[e0] + points[e1]) + 0.125 * opposite_sum)
+        valence = np.bincount(np.concatenate([e0, e1]), minlength=n_pts).astype(np.float64)
+        ring = np.zeros((n_pts, 3))
+        np.add.at(ring, e0, points[e1])
+        np.add.at(ring, e1, points[e0])
+        n = np.maximum(valence, 1.0)
+        beta = (0.625 - (0.375 + 0.25 * np.cos(2.0 * np.pi / n)) ** 2) / n
+        new_vertices = (1.0 - n * beta)[:, None] * points + beta[:, None] * ring
+        on_boundary = np.zeros(n_pts, dtype=bool)
+        on_boundary[e0[boundary]] = True
+        on_boundary[e1[boundary]] = True
+        b_sum = np.zeros((n_pts, 3))
+        np.add.at(b_sum, e0[boundary], points[e1[boundary]])
+        np.add.at(b_sum, e1[boundary], points[e0[boundary]])
+        new_vertices = np.where(on_boundary[:, None], 0.75 * points + 0.125 * b_sum, new_vertices)
+        mid = (n_pts + edge_of).reshape(-1, 3)  # edge points of (v0→v1, v1→v2, v2→v0), in each triangle's winding
+        v = tri
+        tri = np.concatenate([np.stack([v[:, 0], mid[:, 0], mid[:, 2]], axis=1),
+                              np.stack([mid[:, 0], v[:, 1], mid[:, 1]], axis=1),
+                              np.stack([mid[:, 2], mid[:, 1], v[:, 2]], axis=1),
+                              np.stack([mid[:, 0], mid[:, 1], mid[:, 2]], axis=1)])
+        parent = np.tile(parent, 4)
+        points = np.concatenate([new_vertices, edge_points])
+    counts = np.full(len(tri), 3, dtype=np.int64)
+    out = (points, counts, tri.reshape(-1))
+    return (*out, parent) if with_faces else out
 
 
 def _front_side(prim: Usd.Prim, matrix: np.ndarray, time: Usd.TimeCode = _T) -> int:

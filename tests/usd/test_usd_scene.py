@@ -306,6 +306,68 @@ def test_catmull_clark_refinement_of_a_cube():
     np.testing.assert_allclose(np.sort(np.abs(p[20:]), axis=1), np.tile([0.0, 0.0, 1.0], (6, 1)))
 
 
+def test_loop_refinement_of_a_tetrahedron_by_hand():
+    """One Loop step of a regular tetrahedron: every vertex has valence 3, β = (5/8 − (3/8 + ¼ cos 120°)²)/3 = 3/16,
+    so v' = 7/16·v + 3/16·Σ others; every edge point is 3/8·(a + b) + 1/8·(c + d); 4 × 4 triangles, each wound
+    as its parent (outward normals stay outward)."""
+    from bakery.usd.scene import loop_subdivide
+
+    points = np.array([[1.0, 1.0, 1.0], [1.0, -1.0, -1.0], [-1.0, 1.0, -1.0], [-1.0, -1.0, 1.0]])
+    indices = np.array([0, 1, 2, 0, 3, 1, 0, 2, 3, 1, 3, 2])  # outward winding
+    p, c, i, parent = loop_subdivide(points, np.full(4, 3), indices, 1, with_faces=True)
+    assert len(c) == 16 and (c == 3).all() and len(p) == 4 + 6 and sorted(np.bincount(parent)) == [4] * 4
+    total = points.sum(axis=0)
+    np.testing.assert_allclose(p[:4], 7 / 16 * points + 3 / 16 * (total - points))
+    for point in p[4:]:  # the edge whose midpoint it is nearest: a, b; c, d the other two corners
+        a, b = np.argsort(np.linalg.norm(points - point, axis=1))[:2]
+        c_d = total - points[a] - points[b]
+        np.testing.assert_allclose(point, 0.375 * (points[a] + points[b]) + 0.125 * c_d)
+    tris = p[i.reshape(-1, 3)]
+    normals = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    assert np.all(np.einsum("ij,ij->i", normals, tris.mean(axis=1)) > 0)
+
+
+def test_loop_refinement_keeps_a_planar_grid_and_its_regular_interior_vertices():
+    """Linear precision: a triangulated planar grid stays in its plane, and a regular (valence-6) interior vertex of
+    an affine grid stays where it is; boundary vertices follow the ¾, ⅛, ⅛ rule along the boundary."""
+    from bakery.usd.scene import loop_subdivide
+
+    n = 5
+    xs, ys = np.meshgrid(np.arange(n, dtype=np.float64), np.arange(n, dtype=np.float64), indexing="ij")
+    points = np.stack([xs.ravel() + 0.3 * ys.ravel(), ys.ravel(), np.zeros(n * n)], axis=1)  # an affine grid
+    quads = [(i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1) for i in range(n - 1) for j in range(n - 1)]
+    indices = np.array([[q[0], q[1], q[2], q[0], q[2], q[3]] for q in quads]).ravel()
+    p, _c, _i = loop_subdivide(points, np.full(indices.size // 3, 3), indices, 2)
+    assert np.all(p[:, 2] == 0)
+    refined_once, _, _ = loop_subdivide(points, np.full(indices.size // 3, 3), indices, 1)
+    centre = 2 * n + 2  # valence 6 in this triangulation
+    np.testing.assert_allclose(refined_once[centre], points[centre], atol=1e-12)
+    corner_edge = 2  # a boundary vertex on the edge i = 0: neighbours 1 and 3 along it
+    np.testing.assert_allclose(refined_once[corner_edge], 0.75 * points[2] + 0.125 * (points[1] + points[3]))
+
+
+def test_loop_meshes_are_refined_at_the_recipe_level(tmp_path):
+    text = header() + """
+def Mesh "Tetra"
+{
+    int[] faceVertexCounts = [3, 3, 3, 3]
+    int[] faceVertexIndices = [0, 1, 2, 0, 3, 1, 0, 2, 3, 1, 3, 2]
+    point3f[] points = [(1, 1, 1), (1, -1, -1), (-1, 1, -1), (-1, -1, 1)]
+    uniform token subdivisionScheme = "loop"
+}
+""" + probe("P", (0.0, 5.0, 0.0))
+    path = write(tmp_path / "loop.usda", text)
+    assert read_scene(path).scene.meshes[0].triangles.shape[0] == 4
+    refined = read_scene(path, subdivision=2)
+    assert refined.scene.meshes[0].triangles.shape[0] == 4 * 16
+    assert any("loop subdivision refined 2 level(s)" in i.message for i in refined.issues)
+    quads = write(tmp_path / "quads.usda", header() + box_mesh("Box", 1.0, "/NoMat").replace(
+        "rel material:binding", 'uniform token subdivisionScheme = "loop"\n    rel material:binding') + probe("P"))
+    reading = read_scene(quads, subdivision=1)
+    assert reading.scene.meshes[0].triangles.shape[0] == 12
+    assert any("not triangles" in i.message for i in reading.issues)
+
+
 def test_subdivision_meshes_are_refined_at_the_recipe_level(tmp_path):
     text = header() + box_mesh("Box", 1.0, "/NoMat").replace(
         "rel material:binding", 'uniform token subdivisionScheme = "catmullClark"\n    rel material:binding') + probe("P")
