@@ -41,10 +41,9 @@ excluded (value and pdf 0).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
-
-from dataclasses import dataclass
 
 from bakery.brdf import oren_nayar, sheen_ltc
 from bakery.brdf.sheen import directional_albedo, sheen_brdf
