@@ -161,3 +161,108 @@ def _checked(axis: str) -> str:
     if axis not in ("X", "Y", "Z"):
         raise ValueError(f"axis must be X, Y or Z, got {axis!r}")
     return axis
+
+
+# ------------------------------------------------------------------------------------------------ points and curves
+#: Sides of the prism a curve is swept into, and samples per cubic span
+CURVE_SIDES = 6
+CURVE_SPAN_SAMPLES = 4
+#: Circumradius / radius of the icosahedron standing for a point's sphere and of the prism for a curve's tube, so
+#: that their mean projected area — a convex body's is a quarter of its surface (Cauchy) — is the round shape's:
+#: a point's shadow and silhouette are as large on average as its sphere's, a curve's as its tube's
+ICOSAHEDRON_SCALE = float(np.sqrt(np.pi / (5.0 * np.sqrt(3.0) * (1.0 / np.sin(2.0 * np.pi / 5.0)) ** 2 / 4.0)))
+PRISM_SCALE = float(np.pi / CURVE_SIDES / np.sin(np.pi / CURVE_SIDES))
+
+
+def _icosahedron() -> tuple[np.ndarray, np.ndarray]:
+    """Unit-circumradius icosahedron: vertices (12, 3), triangles (20, 3) counter-clockwise seen from outside."""
+    g = (1.0 + np.sqrt(5.0)) / 2.0
+    v = np.array([[-1, g, 0], [1, g, 0], [-1, -g, 0], [1, -g, 0], [0, -1, g], [0, 1, g], [0, -1, -g], [0, 1, -g],
+                  [g, 0, -1], [g, 0, 1], [-g, 0, -1], [-g, 0, 1]], dtype=np.float64)
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    f = np.array([[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4], [11, 10, 2],
+                  [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5],
+                  [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]])
+    return v, f
+
+
+def point_spheres(positions: np.ndarray, widths: np.ndarray) -> Tessellation:
+    """UsdGeomPoints: a sphere of diameter ``widths`` (N,) at each of ``positions`` (N, 3), as an icosahedron of
+    circumradius :data:`ICOSAHEDRON_SCALE` × the radius (20 triangles a point), shaded smooth (sphere normals)."""
+    v, f = _icosahedron()
+    unit = v[f]  # (20, 3, 3)
+    radius = 0.5 * np.asarray(widths, dtype=np.float64).reshape(-1, 1, 1, 1) * ICOSAHEDRON_SCALE
+    tris = np.asarray(positions, dtype=np.float64)[:, None, None, :] + radius * unit[None]
+    normals = np.broadcast_to(unit[None], tris.shape)
+    keep = radius.reshape(-1) > 0
+    return Tessellation(tris[keep].reshape(-1, 3, 3), np.ascontiguousarray(normals[keep]).reshape(-1, 3, 3))
+
+
+#: Cubic bases of UsdGeomBasisCurves (rows: the weights of the span's 4 control points as cubics in t, as
+#: coefficient vectors (1, t, t², t³)) and each basis' vstep
+CUBIC_BASES = {
+    "bezier": (np.array([[1, -3, 3, -1], [0, 3, -6, 3], [0, 0, 3, -3], [0, 0, 0, 1]], dtype=np.float64), 3),
+    "bspline": (np.array([[1, -3, 3, -1], [4, 0, -6, 3], [1, 3, 3, -3], [0, 0, 0, 1]], dtype=np.float64) / 6.0, 1),
+    "catmullRom": (np.array([[0, -1, 2, -1], [2, 0, -5, 3], [0, 1, 4, -3], [0, 0, -1, 1]], dtype=np.float64) / 2.0,
+                   1),
+}
+
+
+def curve_samples(points: np.ndarray, kind: str, basis: str, wrap: str,
+                  samples: int = CURVE_SPAN_SAMPLES) -> np.ndarray:
+    """Points (K, C) along one curve of control points (n, C) (C: positions and the widths carried along), by
+    UsdGeomBasisCurves' rules: ``linear`` the control polygon (closed when ``periodic``); ``cubic`` spans of 4
+    control points every vstep (bezier 3, bspline and catmullRom 1), ``periodic`` wrapping round, ``pinned``
+    bspline/catmullRom with the phantom points 2·P₀ − P₁ and 2·P_{n−1} − P_{n−2} at the ends (so the curve reaches
+    them), each span sampled ``samples`` times."""
+    p = np.asarray(points, dtype=np.float64)
+    if kind == "linear" or len(p) < 4:
+        return np.concatenate([p, p[:1]]) if wrap == "periodic" and len(p) > 2 else p
+    weights, step = CUBIC_BASES[basis]
+    if wrap == "periodic":
+        p = np.concatenate([p, p[: 4 - step if basis == "bezier" else 3]])
+    elif wrap == "pinned" and basis != "bezier":
+        p = np.concatenate([2 * p[:1] - p[1:2], p, 2 * p[-1:] - p[-2:-1]])
+    spans = (len(p) - 4) // step + 1
+    t = np.linspace(0.0, 1.0, samples + 1)
+    powers = np.stack([np.ones_like(t), t, t * t, t * t * t], axis=1)  # (S + 1, 4)
+    blend = powers @ weights.T  # (S + 1, 4): each control point's weight at t
+    out = [blend @ p[k * step : k * step + 4] for k in range(spans)]
+    return np.concatenate([out[0]] + [o[1:] for o in out[1:]])
+
+
+def curve_tubes(curves: list[np.ndarray], radii: list[np.ndarray], sides: int = CURVE_SIDES) -> Tessellation:
+    """Tubes along sampled curves (each (K, 3)) of radii (K,): prisms of ``sides`` sides, circumradius
+    :data:`PRISM_SCALE` × the radius, swept with frames transported along the curve (no twist), shaded smooth
+    (radial normals), open at the ends."""
+    tris, norms = [], []
+    angles = 2.0 * np.pi * np.arange(sides + 1) / sides
+    for points, radius in zip(curves, radii, strict=True):
+        if len(points) < 2:
+            continue
+        tangent = np.gradient(points, axis=0)
+        tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-300)
+        axis = np.eye(3)[int(np.argmin(np.abs(tangent[0])))]
+        normal = np.cross(tangent[0], axis)
+        normal /= np.linalg.norm(normal)
+        frames = []
+        for k in range(len(points)):  # parallel transport: the previous normal projected off the new tangent
+            if k:
+                normal = normal - tangent[k] * float(normal @ tangent[k])
+                length = np.linalg.norm(normal)
+                normal = normal / length if length > 1e-12 else frames[-1][0]
+            frames.append((normal, np.cross(tangent[k], normal)))
+        n = np.array([f[0] for f in frames])
+        b = np.array([f[1] for f in frames])
+        ring = np.cos(angles)[None, :, None] * n[:, None, :] + np.sin(angles)[None, :, None] * b[:, None, :]
+        rim = points[:, None, :] + (PRISM_SCALE * np.asarray(radius, dtype=np.float64))[:, None, None] * ring
+        a, c = rim[:-1, :-1], rim[1:, 1:]
+        bb, d = rim[1:, :-1], rim[:-1, 1:]
+        na, nc, nb, nd = ring[:-1, :-1], ring[1:, 1:], ring[1:, :-1], ring[:-1, 1:]
+        tris.append(np.concatenate([np.stack([a, c, bb], -2).reshape(-1, 3, 3),  # counter-clockwise from outside
+                                    np.stack([a, d, c], -2).reshape(-1, 3, 3)]))
+        norms.append(np.concatenate([np.stack([na, nc, nb], -2).reshape(-1, 3, 3),
+                                     np.stack([na, nd, nc], -2).reshape(-1, 3, 3)]))
+    if not tris:
+        return Tessellation(np.zeros((0, 3, 3)), None)
+    return Tessellation(np.concatenate(tris), np.concatenate(norms))

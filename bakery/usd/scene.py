@@ -235,7 +235,7 @@ class SceneReader:
                     iterator.PruneChildren()
                 elif prim.IsA(UsdGeom.Mesh):
                     self._read_mesh(prim)
-                elif is_surface_gprim(prim):
+                elif is_surface_gprim(prim) or prim.IsA(UsdGeom.Points) or prim.IsA(UsdGeom.BasisCurves):
                     self._read_gprim(prim)
                 elif prim.IsA(UsdGeom.Gprim):
                     self.issue("warning", prim, f"{type_name} gprims are not supported by the capture; skipped")
@@ -821,6 +821,9 @@ class SceneReader:
     def _implicit_surface(self, prim: Usd.Prim) -> gprims.Tessellation:
         """Local triangles and normals of a Sphere, Cube, Cylinder(_1), Cone, Capsule(_1) or Plane
         (:mod:`bakery.usd.gprims`)."""
+        if prim.IsA(UsdGeom.Points) or prim.IsA(UsdGeom.BasisCurves):
+            return self._points_or_curves(prim)
+
         def value(name: str) -> object:
             return prim.GetAttribute(name).Get(self.time)
 
@@ -846,6 +849,47 @@ class SceneReader:
         if prim.IsA(UsdGeom.Cylinder) or prim.IsA(UsdGeom.Cylinder_1):
             return gprims.cylinder(*radii, length("height"), axis)
         return gprims.capsule(*radii, length("height"), axis)
+
+    def _points_or_curves(self, prim: Usd.Prim) -> gprims.Tessellation:
+        """UsdGeomPoints as spheres and UsdGeomBasisCurves as tubes of their ``widths`` (:mod:`bakery.usd.gprims`:
+        icosahedra and hexagonal prisms of the round shapes' mean projected area); widths per point or control
+        point, per curve or constant; not authored: 1 stage unit (reported)."""
+        points = np.asarray(UsdGeom.PointBased(prim).GetPointsAttr().Get(self.time) or [],
+                            dtype=np.float64).reshape(-1, 3)
+        schema = UsdGeom.Points(prim) if prim.IsA(UsdGeom.Points) else UsdGeom.Curves(prim)
+        widths = np.asarray(schema.GetWidthsAttr().Get(self.time) or [], dtype=np.float64).reshape(-1)
+        if widths.size == 0:
+            self.issue("warning", prim, "widths not authored: read as 1 stage unit")
+            widths = np.ones(1)
+        if not np.all(np.isfinite(points)) or not np.all(np.isfinite(widths)) or (widths < 0).any():
+            raise SceneError("points and widths must be finite, widths ≥ 0")
+        if prim.IsA(UsdGeom.Points):
+            if widths.size not in (1, len(points)):
+                raise SceneError(f"{widths.size} widths for {len(points)} points")
+            return gprims.point_spheres(points, np.broadcast_to(widths, len(points)))
+        curves = UsdGeom.BasisCurves(prim)
+        counts = np.asarray(curves.GetCurveVertexCountsAttr().Get(self.time) or [], dtype=np.int64)
+        if counts.sum() != len(points) or (counts < 1).any():
+            raise SceneError(f"curveVertexCounts sum to {int(counts.sum())} for {len(points)} points")
+        kind = str(curves.GetTypeAttr().Get(self.time) or "cubic")
+        basis = str(curves.GetBasisAttr().Get(self.time) or "bezier")
+        wrap = str(curves.GetWrapAttr().Get(self.time) or "nonperiodic")
+        if kind == "cubic" and basis not in gprims.CUBIC_BASES:
+            self.issue("warning", prim, f"basis {basis!r} is not bezier, bspline or catmullRom: read as linear")
+            kind = "linear"
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        if widths.size == len(points):
+            per_vertex = widths
+        elif widths.size == counts.size:
+            per_vertex = np.repeat(widths, counts)
+        else:
+            if widths.size != 1:
+                self.issue("warning", prim, f"{widths.size} widths for {counts.size} curves of {len(points)} "
+                           "points: their mean is used")
+            per_vertex = np.full(len(points), float(widths.mean()))
+        sampled = [gprims.curve_samples(np.column_stack([points[a : a + c], per_vertex[a : a + c]]), kind, basis, wrap)
+                   for a, c in zip(starts, counts)]
+        return gprims.curve_tubes([x[:, :3] for x in sampled], [0.5 * np.maximum(x[:, 3], 0.0) for x in sampled])
 
     def _read_mesh(self, prim: Usd.Prim) -> None:
         local, topology = self._mesh_geometry(prim)
