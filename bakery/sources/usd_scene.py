@@ -38,7 +38,7 @@ import numpy as np
 from bakery.encodings import ENCODINGS
 from bakery.environment.resample import RESAMPLE_MODEL_VERSION
 from bakery.errors import SceneError, SceneWarning
-from bakery.pipeline.dilate import DILATION_SETTING, DilationSettings
+from bakery.pipeline.dilate import DILATION_SETTING, NEIGHBOURS_KEY, DilationSettings
 from bakery.pipeline.settings import CaptureSettings
 from bakery.probe import Probe
 from bakery.sources.base import (
@@ -232,8 +232,11 @@ class UsdSceneSource(Source):
                     fields[attribute_name(kind, encoding, field_name)] = array
                 names.append(encoding)
             fraction = merged.diagnostics.get("capture/backface_fraction")
+            sources = merged.diagnostics.get(NEIGHBOURS_KEY)
+            sources = None if sources is None else np.asarray(sources, dtype=np.float64)[rows]
             baked.append(BakedPrim(prim, len(rows), tuple(names), fields,
-                                   None if fraction is None else np.asarray(fraction, dtype=np.float32)[rows]))
+                                   None if fraction is None else np.asarray(fraction, dtype=np.float32)[rows],
+                                   None if sources is None or not np.all(np.isfinite(sources)) else sources))
         write_bake_layer(
             layer_path, baked, request.output, str(contents.attributes.get("settings_hash", "")), self.path,
             up_axis=self._reading.up_axis, meters_per_unit=self._reading.meters_per_unit, protected=self._protected,

@@ -24,6 +24,9 @@ attribute                                   value
 ``bakery:baked:backfaceFraction``           float[] (probeCount): each probe's share of capture rays that saw back
                                             faces (≥ 0.25: likely inside geometry; store
                                             ``capture/backface_fraction``), when the bake measured it
+``bakery:baked:dilatedFrom``                int[] (probeCount): how many valid probes of its volume each probe
+                                            stores the dilation of (0: its capture; store ``dilation/neighbours``),
+                                            on the prims of dilating volumes
 ``bakery:baked:storeOnlyFields``            ``<encoding>:<field>`` of fields too large for the layer
                                             (> :data:`MAX_VALUES_PER_PROBE` values per probe): store only
 ``bakery:baked:conventions``                JSON of :data:`bakery.conventions.CONVENTIONS`
@@ -69,6 +72,9 @@ class BakedPrim:
     fields: dict[str, np.ndarray] = field(default_factory=dict)
     #: (probeCount,) float32 share of each probe's capture rays that saw back faces, or None (not measured)
     backface_fraction: np.ndarray | None = None
+    #: (probeCount,) int number of valid probes each probe stores the dilation of (0: its capture), or None (the
+    #: prim's probes are not dilated: :mod:`bakery.pipeline.dilate`)
+    dilated_from: np.ndarray | None = None
 
     def split_by_size(self) -> tuple[dict[str, np.ndarray], list[str]]:
         """(fields small enough for the layer, ``<encoding>:<field>`` names of the others)."""
@@ -282,6 +288,11 @@ def write_bake_layer(
             attr = Sdf.AttributeSpec(spec, "bakery:baked:backfaceFraction", Sdf.ValueTypeNames.FloatArray,
                                      Sdf.VariabilityVarying)
             attr.default = Vt.FloatArray.FromNumpy(fraction)  # a diagnostic: not part of the content hash
+        if baked.dilated_from is not None:
+            count = np.asarray(baked.dilated_from, dtype=np.int32).reshape(baked.probe_count)
+            attr = Sdf.AttributeSpec(spec, "bakery:baked:dilatedFrom", Sdf.ValueTypeNames.IntArray,
+                                     Sdf.VariabilityVarying)
+            attr.default = Vt.IntArray.FromNumpy(count)  # a diagnostic: not part of the content hash
         for encoding in baked.encodings:
             if encoding_settings is None or encoding not in encoding_settings:
                 continue

@@ -185,6 +185,7 @@ def test_exports_layer_and_inspect_say_which_probe_was_dilated(dilated_row):
     layer = Usd.Stage.Open(str(folder / "row.bake.usda"))
     values = np.asarray(layer.GetPrimAtPath("/Row").GetAttribute("bakery:irradiance:sh3:radiance_sh").Get())
     np.testing.assert_allclose(values.reshape(4, 9, 3)[1], store.fields("sh3")["radiance_sh"][1], rtol=1e-6)
+    assert list(layer.GetPrimAtPath("/Row").GetAttribute("bakery:baked:dilatedFrom").Get()) == [0, 3, 0, 0]
     from click.testing import CliRunner
 
     from bakery.cli import main
