@@ -1107,13 +1107,7 @@ def catmull_clark(points: np.ndarray, counts: np.ndarray, indices: np.ndarray, l
         np.add.at(r_sum, e1, mid)
         nval = np.maximum(valence, 1.0)[:, None]
         new_vertices = (f_sum / np.maximum(f_cnt, 1.0)[:, None] + 2.0 * r_sum / nval + (nval - 3.0) * points) / nval
-        on_boundary = np.zeros(n_pts, dtype=bool)
-        on_boundary[e0[boundary]] = True
-        on_boundary[e1[boundary]] = True
-        b_sum = np.zeros((n_pts, 3))
-        np.add.at(b_sum, e0[boundary], points[e1[boundary]])
-        np.add.at(b_sum, e1[boundary], points[e0[boundary]])
-        new_vertices = np.where(on_boundary[:, None], 0.75 * points + 0.125 * b_sum, new_vertices)
+        new_vertices = _boundary_vertices(points, e0[boundary], e1[boundary], new_vertices)
         # quads: (vertex, edge to next, face point, edge from previous)
         prev = np.arange(indices.size) - 1
         prev[starts] = np.cumsum(counts) - 1
@@ -1126,6 +1120,18 @@ def catmull_clark(points: np.ndarray, counts: np.ndarray, indices: np.ndarray, l
         counts = np.full(indices.size // 4, 4, dtype=np.int64)
         parent = parent[face_of]  # one quad per face-vertex of the previous level
     return (points, counts, indices, parent) if with_faces else (points, counts, indices)
+
+
+def _boundary_vertices(points: np.ndarray, a: np.ndarray, b: np.ndarray, interior: np.ndarray) -> np.ndarray:
+    """The vertex points (P, 3) of a refinement step: the boundary rule ¾·v + ⅛·(its two boundary neighbours) on the
+    vertices of the boundary edges (a, b) (E,) each, ``interior`` elsewhere (Catmull-Clark and Loop alike)."""
+    on_boundary = np.zeros(len(points), dtype=bool)
+    on_boundary[a] = True
+    on_boundary[b] = True
+    neighbours = np.zeros((len(points), 3))
+    np.add.at(neighbours, a, points[b])
+    np.add.at(neighbours, b, points[a])
+    return np.where(on_boundary[:, None], 0.75 * points + 0.125 * neighbours, interior)
 
 
 def loop_subdivide(points: np.ndarray, counts: np.ndarray, indices: np.ndarray, levels: int,
@@ -1161,13 +1167,7 @@ def loop_subdivide(points: np.ndarray, counts: np.ndarray, indices: np.ndarray, 
         n = np.maximum(valence, 1.0)
         beta = (0.625 - (0.375 + 0.25 * np.cos(2.0 * np.pi / n)) ** 2) / n
         new_vertices = (1.0 - n * beta)[:, None] * points + beta[:, None] * ring
-        on_boundary = np.zeros(n_pts, dtype=bool)
-        on_boundary[e0[boundary]] = True
-        on_boundary[e1[boundary]] = True
-        b_sum = np.zeros((n_pts, 3))
-        np.add.at(b_sum, e0[boundary], points[e1[boundary]])
-        np.add.at(b_sum, e1[boundary], points[e0[boundary]])
-        new_vertices = np.where(on_boundary[:, None], 0.75 * points + 0.125 * b_sum, new_vertices)
+        new_vertices = _boundary_vertices(points, e0[boundary], e1[boundary], new_vertices)
         mid = (n_pts + edge_of).reshape(-1, 3)  # edge points of (v0→v1, v1→v2, v2→v0), in each triangle's winding
         v = tri
         tri = np.concatenate([np.stack([v[:, 0], mid[:, 0], mid[:, 2]], axis=1),
