@@ -64,12 +64,14 @@ def emitter_share(scene) -> float:  # noqa: ANN001 - CaptureScene
     others = sum(light.area * max(float(luminance(np.asarray(light.radiance, dtype=np.float64))), 0.0)
                  for light in scene.lights)
     return emitted / (emitted + others)
+
+
 #: Distance (m) used for the texture footprint of the centroid reads: the coarsest mip, the texture's mean
 _FOOTPRINT = 1e6
 
 
 class EmissiveTriangles:
-    """The emissive triangles of a scene (module docstring). ``None`` from :meth:`of` when nothing emits."""
+    """The emissive triangles of a scene (module docstring): built by :meth:`of`."""
 
     def __init__(self, prims: np.ndarray, triangles: np.ndarray, normals: np.ndarray, power: np.ndarray,
                  share: float = 1.0) -> None:
