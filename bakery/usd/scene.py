@@ -865,12 +865,14 @@ class SceneReader:
             raise SceneError("points and widths must be finite, widths ≥ 0")
         if prim.IsA(UsdGeom.Points):
             if widths.size not in (1, len(points)):
-                raise SceneError(f"{widths.size} widths for {len(points)} points")
+                raise SceneError(f"{widths.size} widths for {len(points)} points: author one width per point, or "
+                                 "one for all")
             return gprims.point_spheres(points, np.broadcast_to(widths, len(points)))
         curves = UsdGeom.BasisCurves(prim)
         counts = np.asarray(curves.GetCurveVertexCountsAttr().Get(self.time) or [], dtype=np.int64)
         if counts.sum() != len(points) or (counts < 1).any():
-            raise SceneError(f"curveVertexCounts sum to {int(counts.sum())} for {len(points)} points")
+            raise SceneError(f"curveVertexCounts sum to {int(counts.sum())} for {len(points)} points: they must be "
+                             "≥ 1 and sum to the number of points")
         kind = str(curves.GetTypeAttr().Get(self.time) or "cubic")
         basis = str(curves.GetBasisAttr().Get(self.time) or "bezier")
         wrap = str(curves.GetWrapAttr().Get(self.time) or "nonperiodic")

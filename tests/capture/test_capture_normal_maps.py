@@ -196,6 +196,24 @@ def _twin(scale: float) -> str:
                                   f"float4 inputs:bias = ({-scale}, {-scale}, -1, 0)")
 
 
+def _image_node(name: str, file: str) -> str:
+    """A MaterialX ``image`` node of vector3 output as a USD shader under /Floor (usda)."""
+    return f"""    def Shader "{name}"
+    {{
+        uniform token info:id = "ND_image_vector3"
+        asset inputs:file = @{file}@
+        float3 outputs:out
+    }}
+"""
+
+
+def _assert_captures_as(tmp_path, authored: str, name: str, expected: np.ndarray) -> None:  # noqa: ANN001
+    """The floor ``authored`` as ND_ shaders captures as ``expected`` (10⁻⁵), its normal map read unreported."""
+    in_usd, reading = _capture(tmp_path, authored, name)
+    assert not [i for i in reading.issues if "normal" in i.message], reading.issues
+    np.testing.assert_allclose(in_usd, expected, rtol=1e-5, atol=1e-8)
+
+
 def _authored_floor(normal: str, lobe: str, shaders: str) -> str:
     """The standard_surface floor as ND_ shaders in USD: albedo ρ, the specular input line ``lobe``, its ``normal``
     connected to the shader ``normal`` among ``shaders`` (usda of the graph under /Floor)."""
@@ -249,16 +267,8 @@ def Scope "Looks" (
         float inputs:scale = {scale}
         float3 outputs:out
     }}
-    def Shader "Bumps"
-    {{
-        uniform token info:id = "ND_image_vector3"
-        asset inputs:file = @./n.exr@
-        float3 outputs:out
-    }}
-""")
-    in_usd, reading = _capture(tmp_path, authored, "authored")
-    assert not [i for i in reading.issues if "normal" in i.message], reading.issues
-    np.testing.assert_allclose(in_usd, twin, rtol=1e-5, atol=1e-8)
+""" + _image_node("Bumps", "./n.exr"))
+    _assert_captures_as(tmp_path, authored, "authored", twin)
 
 
 def test_a_rotated_normal_map_turns_its_tangent_frame_with_its_coordinates(tmp_path):
@@ -378,13 +388,5 @@ def test_a_world_space_normal_graph_authored_in_usd_captures_as_the_document(tmp
         float inputs:in2 = 2
         float3 outputs:out
     }
-    def Shader "Normals"
-    {
-        uniform token info:id = "ND_image_vector3"
-        asset inputs:file = @./w.exr@
-        float3 outputs:out
-    }
-""")
-    in_usd, reading = _capture(tmp_path, authored, "authored_world")
-    assert not [i for i in reading.issues if "normal" in i.message], reading.issues
-    np.testing.assert_allclose(in_usd, document, rtol=1e-5, atol=1e-8)
+""" + _image_node("Normals", "./w.exr"))
+    _assert_captures_as(tmp_path, authored, "authored_world", document)
