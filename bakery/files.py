@@ -498,11 +498,12 @@ def _canonical(value: Any) -> Any:
         return [_canonical(v) for v in value]
     if hasattr(value, "__dataclass_fields__"):
         return {"__dataclass__": type(value).__name__,
-                **{name: _canonical(getattr(value, name)) for name in value.__dataclass_fields__}}
+                **{name: _canonical(getattr(value, name)) for name, spec in value.__dataclass_fields__.items()
+                   if spec.metadata.get("content_hash", True)}}
     return value
 
 
 def stable_hash(*parts: Any) -> str:
     """sha256 hex of the canonical JSON of ``parts`` (dicts sorted by key; arrays by content, shape and dtype;
-    dataclasses by their fields)."""
+    dataclasses by their fields, except those declared with ``metadata={"content_hash": False}``)."""
     return sha256_bytes(json.dumps(_canonical(parts), sort_keys=True, default=str).encode())

@@ -114,22 +114,30 @@ def Xform "Hall"
 
 class _MemorySampler:
     """Peak resident memory of this process and of each of its child processes (the bake's workers), sampled with
-    psutil at 20 Hz on a background thread."""
+    psutil at 20 Hz on a background thread. The store's forked writer (:mod:`bakery.pipeline.background`) is not a
+    worker: its resident size counts the parent's pages it shares, so its own pages (USS) are reported apart."""
 
     def __init__(self) -> None:
         self.parent = psutil.Process()
-        self.peak_parent = self.peak_worker = self.peak_workers_total = 0
+        self.peak_parent = self.peak_worker = self.peak_workers_total = self.peak_writer = 0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._sample, daemon=True)
 
     def _sample(self) -> None:
+        from bakery.pipeline.background import children_known
+
         while not self._stop.is_set():
             try:
                 self.peak_parent = max(self.peak_parent, self.parent.memory_info().rss)
-                sizes = [c.memory_info().rss for c in self.parent.children(recursive=True)]
+                with children_known() as writers:
+                    children = self.parent.children(recursive=True)
+                sizes = [c.memory_info().rss for c in children if c.pid not in writers]
                 if sizes:
                     self.peak_worker = max(self.peak_worker, max(sizes))
                     self.peak_workers_total = max(self.peak_workers_total, sum(sizes))
+                for child in children:
+                    if child.pid in writers:
+                        self.peak_writer = max(self.peak_writer, child.memory_full_info().uss)
             except psutil.Error:
                 pass
             self._stop.wait(0.05)
@@ -144,7 +152,8 @@ class _MemorySampler:
 
     def as_dict(self) -> dict[str, float]:
         return {"peak_parent_mb": self.peak_parent / 2**20, "peak_worker_mb": self.peak_worker / 2**20,
-                "peak_workers_total_mb": self.peak_workers_total / 2**20}
+                "peak_workers_total_mb": self.peak_workers_total / 2**20,
+                "peak_store_writer_uss_mb": self.peak_writer / 2**20}
 
 
 #: A progress display: a context manager yielding the bake's ``progress(done, total)`` callback (the CLI's bar).

@@ -305,6 +305,10 @@ class ProbeSpec:
         dilation: search radius (metres) of the dilation of a probe inside geometry from its volume's valid
             probes (:mod:`bakery.pipeline.dilate`; a volume's ``bakery:volume:dilate``); 0: no dilation.
         dilation_passes: the dilation's passes (``bakery:volume:dilationIterations``).
+
+    A scene probe's content hash covers its spec (``sources.usd_scene.SceneProbeCapture``) except the fields marked
+    ``content_hash: False``: the dilation is applied in the parent to stored results, so its radius and passes
+    re-bake nothing (:mod:`bakery.pipeline.dilate`).
     """
 
     name: str
@@ -318,8 +322,8 @@ class ProbeSpec:
     volume_index: tuple[int, int, int] = (0, 0, 0)
     influence: dict = field(default_factory=dict)
     relocate: float = 0.0
-    dilation: float = 0.0
-    dilation_passes: int = 1
+    dilation: float = field(default=0.0, metadata={"content_hash": False})
+    dilation_passes: int = field(default=1, metadata={"content_hash": False})
 
 
 @dataclass(frozen=True)

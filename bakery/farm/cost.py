@@ -94,7 +94,7 @@ class CostModel:
     def capture_rays(self, task: Any) -> float:
         if not self.rendered:
             return 0.0
-        probe = self.scene.probes[task.capture.index] if self.scene is not None else None
+        probe = getattr(task.capture, "probe", None)  # a scene probe's spec (sources.usd_scene.SceneProbeCapture)
         if probe is not None and probe.image:
             return 0.0
         n = (probe.resolution if probe is not None and probe.resolution else 0) or self.request.settings.face_size

@@ -37,7 +37,6 @@ import threading
 import time
 import warnings
 from collections.abc import Callable, Iterator
-from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -59,6 +58,7 @@ from bakery.files import (
     staged_path,
     with_filename,
 )
+from bakery.pipeline.background import BackgroundCall
 from bakery.pipeline.dilate import dilate_volumes
 from bakery.pipeline.encode import EncodedBatch
 from bakery.pipeline.executors import Executor, SerialExecutor
@@ -609,18 +609,21 @@ def commit_outputs(request: BakeRequest, source: Source, merged: EncodedBatch,
     try:
         pairs = [(staged_store, output)]
         if layer is not None:
-            # The store (HDF5) and the layer (USD) are written side by side: separate files, each by one thread.
-            with ThreadPoolExecutor(1, thread_name_prefix="bakery-store") as store_writer:
-                store_written = store_writer.submit(write_store_file, staged_store, contents)
+            # The store (HDF5) and the layer (USD) are written side by side, the store in a forked child: h5py and
+            # Sdf's export both hold the GIL, so two threads would write one after the other.
+            store_writer = BackgroundCall(write_store_file, staged_store, contents)
+            try:
                 try:
                     extra = source.after_write(merged, contents, replace(request, layer=staged_layer))
                 except Exception as error:
-                    store_written.exception()  # the store's thread is done before its file is removed
+                    store_writer.exception()  # the store's writer is done before its file is removed
                     if _is_usd_error(error) or isinstance(error, bakery.errors.SceneError):
                         raise OutputError(f"{layer}: USD could not write the layer: {_usd_reason(error, layer)}") \
                             from None
                     raise
-                store_written.result()
+                store_writer.result()
+            finally:
+                store_writer.stop()  # SIGTERM, an error: no writer is left behind the staged files' removal
             extra["layer"] = str(layer)
             pairs.append((staged_layer, layer))
         else:

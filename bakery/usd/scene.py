@@ -356,7 +356,7 @@ class SceneReader:
             return
         encodings_attr = prim.GetAttribute("bakery:encodings")
         encodings = tuple(str(e) for e in (encodings_attr.Get(self.time) or ())) if encodings_attr else ()
-        rotation = tuple(map(tuple, self.frame.rotation(matrix)))
+        rotation = tuple(map(tuple, self.frame.rotation(matrix).tolist()))
         path = str(prim.GetPath())
         if type_name == "BakeryIrradianceProbeVolume":
             self._read_volume(prim, matrix, resolution, encodings)
@@ -406,7 +406,7 @@ class SceneReader:
             self.issue("error", prim, f"bakery:volume:extent must be >= 0, got {extent.tolist()}")
             return
         path = str(prim.GetPath())
-        rotation = tuple(map(tuple, self.frame.rotation(matrix)))
+        rotation = tuple(map(tuple, self.frame.rotation(matrix).tolist()))
         # flat index i + nx·(j + ny·k): i fastest
         k, j, i = np.meshgrid(*(np.arange(c) for c in counts[::-1]), indexing="ij")
         ijk = np.stack([i.ravel(), j.ravel(), k.ravel()], axis=-1)
@@ -722,7 +722,7 @@ class SceneReader:
             pole = str(attr.Get(self.time)) if attr and attr.Get(self.time) else pole
             if pole == "Z" or (pole == "scene" and self.frame.up == "Z"):
                 pre = _POLE_Y_TO_Z
-        rotation = tuple(map(tuple, self.frame.rotation(matrix, pre)))
+        rotation = tuple(map(tuple, self.frame.rotation(matrix, pre).tolist()))
         name = str(prim.GetPath())
         response = self._response(prim)
         response = {**response, **self._shadow(prim)}  # ShadowAPI on the dome (Dome.shadow, Dome.shadow_color)

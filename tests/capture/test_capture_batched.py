@@ -112,14 +112,23 @@ def test_scene_source_captures_groups_as_one_by_one_and_attributes_failures(usd_
     digest = write_capture_scene(scene, tmp_path / "scene")
     handle = SourceHandle(UsdSceneSource.kind, str(tmp_path / "scene"), digest)
     settings = CaptureSettings(samples=1)
-    specs = [SceneProbeCapture(i, p.name, settings) for i, p in enumerate(scene.probes)]
-    specs = specs[:6] + [s for s in specs if scene.probes[s.index].image]
-    assert scene.probes[specs[-1].index].image
-    specs[2] = SceneProbeCapture(specs[2].index, "/not/a/probe", settings)
+    specs = [SceneProbeCapture(p, settings) for p in scene.probes]
+    specs = specs[:6] + [s for s in specs if s.probe.image]
+    assert specs[-1].probe.image
+    specs[2] = SceneProbeCapture(dataclasses.replace(specs[2].probe, name="/Bad"), settings)
+    # fault injection: the renderer refuses the probe named /Bad, alone or in a group
+    render_many = ProbeRenderer.render_many
+
+    def refusing(self, positions, n, names, *args, **kwargs):  # noqa: ANN001, ANN002, ANN003, ANN202
+        if "/Bad" in names:
+            raise RuntimeError("/Bad: refused by the test's renderer")
+        return render_many(self, positions, n, names, *args, **kwargs)
+
+    monkeypatch.setattr(ProbeRenderer, "render_many", refusing)  # ProbeRenderer.render calls it too
     many = UsdSceneSource.capture_many(handle, specs, FACE)
-    assert isinstance(many[2], Exception) and "/not/a/probe" in str(many[2])
+    assert isinstance(many[2], Exception) and "/Bad" in str(many[2])
     for spec, capture in zip(specs, many):
-        if spec.name == "/not/a/probe":
+        if spec.name == "/Bad":
             continue
         one = UsdSceneSource.capture(handle, spec, FACE)
         assert capture.cube.tobytes() == one.cube.tobytes()

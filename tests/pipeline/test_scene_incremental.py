@@ -5,11 +5,13 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 
 from usd_scenes import header, material, plane_mesh, probe, write
 
+ROOT = Path(__file__).resolve().parents[2]
 ENV = {**os.environ, "SOURCE_DATE_EPOCH": "1700000000"}
 
 
@@ -98,3 +100,35 @@ def test_scene_hash_covers_the_capture_model_and_shading_normals(tmp_path, monke
     assert environment_hash(smooth) != base
     monkeypatch.setattr(render, "CAPTURE_MODEL_VERSION", render.CAPTURE_MODEL_VERSION + 1)
     assert environment_hash(scene) != base
+
+
+def test_a_probes_capture_resolution_and_image_orientation_enter_its_hash(tmp_path):
+    """What the scene says of how one probe is captured — its capture resolution, its captured image's orientation
+    — re-bakes that probe alone (the store was reused before: the probe's spec was not in its hash)."""
+    image = os.path.relpath(ROOT / "examples/data/StinsonBeach_512.hdr", tmp_path)
+
+    def text(resolution=8, turn=0.0):
+        return (header() + material("Grey") + plane_mesh("Ground", 400.0, "/Grey")
+                + 'def DomeLight "Sky"\n{\n    float inputs:intensity = 0.5\n}\n'
+                + probe("Plain", (0.0, 1.0, 0.0))
+                + probe("Sized", (2.0, 1.0, 0.0), body=f"int bakery:capture:resolution = {resolution}")
+                + f"""
+def BakeryIrradianceProbe "Captured"
+{{
+    asset bakery:capture:image = @{image}@
+    double3 xformOp:translate = (4, 1, 0)
+    float xformOp:rotateY = {turn}
+    uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:rotateY"]
+}}
+""")
+
+    scene = write(tmp_path / "scene.usda", text())
+    store = tmp_path / "scene.h5"
+    assert bake(scene, store)["baked"] == 3
+    write(scene, text(resolution=16))
+    sized = bake(scene, store)
+    assert (sized["baked"], sized["reused"]) == (1, 2)
+    write(scene, text(resolution=16, turn=90.0))
+    turned = bake(scene, store)
+    assert (turned["baked"], turned["reused"]) == (1, 2)
+    assert bake(scene, store)["reused"] == 3
