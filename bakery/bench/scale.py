@@ -115,11 +115,13 @@ def Xform "Hall"
 class _MemorySampler:
     """Peak resident memory of this process and of each of its child processes (the bake's workers), sampled with
     psutil at 20 Hz on a background thread. The store's forked writer (:mod:`bakery.pipeline.background`) is not a
-    worker: its resident size counts the parent's pages it shares, so its own pages (USS) are reported apart."""
+    worker: its resident size counts the parent's pages it shares, so its own pages (USS) are reported apart. Children
+    already running when sampling starts (an earlier trial's workers still exiting) are not this bake's."""
 
     def __init__(self) -> None:
         self.parent = psutil.Process()
         self.peak_parent = self.peak_worker = self.peak_workers_total = self.peak_writer = 0
+        self._before: set[int] = set()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._sample, daemon=True)
 
@@ -131,7 +133,7 @@ class _MemorySampler:
                 self.peak_parent = max(self.peak_parent, self.parent.memory_info().rss)
                 with children_known() as writers:
                     children = self.parent.children(recursive=True)
-                sizes = [c.memory_info().rss for c in children if c.pid not in writers]
+                sizes = [c.memory_info().rss for c in children if c.pid not in writers and c.pid not in self._before]
                 if sizes:
                     self.peak_worker = max(self.peak_worker, max(sizes))
                     self.peak_workers_total = max(self.peak_workers_total, sum(sizes))
@@ -143,6 +145,7 @@ class _MemorySampler:
             self._stop.wait(0.05)
 
     def __enter__(self) -> _MemorySampler:
+        self._before = {child.pid for child in self.parent.children(recursive=True)}
         self._thread.start()
         return self
 

@@ -226,19 +226,26 @@ class UsdSceneSource(Source):
         for prim in self._prim_of.values():
             expected[prim] = expected.get(prim, 0) + 1
         baked: list[BakedPrim] = []
-        # store row -> encoding row, once per encoding (not per prim: a scene has thousands of reflection prims)
-        index_of = {encoding: {int(r): k for k, r in enumerate(merged.rows[encoding])} for encoding in merged.encoded}
+        # store row -> encoding row (-1: the probe lacks the encoding), once per encoding, not per prim (a scene
+        # has thousands of reflection prims)
+        index_of: dict[str, np.ndarray] = {}
+        for encoding in merged.encoded:
+            index = np.full(len(merged.probes), -1, dtype=np.int64)
+            index[np.asarray(merged.rows[encoding], dtype=np.int64)] = np.arange(len(merged.rows[encoding]))
+            index_of[encoding] = index
+        encoded = {encoding: {k: np.asarray(v) for k, v in values.items()}
+                   for encoding, values in merged.encoded.items()}
         for prim, rows in rows_of_prim.items():
             if len(rows) != expected.get(prim, len(rows)):
                 continue  # part of a volume failed: its arrays would be incomplete
             fields: dict[str, np.ndarray] = {}
             names: list[str] = []
-            for encoding, values in merged.encoded.items():
-                index = index_of[encoding]
-                if not all(r in index for r in rows):
+            for encoding, values in encoded.items():
+                index = index_of[encoding][rows]
+                if np.any(index < 0):
                     continue
                 kind = ENCODINGS[encoding].kind
-                prim_values = {k: np.asarray(v)[[index[r] for r in rows]] for k, v in values.items()}
+                prim_values = {k: v[index] for k, v in values.items()}
                 for field_name, array in ENCODINGS[encoding].layer_fields(prim_values).items():
                     fields[attribute_name(kind, encoding, field_name)] = array
                 names.append(encoding)

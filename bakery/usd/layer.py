@@ -271,6 +271,7 @@ def write_bake_layer(
     if default_prim:  # a layer opened or referenced on its own needs one (OpenUSD's StageMetadataChecker)
         layer.defaultPrim = default_prim
     conventions = json.dumps(CONVENTIONS, sort_keys=True)
+    settings_values: dict[str, dict] = {}  # an encoding's setting attributes are the same on every prim: once
     for baked in prims:
         spec = Sdf.CreatePrimInLayer(layer, Sdf.Path(baked.path))
         spec.specifier = Sdf.SpecifierOver
@@ -296,7 +297,9 @@ def write_bake_layer(
         for encoding in baked.encodings:
             if encoding_settings is None or encoding not in encoding_settings:
                 continue
-            for name, (type_name, value, data) in runtime_setting_values(encoding, encoding_settings[encoding]).items():
+            if encoding not in settings_values:
+                settings_values[encoding] = runtime_setting_values(encoding, encoding_settings[encoding])
+            for name, (type_name, value, data) in settings_values[encoding].items():
                 attr = Sdf.AttributeSpec(spec, name, type_name, Sdf.VariabilityUniform)
                 attr.default = value
                 written[name] = data
