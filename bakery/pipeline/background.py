@@ -13,7 +13,8 @@ The child runs only the call (numpy and h5py, already imported) and leaves with 
 handler, no buffered output of the parent flushed twice, no ``finally`` of the parent run again. It dies with the
 parent (``PR_SET_PDEATHSIG``) and answers through a pipe: ``(True, value)`` or ``(False, exception)``, pickled. If
 the child dies without answering (killed, out of memory), the call is run again in the parent, so the result never
-depends on the child. Without ``fork`` (or if it fails) the call runs in a thread, as before.
+depends on the child. Without ``fork`` (or if it fails), or with ``BAKERY_BACKGROUND=thread`` in the environment (a
+host application that must not be forked, e.g. a DCC embedding bakery), the call runs in a thread, as before.
 """
 
 from __future__ import annotations
@@ -28,6 +29,8 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
+#: Environment variable: ``thread`` runs background calls in a thread instead of a forked child.
+BACKGROUND_ENVIRONMENT = "BAKERY_BACKGROUND"
 #: Exit status of a child that answered (any other status: it died, and the call is run in the parent).
 _ANSWERED = 0
 #: Pids of the running children, and the lock held across a fork and its registration (:func:`children_known`).
@@ -53,7 +56,8 @@ class BackgroundCall:
         self._read: int | None = None
         self._thread: threading.Thread | None = None
         self._outcome: tuple[bool, Any] | None = None
-        if sys.platform.startswith("linux") and hasattr(os, "fork"):
+        forkable = sys.platform.startswith("linux") and hasattr(os, "fork")
+        if forkable and os.environ.get(BACKGROUND_ENVIRONMENT, "").strip().lower() != "thread":
             try:
                 self._fork()
                 return

@@ -64,3 +64,10 @@ def test_stop_leaves_nothing_writing(tmp_path):
     time.sleep(0.7)
     assert not target.exists()
     call.stop()  # idempotent
+
+
+def test_the_thread_fallback_gives_the_same_answers(tmp_path, monkeypatch):
+    monkeypatch.setenv("BAKERY_BACKGROUND", "thread")
+    pid, value = BackgroundCall(_pid_and, (1.5, "x")).result()
+    assert pid == os.getpid() and value == (1.5, "x")
+    assert isinstance(BackgroundCall(_fail, tmp_path / "s.h5").exception(), OSError)
