@@ -307,16 +307,18 @@ class ProbeSpec:
         dilation_passes: the dilation's passes (``bakery:volume:dilationIterations``).
 
     A scene probe's content hash covers its spec (``sources.usd_scene.SceneProbeCapture``) except the fields marked
-    ``content_hash: False``: the dilation is applied in the parent to stored results, so its radius and passes
-    re-bake nothing (:mod:`bakery.pipeline.dilate`).
+    ``content_hash: False``: the captured image by its bytes, not its path, and its orientation with it (the
+    source's inputs; a rendered probe's rotation changes nothing); the dilation is applied in the parent to stored
+    results, so its radius and passes re-bake nothing (:mod:`bakery.pipeline.dilate`).
     """
 
     name: str
     kind: str
     position: tuple[float, float, float]
-    rotation: tuple[tuple[float, float, float], ...] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+    rotation: tuple[tuple[float, float, float], ...] = field(
+        default=((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)), metadata={"content_hash": False})
     resolution: int = 0
-    image: str = ""
+    image: str = field(default="", metadata={"content_hash": False})
     encodings: tuple[str, ...] = ()
     volume: str = ""
     volume_index: tuple[int, int, int] = (0, 0, 0)

@@ -71,8 +71,9 @@ def default_layer_path(output: Path) -> Path:
 class SceneProbeCapture:
     """Capture spec of one scene probe: the probe as the scene defines it (placement, capture resolution, captured
     image and its orientation, relocation) and how to render it. It travels with its batch — the workers' snapshot
-    holds the scene, not its probes — and all of it enters the probe's content hash (:mod:`bakery.pipeline.plan`),
-    so a changed capture resolution or image orientation re-bakes the probe."""
+    holds the scene, not its probes — and enters the probe's content hash (:mod:`bakery.pipeline.plan`; the fields
+    :class:`ProbeSpec` marks ``content_hash: False`` are hashed otherwise or not at all), so a changed capture
+    resolution or image orientation re-bakes the probe."""
 
     probe: ProbeSpec = field(hash=False)
     settings: CaptureSettings
@@ -156,8 +157,9 @@ class UsdSceneSource(Source):
                         f"its influence volume) instead of the default range")})
             probe = Probe(spec.name, (spec.kind,), spec.position, probe_settings)
             image_hash = (sha256_file(spec.image) if Path(spec.image).is_file() else "<missing>") if spec.image else None
-            # a captured image is resampled to the bake grid: a changed resampling re-bakes its probe
-            inputs = (scene_hash, image_hash, RESAMPLE_MODEL_VERSION) if spec.image else (scene_hash,)
+            # a captured image is resampled to the bake grid: a changed resampling re-bakes its probe, and so does a
+            # changed orientation of the image (ProbeSpec leaves the image's path and rotation to these inputs)
+            inputs = (scene_hash, image_hash, RESAMPLE_MODEL_VERSION, spec.rotation) if spec.image else (scene_hash,)
             capture = SceneProbeCapture(spec, self.capture_settings)
             planned.append(PlannedProbe(probe, capture, inputs))
             self._prim_of[spec.name] = spec.volume or spec.name

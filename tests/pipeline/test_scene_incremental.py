@@ -104,18 +104,23 @@ def test_scene_hash_covers_the_capture_model_and_shading_normals(tmp_path, monke
 
 def test_a_probes_capture_resolution_and_image_orientation_enter_its_hash(tmp_path):
     """What the scene says of how one probe is captured — its capture resolution, its captured image's orientation
-    — re-bakes that probe alone (the store was reused before: the probe's spec was not in its hash)."""
-    image = os.path.relpath(ROOT / "examples/data/StinsonBeach_512.hdr", tmp_path)
+    — re-bakes that probe alone (the store was reused before: the probe's spec was not in its hash); what does not
+    change its capture — a rendered probe's rotation, the image's path for the same bytes — re-bakes nothing."""
+    import shutil
 
-    def text(resolution=8, turn=0.0):
+    shutil.copy(ROOT / "examples/data/StinsonBeach_512.hdr", tmp_path / "a.hdr")
+    shutil.copy(ROOT / "examples/data/StinsonBeach_512.hdr", tmp_path / "b.hdr")
+
+    def text(resolution=8, turn=0.0, spin=0.0, image="a.hdr"):
         return (header() + material("Grey") + plane_mesh("Ground", 400.0, "/Grey")
                 + 'def DomeLight "Sky"\n{\n    float inputs:intensity = 0.5\n}\n'
-                + probe("Plain", (0.0, 1.0, 0.0))
+                + probe("Plain", (0.0, 1.0, 0.0), body=f"float xformOp:rotateY = {spin}").replace(
+                    '["xformOp:translate"]', '["xformOp:translate", "xformOp:rotateY"]')
                 + probe("Sized", (2.0, 1.0, 0.0), body=f"int bakery:capture:resolution = {resolution}")
                 + f"""
 def BakeryIrradianceProbe "Captured"
 {{
-    asset bakery:capture:image = @{image}@
+    asset bakery:capture:image = @./{image}@
     double3 xformOp:translate = (4, 1, 0)
     float xformOp:rotateY = {turn}
     uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:rotateY"]
@@ -131,4 +136,5 @@ def BakeryIrradianceProbe "Captured"
     write(scene, text(resolution=16, turn=90.0))
     turned = bake(scene, store)
     assert (turned["baked"], turned["reused"]) == (1, 2)
+    write(scene, text(resolution=16, turn=90.0, spin=45.0, image="b.hdr"))  # same bytes, another file
     assert bake(scene, store)["reused"] == 3
