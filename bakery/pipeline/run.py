@@ -613,14 +613,14 @@ def commit_outputs(request: BakeRequest, source: Source, merged: EncodedBatch,
             # Sdf's export both hold the GIL, so two threads would write one after the other.
             store_writer = BackgroundCall(write_store_file, staged_store, contents)
             try:
-                try:
-                    extra = source.after_write(merged, contents, replace(request, layer=staged_layer))
-                except Exception as error:
-                    store_writer.exception()  # the store's writer is done before its file is removed
-                    if _is_usd_error(error) or isinstance(error, bakery.errors.SceneError):
-                        raise OutputError(f"{layer}: USD could not write the layer: {_usd_reason(error, layer)}") \
-                            from None
-                    raise
+                extra = source.after_write(merged, contents, replace(request, layer=staged_layer))
+            except Exception as error:
+                store_writer.exception()  # the store's writer is done before its file is removed
+                if _is_usd_error(error) or isinstance(error, bakery.errors.SceneError):
+                    raise OutputError(f"{layer}: USD could not write the layer: {_usd_reason(error, layer)}") \
+                        from None
+                raise
+            else:
                 store_writer.result()
             finally:
                 store_writer.stop()  # SIGTERM, an error: no writer is left behind the staged files' removal
