@@ -36,3 +36,41 @@ def test_two_worker_counts_report_both_ratios_and_the_store_writer_is_no_worker(
     assert result["speedup_1_to_2_median_of_runs"] == float(np.median(pairs))
     assert one["peak_worker_mb"] == 0 and two["peak_worker_mb"] > 0
     assert one["peak_store_writer_uss_mb"] >= 0 and two["peak_store_writer_uss_mb"] >= 0
+
+
+def _hold_and_free(megabytes: int, ready, done) -> None:  # noqa: ANN001 - a spawned child of the sampler's test
+    import numpy as np
+
+    block = np.ones(megabytes * 2**20 // 8)  # touched: resident
+    del block  # freed at once: only the kernel's high-water mark still knows
+    ready.set()
+    done.wait(30)
+
+
+def test_memory_sampler_peaks_are_high_water_marks_not_samples():
+    """A 300 MB block that lives for a few milliseconds, between two of the sampler's looks, in this process and in
+    a child, is in both peaks: they are the kernel's marks (VmHWM), not what the looks happened to see."""
+    import multiprocessing
+    import sys
+    import time
+
+    import numpy as np
+    import pytest
+
+    from bakery.bench.scale import _MemorySampler
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("the high-water marks are read from /proc")
+    context = multiprocessing.get_context("spawn")
+    ready, done = context.Event(), context.Event()
+    with _MemorySampler() as memory:
+        block = np.ones(300 * 2**20 // 8)
+        del block
+        child = context.Process(target=_hold_and_free, args=(300, ready, done))
+        child.start()
+        assert ready.wait(60)
+        time.sleep(0.6)  # at least one look while the child lives (it freed its block before)
+        done.set()
+        child.join(30)
+    peaks = memory.as_dict()
+    assert peaks["peak_parent_mb"] >= 300 and peaks["peak_worker_mb"] >= 300
