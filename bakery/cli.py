@@ -79,7 +79,7 @@ class _Progress:
         if self.task is None:
             self.task = self.progress.add_task("bake", total=total, rate="")
         rate = done / max(time.perf_counter() - self.start, 1e-9)
-        self.progress.update(self.task, completed=done, total=total, rate=f"{rate:.1f} probes/s")
+        self.progress.update(self.task, completed=done, total=total, rate=f"{rate:.3g} probes/s")
 
 
 def _scheduler_address(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:  # noqa: ARG001
@@ -174,6 +174,15 @@ def bake(sources: tuple[Path, ...], output: Path | None, recipe: str | None, enc
     try:
         with _Progress(console.is_terminal and not as_json) as progress:
             summary = run_bake(request, executor, progress)
+    except KeyboardInterrupt:  # Ctrl-C: the bake removed what it staged on the way out; say what is left
+        from bakery.pipeline.journal import Journal
+
+        journal = Journal(request.output).directory
+        kept = any(journal.glob("*.pkl")) if journal.is_dir() else False
+        console.print(f"[red]interrupted:[/red] {request.output}: the previous store and layer are unchanged"
+                      + (f"; the finished batches are kept in {journal} and the next bake resumes from them"
+                         if kept else ""))
+        sys.exit(130)
     finally:
         executor.close()
     # ---- recipe `exports` (bakery export after the bake; issue 13) -------------------------------------------
@@ -185,7 +194,9 @@ def bake(sources: tuple[Path, ...], output: Path | None, recipe: str | None, enc
     else:
         console.print(f"{request.output}: {summary.baked} probes baked, {summary.reused} unchanged, "
                       f"{len(summary.failed)} failed in {summary.seconds:.1f} s "
-                      f"({summary.probes_per_second:.1f} probes/s, {summary.workers} {summary.executor} workers)"
+                      f"({summary.probes_per_second:.3g} probes/s; {summary.workers} workers, {summary.executor})"
+                      + (f"; {summary.resumed_batches} batches resumed from checkpoints" if summary.resumed_batches
+                         else "")
                       + (f"; layer {summary.layer}" if summary.layer else ""))
         for name, message in summary.failed.items():
             console.print(f"[red]failed[/red] {name}: {message}")

@@ -23,6 +23,7 @@ from __future__ import annotations
 import importlib
 import multiprocessing
 import os
+import signal
 import socket
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
@@ -83,6 +84,9 @@ def _single_threaded_children() -> Iterator[None]:
 
 def _worker_init(parent: int | None = None, modules: tuple[str, ...] = ()) -> None:
     watch_parent(parent, death_signal=True)
+    # Ctrl-C reaches the whole process group: the parent stops the bake and its workers; a worker interrupted
+    # mid-batch would only print a traceback of its own.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     for module in modules:  # e.g. the source's (USD, Embree): imported before the first batch arrives
         try:
             importlib.import_module(module)

@@ -258,7 +258,7 @@ class ShardSummary:
         rays = self.timings.get("rays_per_second", 0.0)
         where = f"shard {self.shard} " if self.shard else ""
         return (f"{where}probes {self.range} of {self.work_probes} (plan {self.plan_id}): {self.baked} baked, "
-                f"{len(self.failed)} failed in {self.seconds:.1f} s ({self.probes_per_second:.1f} probes/s"
+                f"{len(self.failed)} failed in {self.seconds:.1f} s ({self.probes_per_second:.3g} probes/s"
                 + (f", {rays / 1e6:.2f} M rays/s" if rays else "") + ")"
                 + ("; already complete" if self.already_complete else "")
                 + (f"; {self.recomputed_outside_range} probes of cut batches recomputed"

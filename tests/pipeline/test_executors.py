@@ -29,6 +29,27 @@ def test_workers_start_single_threaded_and_the_parent_environment_is_restored(mo
     assert os.environ["MKL_NUM_THREADS"] == "3"
 
 
+
+def _interrupt_handler_of_worker() -> str:
+    import signal
+
+    return repr(signal.getsignal(signal.SIGINT))
+
+
+def test_workers_ignore_ctrl_c_the_parent_stops_them():
+    """Ctrl-C reaches the whole process group; a worker must not die of it mid-batch with a traceback of its own —
+    the parent stops the bake and its workers (tests/faults: ``test_ctrl_c_stops_the_bake…``)."""
+    import signal
+
+    executor = ProcessExecutor(1)
+    pool = executor._new_pool()
+    try:
+        handler = pool.submit(_interrupt_handler_of_worker).result(timeout=120)
+    finally:
+        pool.shutdown()
+    assert handler == repr(signal.SIG_IGN)
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the parent's own is untouched
+
 def test_longest_first_order_does_not_change_the_store(tmp_path, monkeypatch):
     """A scene with cheap irradiance and expensive reflection probes: the reflection batches are submitted first,
     and the store is byte-identical to the serial bake's."""
