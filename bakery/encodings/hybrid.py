@@ -26,7 +26,8 @@ Parameters (besides every ``shexp_lights`` parameter)
     oversampling     float         chain face size / kernel order (≥ 0.5, default 1.25)
     keep_capture     bool          store ``level0`` (α = 0: the capture) for every probe, also where ``first_level``
                                    > 0, so that cube-map exports (``bakery export``) can re-prefilter it; store size
-                                   only — engines still upload levels ≥ ``first_level`` (default false: zero-filled)
+                                   only — engines still upload levels ≥ ``first_level`` and the layer omits the others
+                                   (default true: a default bake can be exported; false zero-fills level0 there)
 
 Layout and runtime (HLSL) in ``schemas/store-reflection.md``; ``bytes_per_probe`` counts every level (what the store
 holds per probe, the upload of a probe that needs the whole chain); :meth:`SHExpHybrid.upload_bytes` is what an
@@ -78,7 +79,7 @@ class SHExpHybrid(SHExpLights):
         blend_octaves: float = 1.5
         band_energy: float = 1e-2
         oversampling: float = 1.25
-        keep_capture: bool = False
+        keep_capture: bool = True
 
         def normalize(self):
             # No SH-exp fit floor here: alpha_min is the probe's true smallest α (the chain goes down to it).
@@ -158,11 +159,13 @@ class SHExpHybrid(SHExpLights):
         levels = tuple(
             FieldSpec(f"level{k}", (6, size, size, 3), "float16",
                       f"prefiltered radiance, GGX alpha = {a:.6g}, cube faces +X,-X,+Y,-Y,+Z,-Z, rows top-down, RGB "
-                      "last; zero (not uploaded) below first_level")
+                      "last; " + ("not uploaded below first_level, where it holds the capture if keep_capture "
+                                  "(default) and zero otherwise" if k == 0 else "zero (not uploaded) below first_level"))
             for k, (a, size) in enumerate(self.chain.levels()))
         return super().field_specs() + levels + (
             FieldSpec("first_level", (1,), "int32",
-                      "sharpest chain level the probe needs (levels below are zero); n_levels = SH exponential only"),)
+                      "sharpest chain level the probe needs (levels below are not uploaded: zero, but level0 holds the "
+                      "capture with keep_capture); n_levels = SH exponential only"),)
 
     @classmethod
     def layer_fields(cls, fields: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -176,6 +179,7 @@ class SHExpHybrid(SHExpLights):
     def captures_kept(cls, fields: dict[str, np.ndarray], settings: dict[str, Any]) -> np.ndarray:
         """Level 0 holds the capture where ``first_level`` is 0, or everywhere with ``keep_capture``."""
         first = np.asarray(fields["first_level"]).reshape(-1)
+        # A store records every setting; one baked before the setting existed kept no capture.
         return np.ones(first.shape, dtype=bool) if settings.get("keep_capture", False) else first == 0
 
     def upload_bytes(self, fields) -> np.ndarray:

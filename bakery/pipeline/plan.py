@@ -5,7 +5,7 @@ Content hash (incremental bakes)
     A probe's hash covers everything its result depends on: the probe's identity, kinds, position and per-probe
     settings; its source kind, its typed capture spec and the content hashes of what the capture reads (e.g. the
     image bytes, or the hash of the scene parts that can affect it); the bake settings and the encodings selected for
-    it with their versions; bakery's version (the code). Equal hash ⇒ the stored result is reused without
+    it with their versions and resolved parameters (defaults included); bakery's version (the code). Equal hash ⇒ the stored result is reused without
     re-baking.
 
 Batches
@@ -17,13 +17,14 @@ Batches
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 from bakery.encodings import get_encoding
 from bakery.files import stable_hash
 from bakery.pipeline.dilate import hashed_settings
-from bakery.pipeline.settings import BakeSettings, default_encodings
+from bakery.pipeline.settings import BakeSettings, default_encodings, encoding_params
 from bakery.probe import Probe
 from bakery.sources.base import PlannedProbe, SourceHandle, SourcePlan
 
@@ -81,10 +82,13 @@ def encodings_for(probe: Probe, settings: BakeSettings) -> tuple[str, ...]:
     return tuple(n for n in requested if get_encoding(n).kind in probe.kinds)
 
 
-def probe_content_hash(source_kind: str, planned: PlannedProbe, encodings: tuple[str, ...], settings_hash: str) -> str:
-    """The content hash of the module docstring."""
+def probe_content_hash(source_kind: str, planned: PlannedProbe, encodings: tuple[str, ...], settings_hash: str,
+                       params: Mapping[str, Any] | None = None) -> str:
+    """The content hash of the module docstring; ``params``: the bake's resolved ``Params`` (or their hash) per
+    encoding name — defaults included, so that a changed default re-bakes the probes of its encoding even at the
+    same version."""
     probe = planned.probe
-    versions = sorted((name, get_encoding(name).version) for name in encodings)  # a new encoding version re-bakes
+    versions = sorted((name, get_encoding(name).version, (params or {}).get(name)) for name in encodings)
     return stable_hash(probe.name, probe.kinds, probe.position, hashed_settings(probe.settings), source_kind,
                        planned.capture, planned.inputs, versions, settings_hash)
 
@@ -117,14 +121,18 @@ def plan_tasks(source_kind: str, source_plan: SourcePlan, settings: BakeSettings
         duplicated = sorted({n for n in names if names.count(n) > 1})
         raise ConfigError(f"probe names must be unique; repeated: {', '.join(duplicated[:5])}")
     settings_hash = settings.hash()
+    params: dict[str, Any] = {}  # resolved once per encoding (per-probe overrides are in the probe's settings)
     for planned in source_plan.probes:
         encodings = encodings_for(planned.probe, settings)
         if not encodings:
             skipped.append({"probe": planned.probe.name,
                             "reason": f"no requested encoding applies to kinds {planned.probe.kinds}"})
             continue
+        for name in encodings:
+            if name not in params:  # hashed once: thousands of probes share it
+                params[name] = stable_hash(encoding_params(name, settings))
         tasks.append(ProbeTask(planned.probe, planned.capture, encodings,
-                               probe_content_hash(source_kind, planned, encodings, settings_hash)))
+                               probe_content_hash(source_kind, planned, encodings, settings_hash, params)))
     reused: list[str] = []
     if previous is not None and previous.probe_hashes is not None:
         old = dict(zip(previous.probe_names, previous.probe_hashes))

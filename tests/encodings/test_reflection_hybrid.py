@@ -114,8 +114,13 @@ def test_layout_memory_and_first_level(hybrid):
     rough = SHExpHybrid(face_size=FACE, alpha_min=0.9, **FAST)
     assert rough.first_level == rough.chain.n_levels and rough.model.alpha_min == 0.9
     encoded = rough.encode(ProbeBatch(_cubes()))
-    assert all(not np.any(encoded[f"level{k}"]) for k in range(rough.chain.n_levels))
+    # level 0 keeps the capture for exports (keep_capture, the default); every other level is zero, and none is
+    # uploaded
+    np.testing.assert_array_equal(encoded["level0"], _cubes().astype(np.float16))
+    assert all(not np.any(encoded[f"level{k}"]) for k in range(1, rough.chain.n_levels))
     assert rough.upload_bytes(encoded)[0] == SHExpLights().bytes_per_probe() + 4
+    unkept = SHExpHybrid(face_size=FACE, alpha_min=0.9, keep_capture=False, **FAST).encode(ProbeBatch(_cubes()))
+    assert all(not np.any(unkept[f"level{k}"]) for k in range(rough.chain.n_levels))
 
 
 def test_rough_only_probe_is_the_sh_exponential_with_lights():
@@ -194,7 +199,8 @@ def test_evaluation_below_the_stored_range_clamps():
     glossy = SHExpHybrid(face_size=FACE, alpha_min=0.2, **FAST)
     fields = glossy.encode(ProbeBatch(cubes))
     k0 = glossy.first_level
-    assert np.all(fields["first_level"] == k0) and not np.any(fields["level0"])
+    # level 0 holds the capture (kept for exports), but below first_level nothing is read: engines never upload it
+    assert np.all(fields["first_level"] == k0) and k0 > 0 and np.any(fields["level0"])
     d = fibonacci_directions(64)
     sharp = glossy.evaluate_parts(fields, {}, d, d, np.zeros(len(d)), np.ones(len(d)))["chain"]
     at_level = glossy.evaluate_parts(fields, {}, d, d, np.full(len(d), glossy.chain.level_alphas()[k0]),
@@ -204,7 +210,7 @@ def test_evaluation_below_the_stored_range_clamps():
     dfg = glossy.shared_tables()["dfg"]
     ratio = (lookup_table(dfg, np.ones(1), np.zeros(1)).sum() /
              lookup_table(dfg, np.ones(1), np.full(1, glossy.chain.level_alphas()[k0])).sum())
-    np.testing.assert_allclose(sharp, at_level * ratio, rtol=1e-6)  # the sharpest stored level, not level 0's zeros
+    np.testing.assert_allclose(sharp, at_level * ratio, rtol=1e-6)  # the sharpest uploaded level, not level 0
 
 
 def test_shexp_is_never_evaluated_outside_its_fitted_range():

@@ -1,7 +1,8 @@
-"""Exports of a store whose reflection encoding is the hybrid (the console/pc-high default): the hybrid keeps the
-capture (its α = 0 ``level0``) only for probes that need the mirror level, so a probe with ``first_level`` > 0 is
-refused with a one-line error (its cube maps would be black) unless the bake kept the capture (``keep_capture``);
-then the exported base level is the capture, the same as the split-sum chain's level 0 of the same bake."""
+"""Exports of a store whose reflection encoding is the hybrid (the console/pc-high default): by default the hybrid
+keeps the capture (its α = 0 ``level0``) for every probe (``keep_capture``), and the exported base level is the
+capture, the same as the split-sum chain's level 0 of the same bake. Baked with ``keep_capture = false`` it keeps it
+only for probes that need the mirror level, so a probe with ``first_level`` > 0 is refused with a one-line error
+(its cube maps would be black)."""
 
 from __future__ import annotations
 
@@ -26,9 +27,9 @@ INDOOR = ROOT / "examples" / "indoor" / "indoor.usda"
 def hybrid_stores(tmp_path_factory) -> dict[str, Path]:
     d = tmp_path_factory.mktemp("hybrid_export")
     common = dict(face_size=32, samples=1, bounces=1, jobs=1)  # at 32² the table probe skips levels (α ≥ 0.16)
-    bakery.bake(INDOOR, d / "plain.h5", encodings=("sh3", "shexp_hybrid"), **common)
-    bakery.bake(INDOOR, d / "kept.h5", encodings=("sh3", "shexp_hybrid", "splitsum"),
-                encoding_settings={"shexp_hybrid": {"keep_capture": True}}, **common)
+    bakery.bake(INDOOR, d / "plain.h5", encodings=("sh3", "shexp_hybrid"),
+                encoding_settings={"shexp_hybrid": {"keep_capture": False}}, **common)
+    bakery.bake(INDOOR, d / "kept.h5", encodings=("sh3", "shexp_hybrid", "splitsum"), **common)  # the default
     return {"plain": d / "plain.h5", "kept": d / "kept.h5"}
 
 
@@ -51,7 +52,7 @@ def test_a_probe_without_its_capture_is_refused_and_nothing_is_written(hybrid_st
     assert not (tmp_path / "k").exists() and not (tmp_path / "cli").exists()
 
 
-def test_keep_capture_stores_the_capture_and_the_export_uses_it(hybrid_stores, tmp_path):
+def test_a_default_bake_keeps_the_capture_and_the_export_uses_it(hybrid_stores, tmp_path):
     store = bakery.open_store(hybrid_stores["kept"])
     rough = _rough_probes(store)
     assert rough

@@ -287,3 +287,32 @@ def test_inspect_selects_probes_by_path_and_region(tmp_path, environments):
     assert len(inside) == 6  # distant probes sit at the origin
     outside = json.loads(bakery_cli("inspect", store, "--region=1,1,1,2,2,2", "--json").stdout)
     assert outside == []
+
+
+def test_a_changed_encoding_default_re_bakes_only_that_encodings_probes(tmp_path, monkeypatch):
+    """A stored result is reused only under the parameters it was baked with, defaults included: changing the
+    hybrid's default ``keep_capture`` (same bakery version, same settings file) re-bakes the reflection probe and
+    no irradiance probe — before, the store kept its zero-filled ``level0`` while recording the new setting, and an
+    export of it would have been black."""
+    import dataclasses
+
+    import numpy as np
+
+    import bakery
+    from pathlib import Path
+
+    from bakery.encodings import get_encoding
+
+    scene = Path(__file__).resolve().parents[2] / "examples" / "indoor" / "indoor.usda"
+    store = tmp_path / "s.h5"
+    common = dict(encodings=("sh2", "shexp_hybrid"), face_size=16, samples=1, bounces=1, jobs=1)
+    hybrid = get_encoding("shexp_hybrid")
+    monkeypatch.setattr(hybrid, "Params", dataclasses.make_dataclass(
+        "Params", [("keep_capture", bool, dataclasses.field(default=False))], bases=(hybrid.Params,), frozen=True))
+    first = bakery.bake(scene, store, **common)
+    level0 = bakery.open_store(store).fields("shexp_hybrid")["level0"]
+    assert first.baked > 1 and not np.any(level0)  # the table probe sees only rough materials: no capture kept
+    monkeypatch.undo()  # the shipped default: keep_capture = True
+    second = bakery.bake(scene, store, **common)
+    assert second.baked == 1 and second.reused == first.baked - 1
+    assert np.abs(bakery.open_store(store).fields("shexp_hybrid")["level0"]).max() > 0
