@@ -194,7 +194,8 @@ def bake(sources: tuple[Path, ...], output: Path | None, recipe: str | None, enc
     else:
         console.print(f"{request.output}: {summary.baked} probes baked, {summary.reused} unchanged, "
                       f"{len(summary.failed)} failed in {summary.seconds:.1f} s "
-                      f"({summary.probes_per_second:.3g} probes/s; {summary.workers} workers, {summary.executor})"
+                      f"({summary.probes_per_second:.3g} probes/s; {summary.workers} "
+                      f"worker{'s' if summary.workers != 1 else ''}, {summary.executor})"
                       + (f"; {summary.resumed_batches} batches resumed from checkpoints" if summary.resumed_batches
                          else "")
                       + (f"; layer {summary.layer}" if summary.layer else ""))
