@@ -21,10 +21,12 @@ only the parent (even with SIGKILL) leaves no worker running. A scheduler that c
 from __future__ import annotations
 
 import importlib
+import logging
 import multiprocessing
 import os
 import signal
 import socket
+import threading
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -80,6 +82,21 @@ def _single_threaded_children() -> Iterator[None]:
                 os.environ.pop(key, None)
             else:
                 os.environ[key] = value
+
+
+@contextmanager
+def _children_ignore_interrupt() -> Iterator[None]:
+    """SIGINT ignored while child processes are started (they inherit it through fork and exec, and Python and
+    asyncio keep an ignored SIGINT ignored): Ctrl-C reaches the whole process group, and only this process should
+    act on it. Restored afterwards; a no-op outside the main thread."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _worker_init(parent: int | None = None, modules: tuple[str, ...] = ()) -> None:
@@ -226,9 +243,13 @@ class DaskExecutor:
                 raise SchedulerError(f"cannot connect to the Dask scheduler at {scheduler}: "
                                      f"{_reason(error)}") from None
         else:
-            self._cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
-                                         processes=True, dashboard_address=None,
-                                         env={PARENT_ENVIRONMENT: parent_token()})
+            with _children_ignore_interrupt():  # the nannies and their workers inherit SIGINT ignored (Ctrl-C)
+                # silence_logs: Dask's warnings (tasks lost or cancelled when a Ctrl-C or an error drops the
+                # unfinished batches on purpose, workers killed on the way out) say nothing to a bake's user;
+                # errors still show.
+                self._cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
+                                             processes=True, dashboard_address=None, silence_logs=logging.ERROR,
+                                             env={PARENT_ENVIRONMENT: parent_token()})
             self._client = Client(self._cluster)
         self.workers = len(self._client.scheduler_info().get("workers", {})) or (workers or 1)
 
