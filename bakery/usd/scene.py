@@ -371,11 +371,20 @@ class SceneReader:
                 return
         kind = "irradiance" if type_name == "BakeryIrradianceProbe" else "reflection"
         scale = float(np.cbrt(abs(np.linalg.det(matrix[:3, :3])))) * self.frame.mpu
-        influence: dict = {"radius_m": float(self._attr(prim, "bakery:influence:radius")) * scale}
+        sizes = {"bakery:influence:radius": [float(self._attr(prim, "bakery:influence:radius"))]}
+        if kind == "reflection":
+            sizes["bakery:influence:extent"] = [float(x) for x in self._attr(prim, "bakery:influence:extent")]
+            sizes["bakery:influence:blendDistance"] = [float(self._attr(prim, "bakery:influence:blendDistance"))]
+        for name, values in sizes.items():  # a negative or NaN size would silently select no material
+            if not all(np.isfinite(v) and v >= 0.0 for v in values):
+                shown = values[0] if len(values) == 1 else values
+                self.issue("error", prim, f"{name} must be finite and >= 0, got {shown}")
+                return
+        influence: dict = {"radius_m": sizes["bakery:influence:radius"][0] * scale}
         if kind == "reflection":
             influence["shape"] = str(self._attr(prim, "bakery:influence:shape"))
-            influence["extent_m"] = [float(x) * scale for x in self._attr(prim, "bakery:influence:extent")]
-            influence["blend_distance_m"] = float(self._attr(prim, "bakery:influence:blendDistance")) * scale
+            influence["extent_m"] = [x * scale for x in sizes["bakery:influence:extent"]]
+            influence["blend_distance_m"] = sizes["bakery:influence:blendDistance"][0] * scale
             if influence["shape"] not in ("sphere", "box"):
                 self.issue("error", prim, f"bakery:influence:shape {influence['shape']!r} is not sphere or box")
                 return

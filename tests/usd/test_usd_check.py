@@ -73,6 +73,15 @@ def Material "Mx"
         header() + probe("P", body='uniform token[] bakery:encodings = ["sh99"]'),
         "error", "/P", "unknown encoding",
     ),
+    "negative_influence_radius": (  # would silently select no material: a sharp mirror baked as rough
+        header() + probe("P", type_name="BakeryReflectionProbe", body="float bakery:influence:radius = -3"),
+        "error", "/P", "bakery:influence:radius must be finite and >= 0",
+    ),
+    "nan_influence_extent": (
+        header() + probe("P", type_name="BakeryReflectionProbe",
+                         body="float3 bakery:influence:extent = (1, nan, 1)"),
+        "error", "/P", "bakery:influence:extent must be finite and >= 0",
+    ),
     "bad_influence_shape": (
         header() + probe("P", type_name="BakeryReflectionProbe",
                          body='uniform token bakery:influence:shape = "cone"'),
