@@ -264,15 +264,16 @@ def write_files(folder: Path, files: Iterable[ExportedFile], record: dict[str, A
     manifest = _read_manifest(folder)
     created: list[Path] = []
     written: list[WrittenFile] = []
-    seen: set[str] = {MANIFEST}
+    seen: dict[str, tuple[str, ...]] = {MANIFEST: ()}  # file → the probes it holds
     foreign: list[str] = []
     try:
         with ExitStack() as stack:  # leaving it renames every staged file; an error removes them instead
             for f in files:
                 if f.path in seen:
-                    raise InputError("export produced duplicate file names (probe names that differ only in "
-                                     "punctuation?)")
-                seen.add(f.path)
+                    probes = ", ".join(dict.fromkeys([*seen[f.path], *f.probes])) or "bakery's manifest"
+                    raise InputError(f"{folder / f.path}: two exported files have this name ({probes}: probe names "
+                                     f"that differ only in punctuation?); export them to separate folders with --probes")
+                seen[f.path] = tuple(f.probes)
                 reason = _foreign(folder, f, manifest)
                 if reason:
                     foreign.append(reason)

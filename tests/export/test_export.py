@@ -372,3 +372,21 @@ def test_streamed_chains_equal_one_probe_at_a_time_whatever_the_chunk(stores, mo
             np.testing.assert_array_equal(got[p][1], caps[p])
             for level, want in zip(got[p][0], expected[p], strict=True):
                 np.testing.assert_array_equal(level, want)
+
+
+def test_probe_names_that_differ_only_in_punctuation_are_refused_by_name(tmp_path):
+    """``/environment/sky a`` and ``/environment/sky_a`` both become ``environment_sky_a.ktx2``: the export refuses
+    with both probe names and the file (exit 2 on the CLI), and writes nothing — it never lets one overwrite the
+    other."""
+    from conftest import sun_sky
+
+    sun_sky(tmp_path / "sky a.exr")
+    sun_sky(tmp_path / "sky_a.exr", sun=2000.0)
+    store = tmp_path / "s.h5"
+    bakery.bake([tmp_path / "sky a.exr", tmp_path / "sky_a.exr"], store, encodings=("sh3", "splitsum"), face_size=16)
+    with pytest.raises(InputError, match=r"environment_sky_a\.ktx2: two exported files have this name "
+                                         r"\(/environment/sky a, /environment/sky_a"):
+        export_store(store, tmp_path / "out", "ktx2")
+    assert not (tmp_path / "out").exists()
+    one = export_store(store, tmp_path / "one", "ktx2", probes="/environment/sky_a")
+    assert one.files == ["environment_sky_a.ktx2"]
