@@ -272,7 +272,8 @@ def write_files(folder: Path, files: Iterable[ExportedFile], record: dict[str, A
                 if f.path in seen:
                     probes = ", ".join(dict.fromkeys([*seen[f.path], *f.probes])) or "bakery's manifest"
                     raise InputError(f"{folder / f.path}: two exported files have this name ({probes}: probe names "
-                                     f"that differ only in punctuation?); export them to separate folders with --probes")
+                                     f"that differ only in punctuation?); export them to separate folders with "
+                                     f"--probes")
                 seen[f.path] = tuple(f.probes)
                 reason = _foreign(folder, f, manifest)
                 if reason:

@@ -5,8 +5,8 @@ Content hash (incremental bakes)
     A probe's hash covers everything its result depends on: the probe's identity, kinds, position and per-probe
     settings; its source kind, its typed capture spec and the content hashes of what the capture reads (e.g. the
     image bytes, or the hash of the scene parts that can affect it); the bake settings and the encodings selected for
-    it with their versions and resolved parameters (defaults included); bakery's version (the code). Equal hash ⇒ the stored result is reused without
-    re-baking.
+    it with their versions and resolved parameters (defaults included); bakery's version (the code). Equal hash ⇒
+    the stored result is reused without re-baking.
 
 Batches
     Probes with the same encodings and the same per-probe encoding overrides are batched together in plan order, at
