@@ -192,7 +192,8 @@ def bake(sources: tuple[Path, ...], output: Path | None, recipe: str | None, enc
     if as_json:
         out.print_json(json.dumps(summary.as_dict(), default=str))
     else:
-        console.print(f"{request.output}: {summary.baked} probes baked, {summary.reused} unchanged, "
+        console.print(f"{request.output}: {summary.baked} probe{'s' if summary.baked != 1 else ''} baked, "
+                      f"{summary.reused} unchanged, "
                       f"{len(summary.failed)} failed in {summary.seconds:.1f} s "
                       f"({summary.probes_per_second:.3g} probes/s; {summary.workers} "
                       f"worker{'s' if summary.workers != 1 else ''}, {summary.executor})"
