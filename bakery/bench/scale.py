@@ -171,8 +171,7 @@ class _MemorySampler:
         """One look at this process and its children; whether the store's writer is running."""
         from bakery.pipeline.background import children_known
 
-        if not self._parent_mark:
-            self.peak_parent = max(self.peak_parent, self.parent.memory_info().rss)
+        self._parent_peak()
         with children_known() as writers:
             children = self.parent.children(recursive=True)
         current = []
@@ -211,10 +210,11 @@ class _MemorySampler:
     def __exit__(self, *exc: object) -> None:
         self._stop.set()
         self._thread.join()
-        if self._parent_mark:
-            self.peak_parent = max(self.peak_parent, _status_kib("self", "VmHWM")[0] * 1024)
-        else:
-            self.peak_parent = max(self.peak_parent, self.parent.memory_info().rss)
+        self._parent_peak()
+
+    def _parent_peak(self) -> None:
+        marks = _status_kib("self", "VmHWM") if self._parent_mark else None
+        self.peak_parent = max(self.peak_parent, marks[0] * 1024 if marks else self.parent.memory_info().rss)
 
     def as_dict(self) -> dict[str, float]:
         return {"peak_parent_mb": self.peak_parent / 2**20, "peak_worker_mb": self.peak_worker / 2**20,
@@ -295,8 +295,8 @@ def run_scale_bench(out_dir: Path, volume_counts=(25, 16, 25), reflection: int =
             with _MemorySampler() as memory:
                 start = time.perf_counter()
                 result = export_store(store, out_dir / "exports" / fmt, fmt)
-                exported[fmt] = {"seconds": time.perf_counter() - start, "files": len(result.files),
-                                 "peak_mb": memory.peak_parent / 2**20}
+                seconds = time.perf_counter() - start
+            exported[fmt] = {"seconds": seconds, "files": len(result.files), "peak_mb": memory.peak_parent / 2**20}
     probes = volume_counts[0] * volume_counts[1] * volume_counts[2] + reflection
     result = {"probes": probes, "irradiance_probes": probes - reflection, "reflection_probes": reflection,
               "recipe": recipe, "face_size": face_size, "reflection_resolution": reflection_resolution or face_size,

@@ -74,3 +74,12 @@ def test_memory_sampler_peaks_are_high_water_marks_not_samples():
         child.join(30)
     peaks = memory.as_dict()
     assert peaks["peak_parent_mb"] >= 300 and peaks["peak_worker_mb"] >= 300
+
+
+def test_an_exports_peak_memory_is_measured(tmp_path):
+    """The export's ``peak_mb`` is this process's high-water mark over the export, read once the sampler stops
+    (read inside its block it was 0 with the kernel's marks); at least the size of the export's result in memory."""
+    result = run_scale_bench(tmp_path, volume_counts=(1, 1, 1), reflection=1, recipe="console", face_size=8,
+                             jobs=(1,), exports=("ktx2",))
+    ktx2 = result["exports"]["ktx2"]
+    assert ktx2["files"] == 1 and ktx2["peak_mb"] > 10  # an interpreter with numpy, USD and h5py loaded
