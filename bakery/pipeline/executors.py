@@ -244,11 +244,12 @@ class DaskExecutor:
                                      f"{_reason(error)}") from None
         else:
             with _children_ignore_interrupt():  # the nannies and their workers inherit SIGINT ignored (Ctrl-C)
-                # silence_logs: Dask's warnings (tasks lost or cancelled when a Ctrl-C or an error drops the
-                # unfinished batches on purpose, workers killed on the way out) say nothing to a bake's user;
-                # errors still show.
+                # silence_logs: what Dask logs about its own cluster (tasks lost or cancelled when a Ctrl-C or an
+                # error drops the unfinished batches on purpose, a worker's heartbeat failing as the scheduler
+                # closes, workers killed on the way out) says nothing to a bake's user; a batch that fails comes
+                # back through its future and is reported by the bake itself.
                 self._cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
-                                             processes=True, dashboard_address=None, silence_logs=logging.ERROR,
+                                             processes=True, dashboard_address=None, silence_logs=logging.CRITICAL,
                                              env={PARENT_ENVIRONMENT: parent_token()})
             self._client = Client(self._cluster)
         self.workers = len(self._client.scheduler_info().get("workers", {})) or (workers or 1)

@@ -33,7 +33,8 @@ def test_second_bake_of_the_same_store_is_refused(tmp_path, slow):
     store = tmp_path / "s.h5"
     first = popen("bake", *images, "-o", store, "--recipe", recipe, "-j", "1")
     try:
-        assert wait_for(lambda: (tmp_path / "s.h5.lock").exists() or first.poll() is not None)
+        lock = tmp_path / "s.h5.lock"  # held and filled in (the holder writes its pid just after locking)
+        assert wait_for(lambda: (lock.exists() and "pid" in lock.read_text()) or first.poll() is not None)
         first.send_signal(signal.SIGSTOP)  # frozen while it holds the lock: the race is decided, not timed
         assert first.poll() is None, "the first bake finished before it could be paused"
         second = cli("bake", images[0], "-o", store, "-e", "zh3", "--face-size", "4")

@@ -189,7 +189,7 @@ def test_ctrl_c_stops_the_bake_and_its_workers_in_one_line_and_the_next_bake_res
     line (no worker traceback), the previous outputs are untouched, no worker is left, and the next bake resumes
     from the kept checkpoints and writes what a clean bake writes."""
     flags = list(FLAGS)
-    flags[flags.index("--samples") + 1] = "128"  # batches of about a second: Ctrl-C lands mid-bake
+    flags[flags.index("--samples") + 1] = "512"  # seconds of batches after the first checkpoint
     reference = scenes / "clean-ctrl-c"  # beside the others: the layer names the scene by a relative path
     if not reference.is_dir():
         reference.mkdir()
