@@ -128,7 +128,11 @@ def _status_kib(pid: int | str, *keys: str) -> tuple[int, ...] | None:
         lines = Path(f"/proc/{pid}/status").read_text().splitlines()
     except OSError:
         return None
-    found = {line.split(":", 1)[0]: line.split()[1] for line in lines if line.split(":", 1)[0] in keys}
+    found = {}
+    for line in lines:
+        name, _, value = line.partition(":")
+        if name in keys:
+            found[name] = value.split()[0]
     if len(found) != len(keys):
         return None
     return tuple(int(found[k]) for k in keys)
@@ -174,10 +178,11 @@ class _MemorySampler:
         self._parent_peak()
         with children_known() as writers:
             children = self.parent.children(recursive=True)
-        current = []
+        current, writing = [], False
         for child in children:
             try:
                 if child.pid in writers:
+                    writing = True
                     self.peak_writer = max(self.peak_writer, child.memory_full_info().uss)
                 elif child.pid not in self._before:
                     peak, now = self._peak_and_current(child)
@@ -187,7 +192,7 @@ class _MemorySampler:
                 pass
         if current:
             self.peak_workers_total = max(self.peak_workers_total, sum(current))
-        return any(child.pid in writers for child in children)
+        return writing
 
     def _sample(self) -> None:
         while not self._stop.is_set():
