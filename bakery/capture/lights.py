@@ -30,6 +30,7 @@ Shaping (UsdLuxShapingAPI, as HdEmbree evaluates it)
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -38,8 +39,10 @@ import numpy as np
 
 from bakery.capture import vec
 from bakery.capture.ies import evaluate_ies
+from bakery.capture.light_tree import CULLED_SHAPES, LightBound, LightBVH
 from bakery.capture.scene import FAR, Light
 from bakery.capture.vec import TINY, dot, dotc
+from bakery.conventions import LUMINANCE_WEIGHTS
 
 #: Relative shortening of shadow segments so the sampled light point itself does not occlude.
 SHADOW_EPSILON = 1e-4
@@ -219,6 +222,15 @@ class LightModel:
         return tuple(float(c) for c in self.centre), float(self.bounding_radius), float(
             np.max(self.colour) * self.light.area)
 
+    # -- many lights ----------------------------------------------------------------------------------------------
+    def tree_bound(self) -> LightBound:
+        """The light for the light BVH (:mod:`bakery.capture.light_tree`): its bounding sphere's box, its power
+        (luminance of the radiance × area; shaping, IES and textures only ever lower it) and, by default, emission
+        in every direction."""
+        r, c = self.bounding_radius, self.centre
+        power = float(np.dot(LUMINANCE_WEIGHTS, np.maximum(self.colour, 0.0))) * self.light.area
+        return LightBound(tuple(c - r), tuple(c + r), power)
+
 
 def _soa(a: np.ndarray) -> np.ndarray:
     """(M, k) → (k, M) float64 (the (M, 3) wrappers compute in float64)."""
@@ -323,6 +335,47 @@ class DistantLightModel(LightModel):
         return (0.0, 0.0, 0.0), math.inf, float(np.max(self.illuminance))
 
 
+def _sphere_cone(points: np.ndarray, centre: np.ndarray, r: np.ndarray | float):  # noqa: ANN202
+    """Points (3, M), sphere centres (3, 1 | M) and radii (scalar or (M,)) → (vector to the centre (3, M), squared
+    distance, outside, 1 − cos θmax)."""
+    to_c = centre - points
+    d2 = dot(to_c, to_c)
+    outside = d2 > (r * r) * (1.0 + 1e-6)
+    sin2 = np.where(outside, (r * r) / np.maximum(d2, TINY), 1).astype(points.dtype, copy=False)
+    cos_max = np.sqrt(np.maximum(0, 1 - sin2))
+    one_minus_cos = sin2 / (1 + cos_max)  # 1 − cos θmax without cancellation
+    return to_c, d2, outside, one_minus_cos
+
+
+def _sample_sphere(points: np.ndarray, centre: np.ndarray, r: np.ndarray | float, u0: np.ndarray, u1: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Uniform in the cone each sphere (centre (3, 1 | M), radius scalar or (M,)) subtends from points (3, M)
+    [pbrt-v4 §12.2.2]: directions (3, M), distances to the sphere (M,), outside (M,) and the pdf (M,)."""
+    to_c, d2, outside, one_minus_cos = _sphere_cone(points, centre, r)
+    axis = to_c / np.sqrt(np.maximum(d2, TINY))
+    wi = vec.cone(axis, one_minus_cos, u0, u1)
+    # nearest root of |p + t·wi − c| = r, in the forms without cancellation: the squared distance of the centre
+    # from the ray, and t = (d² − r²) / (b + √disc)
+    b = dot(wi, to_c)
+    perp = to_c - b * wi
+    disc = np.maximum(0, (r * r) - dot(perp, perp))
+    dist = np.maximum(0, (d2 - r * r) / np.maximum(b + np.sqrt(disc), TINY))
+    pdf = outside / (2.0 * np.pi * np.maximum(one_minus_cos, TINY))
+    return wi, dist, outside, pdf.astype(points.dtype, copy=False)
+
+
+def sample_spheres(models: list[SphereLightModel], which: np.ndarray, points: np.ndarray, u0: np.ndarray,
+                   u1: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:meth:`SphereLightModel.sample_soa` for many plain sphere lights at once: point i (of (3, M)) samples
+    ``models[which[i]]``; the same arithmetic, with per-point centres, radii and radiances."""
+    dtype = points.dtype
+    centres = np.array([m.centre for m in models], dtype=dtype).T.take(which, axis=1)
+    radii = np.array([m.radius for m in models], dtype=dtype).take(which)
+    colours = np.array([m.colour for m in models], dtype=dtype).T.take(which, axis=1)
+    wi, dist, outside, pdf = _sample_sphere(points, centres, radii, u0, u1)
+    return wi, dist, colours * outside.astype(dtype), pdf
+
+
 @register_light
 class SphereLightModel(LightModel):
     kind = "sphere"
@@ -357,31 +410,18 @@ class SphereLightModel(LightModel):
         return self.radius
 
     def _cone(self, points: np.ndarray):  # noqa: ANN202
-        """Points (3, M) → (vector to the centre (3, M), squared distance, outside, 1 − cos θmax)."""
-        r = self.radius
         centre, _ = self._cols(points.dtype)
-        to_c = centre - points
-        d2 = dot(to_c, to_c)
-        outside = d2 > (r * r) * (1.0 + 1e-6)
-        sin2 = np.where(outside, (r * r) / np.maximum(d2, TINY), 1).astype(points.dtype, copy=False)
-        cos_max = np.sqrt(np.maximum(0, 1 - sin2))
-        one_minus_cos = sin2 / (1 + cos_max)  # 1 − cos θmax without cancellation
-        return to_c, d2, outside, one_minus_cos
+        return _sphere_cone(points, centre, self.radius)
+
+    @property
+    def plain(self) -> bool:
+        """Radiance independent of direction (no shaping, no IES profile): :func:`sample_spheres` samples it."""
+        return not self.light.shaping and self.light.ies is None
 
     def sample_soa(self, points, u0, u1):  # noqa: ANN001, ANN201
-        r = self.radius
-        to_c, d2, outside, one_minus_cos = self._cone(points)
-        axis = to_c / np.sqrt(np.maximum(d2, TINY))
-        wi = vec.cone(axis, one_minus_cos, u0, u1)
-        # nearest root of |p + t·wi − c| = r, in the forms without cancellation: the squared distance of the
-        # centre from the ray, and t = (d² − r²) / (b + √disc)
-        b = dot(wi, to_c)
-        perp = to_c - b * wi
-        disc = np.maximum(0, (r * r) - dot(perp, perp))
-        dist = np.maximum(0, (d2 - r * r) / np.maximum(b + np.sqrt(disc), TINY))
-        pdf = outside / (2.0 * np.pi * np.maximum(one_minus_cos, TINY))
-        radiance = self.emitted_soa(wi, None, outside)
-        return wi, dist, radiance, pdf.astype(points.dtype, copy=False)
+        centre, _ = self._cols(points.dtype)
+        wi, dist, outside, pdf = _sample_sphere(points, centre, self.radius, u0, u1)
+        return wi, dist, self.emitted_soa(wi, None, outside), pdf
 
     def pdf_soa(self, points, wi, t):  # noqa: ANN001, ANN201
         _, _, outside, one_minus_cos = self._cone(points)
@@ -408,6 +448,11 @@ class SphereLightModel(LightModel):
 
 
 class _PlanarLight(LightModel):
+    def tree_bound(self) -> LightBound:
+        """One-sided: every emission direction is within 90° of the light's −Z."""
+        bound = super().tree_bound()
+        return dataclasses.replace(bound, axis=tuple(-self.axes[2]), cos_normal=1.0, cos_emission=0.0)
+
     """Rect and disk: a surface in the local XY plane emitting towards local −Z, sampled uniformly by area."""
 
     def _surface_point(self, u0: np.ndarray, u1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -608,6 +653,53 @@ class LightSet:
         self.models = tuple(light_model(light, textures) for light in lights)
         self.surfaces = tuple(m for m in self.models if m.visible and not m.is_global)
         self.distant = tuple(m for m in self.models if isinstance(m, DistantLightModel))
+        #: above CULLED_SHAPES light shapes, a BVH over their culling spheres finds the (ray, light) pairs to test
+        #: (:mod:`bakery.capture.light_tree`); the same pairs pass the spheres, so the results are the same
+        self._shape_bvh = None
+        if len(self.surfaces) > CULLED_SHAPES:
+            boxes = []
+            for model in self.surfaces:
+                r, c = self._cull_radius(model), model.centre
+                boxes.append(LightBound(tuple(c - r), tuple(c + r), 1.0))
+            self._shape_bvh = LightBVH(boxes)
+
+    @staticmethod
+    def _cull_radius(model: LightModel) -> float:
+        return model.bounding_radius * 1.01 + 1e-4
+
+    def _pairs(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray | float,
+               skip: np.ndarray | int | None = None) -> list[tuple[int, np.ndarray]]:
+        """Per light shape k (ascending), the segments (ascending flat indices of ``directions`` (3, ..., M)) that
+        pass its culling sphere — every shape's test over all segments, or the BVH's pairs (above CULLED_SHAPES shapes) (the same segments up to
+        the looser boxes, which the exact tests then reject) — without those whose ``skip`` is k."""
+        shape = directions.shape[1:]
+        m = directions.shape[-1]
+        skip_flat = None if skip is None or np.ndim(skip) == 0 else np.broadcast_to(skip, shape).reshape(-1)
+        out = []
+        if self._shape_bvh is None:
+            for k, model in enumerate(self.surfaces):
+                cand = self._candidates(model, origins, directions, distances)
+                if skip is not None:
+                    cand &= np.asarray(skip) != k
+                idx = np.flatnonzero(cand)
+                if idx.size:
+                    out.append((k, idx))
+            return out
+        d_flat = directions.reshape(3, -1)
+        dist_flat = np.broadcast_to(np.asarray(distances, dtype=np.float64), shape).reshape(-1)
+        broadcast = origins.ndim != directions.ndim
+        seg, light = self._shape_bvh.candidates(
+            origins if broadcast else origins.reshape(3, -1), d_flat, dist_flat,
+            np.arange(d_flat.shape[1]) % m if broadcast else None)
+        if skip is not None:
+            keep = light != (skip_flat[seg] if skip_flat is not None else int(skip))
+            seg, light = seg[keep], light[keep]
+        order = np.argsort(light, kind="stable")  # by light, each light's segments ascending
+        seg, light = seg[order], light[order]
+        starts = np.flatnonzero(np.r_[True, light[1:] != light[:-1]]) if light.size else np.zeros(0, np.int64)
+        for a, b in zip(starts, np.r_[starts[1:], light.size]):
+            out.append((int(light[a]), seg[a:b]))
+        return out
 
     def _candidates(self, model: LightModel, origins: np.ndarray, directions: np.ndarray,
                     distances: np.ndarray | float) -> np.ndarray:
@@ -631,28 +723,31 @@ class LightSet:
         which = np.full(m, -1, dtype=np.int64)
         if not self.surfaces:
             return best, which, None
-        coords = [None] * len(self.surfaces)
-        for k, model in enumerate(self.surfaces):
-            idx = np.flatnonzero(self._candidates(model, origins, directions, FAR))
-            if idx.size == 0:
-                continue
+        coords: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # per textured light: (tested rays, their coords)
+        for k, idx in self._pairs(origins, directions, FAR):
+            model = self.surfaces[k]
             t, c = model.intersect_soa(np.take(origins, idx, axis=1), np.take(directions, idx, axis=1))
             closer = t < best[idx]
             sel = idx[closer]
             best[sel] = t[closer]
             which[sel] = k
             if c is not None:
-                full = np.zeros((2, m), dtype=dtype)
-                full[:, idx] = c
-                coords[k] = full
+                coords[k] = (idx, c)
         radiance = np.zeros((3, m), dtype=dtype)
-        for k, model in enumerate(self.surfaces):
-            sel = np.flatnonzero(which == k)
-            if sel.size:
-                d = np.take(directions, sel, axis=1)
-                facing = self._facing(model, d)
-                c = None if coords[k] is None else np.take(coords[k], sel, axis=1)
-                radiance[:, sel] = model.emitted_soa(d, c, facing)
+        hits = np.flatnonzero(which >= 0)
+        hits = hits[np.argsort(which[hits], kind="stable")]  # grouped by light, ascending within
+        ks = which[hits]
+        starts = np.flatnonzero(np.r_[True, ks[1:] != ks[:-1]]) if hits.size else np.zeros(0, np.int64)
+        for a, b in zip(starts, np.r_[starts[1:], hits.size]):
+            k, sel = int(ks[a]), hits[a:b]
+            model = self.surfaces[k]
+            d = np.take(directions, sel, axis=1)
+            facing = self._facing(model, d)
+            c = None
+            if k in coords:
+                tested, values = coords[k]
+                c = np.take(values, np.searchsorted(tested, sel), axis=1)
+            radiance[:, sel] = model.emitted_soa(d, c, facing)
         return best, which, radiance
 
     def nearest(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -679,14 +774,9 @@ class LightSet:
         m = directions.shape[-1]
         d_flat = directions.reshape(3, -1)
         dist_flat = np.broadcast_to(distances, shape).reshape(-1)
-        for k, model in enumerate(self.surfaces):
+        for k, idx in self._pairs(origins, directions, distances, skip):
+            model = self.surfaces[k]
             if not model.visible:
-                continue
-            cand = self._candidates(model, origins, directions, distances)
-            if skip is not None:
-                cand &= np.asarray(skip) != k
-            idx = np.flatnonzero(cand)
-            if idx.size == 0:
                 continue
             o = np.take(origins.reshape(3, -1) if origins.ndim == directions.ndim else origins,
                         idx if origins.ndim == directions.ndim else idx % m, axis=1)

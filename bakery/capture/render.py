@@ -16,7 +16,8 @@ Probe texels
 
 Surfaces (unidirectional path tracing with multiple importance sampling)
     At every hit: emission of the surface (weighted by the power heuristic against the emissive triangles'
-    next-event pdf, except where a camera ray hits it), next-event estimation of every analytic light
+    next-event pdf, except where a camera ray hits it), next-event estimation of every analytic light (or of
+    lights drawn from a BVH, "Many lights" below)
     (:mod:`bakery.capture.lights`), of the dome's rest and of its sun, and of the emissive triangles
     (:mod:`bakery.capture.emitters`), each with a shadow ray against the triangles and the (opaque) light shapes;
     and a BSDF-sampled continuation ray
@@ -25,6 +26,14 @@ Surfaces (unidirectional path tracing with multiple importance sampling)
     hits a surface continues. ``bounces`` is the largest number of continuations (0: direct light only); after
     bounce :data:`RR_START`, paths are ended by Russian roulette with survival probability min(0.95, max
     throughput) (unbiased), so the default (:data:`DEFAULT_BOUNCES`) converges closed rooms.
+
+Many lights (:mod:`bakery.capture.light_tree`)
+    Above ``ENUMERATED_LIGHTS`` non-distant lights, next-event estimation draws ``LIGHT_SAMPLES`` lights per
+    vertex from a light BVH instead of sampling every light (:meth:`ProbeRenderer._sample_tree`): sample j of light
+    ℓ has pdf K·P(ℓ | x)·pdf_ℓ(ω), which the power heuristic also uses for BSDF rays that reach ℓ's shape
+    (:meth:`ProbeRenderer._tree_pdf`). Distant lights, the dome and the emissive triangles keep their strategies.
+    Every per-strategy property (linking, shadows, multipliers) is a row of one table
+    (:meth:`ProbeRenderer._strategy_tables`), indexed per slot — or per point for the drawn lights.
 
 Noise and adaptive sampling
     Each of the S rays of a texel gives an independent one-ray estimate of the cube; the spread of their luminance
@@ -70,7 +79,10 @@ from bakery.capture.lights import (
     DistantLightModel,
     LightSet,
     RectLightModel,
+    SphereLightModel,
+    sample_spheres,
 )
+from bakery.capture.light_tree import ENUMERATED_LIGHTS, LIGHT_SAMPLES, LightBVH
 from bakery.capture.scene import CaptureScene, Dome, Light
 from bakery.capture.surfaces import BOUNCE_SPREAD, Surfaces
 from bakery.capture.tracer import FAR, SceneTracer
@@ -108,6 +120,24 @@ def probe_seed(name: str, base_seed: int = 0) -> int:
     """Stable 63-bit seed from a probe identity (SHA-256 of the name, mixed with ``base_seed``)."""
     digest = bytes.fromhex(sha256_bytes(f"{base_seed}:{name}".encode())[:16])
     return int.from_bytes(digest, "little") & ((1 << 63) - 1)
+
+
+@dataclass(frozen=True)
+class _StrategyTables:
+    """Next-event strategy properties by row (R = analytic lights, then the dome's rest, its sun, the emissive
+    triangles): ``lobes`` (R, 2) diffuse/specular multipliers, ``shadowless`` (R,), ``nee_only`` (R,) found by
+    next-event estimation alone (no MIS), ``shape`` (R,) index of the light's own shape among the light surfaces
+    (−1: none), and, when any strategy has them, ``links``/``casters`` (R, meshes) bool, ``ranges`` (R, 3) ShadowAPI
+    (d, f, γ) and ``shadow_color`` (R, 3); None otherwise."""
+
+    lobes: np.ndarray
+    shadowless: np.ndarray
+    nee_only: np.ndarray
+    shape: np.ndarray
+    links: np.ndarray | None
+    casters: np.ndarray | None
+    ranges: np.ndarray | None
+    shadow_color: np.ndarray | None
 
 
 @dataclass(frozen=True)
@@ -325,6 +355,23 @@ class ProbeRenderer:
                                or self._dome_shadow_range is not None)
         self._shadow_color = [tuple(map(float, m.light.shadow_color)) if m.light.shadow else (0.0, 0.0, 0.0)
                               for m in self.lights.models]
+        self._tables: _StrategyTables | None = None
+        # many lights (module docstring): above ENUMERATED_LIGHTS non-distant lights they are drawn from a BVH
+        drawn = [j for j, m in enumerate(self.lights.models) if not isinstance(m, DistantLightModel)]
+        self._tree = None
+        self._tree_models = np.zeros(0, dtype=np.int64)  # BVH leaf → index into lights.models
+        self._tree_leaf: dict[int, int] = {}  # index into lights.models → BVH leaf
+        if len(drawn) > ENUMERATED_LIGHTS:
+            self._tree = LightBVH([self.lights.models[j].tree_bound() for j in drawn])
+            self._tree_models = np.array(drawn, dtype=np.int64)
+            self._tree_leaf = {j: leaf for leaf, j in enumerate(drawn)}
+        # the drawn lights sampled together (sample_spheres), and each leaf's index among them (−1: on its own)
+        self._tree_spheres = [self.lights.models[j] for j in self._tree_models
+                              if isinstance(self.lights.models[j], SphereLightModel) and self.lights.models[j].plain]
+        plain = {id(m): k for k, m in enumerate(self._tree_spheres)}
+        self._tree_sphere_of = np.array([plain.get(id(self.lights.models[j]), -1) for j in self._tree_models],
+                                        dtype=np.int64)
+        self._enumerated = [j for j in range(len(self.lights.models)) if j not in self._tree_leaf]
 
     # ------------------------------------------------------------------------------------------------------------
     def prepare(self, face_size: int) -> None:
@@ -713,6 +760,8 @@ class ProbeRenderer:
                     sel = sel[self._light_links[j][mesh[sel]]]
                 if sel.size and not self._nee_only[j]:
                     pdf_l = model.pdf_soa(_take(points, sel), _take(wi, sel), t_l[sel])
+                    if j in self._tree_leaf:  # drawn from the BVH: the density of the K draws
+                        pdf_l = pdf_l * self._tree_pdf(_take(points, sel), j)
                     add(sel, _take(l_l, sel) * power(pdf_b[sel], pdf_l), self._light_lobes[j])
             escaped = escaped & ~on_light
         distant = [(light, self._model_strategy[id(light)]) for light in self.distant if not light.delta]
@@ -752,19 +801,26 @@ class ProbeRenderer:
 
     def _direct(self, points: np.ndarray, bsdf: Bsdf, owners: _Owners, mesh: np.ndarray | None = None
                 ) -> np.ndarray:
-        """Next-event estimates (3, M) of every light, the dome's rest and its sun, and the emissive triangles
-        (MIS-weighted, shadowed); with light linking, ``mesh`` (M,) is each point's mesh, and an emitter not linked
-        to it delivers nothing.
+        """Next-event estimates (3, M) of the analytic lights, the dome's rest and its sun, and the emissive
+        triangles (MIS-weighted, shadowed); with light linking, ``mesh`` (M,) is each point's mesh, and an emitter
+        not linked to it delivers nothing.
 
-        All strategies' samples (J per point) are evaluated as one (3, J, M) batch and their shadow rays traced in
-        one occlusion query."""
+        Strategies (J slots per point): every analytic light, or — above :data:`ENUMERATED_LIGHTS` lights — the
+        distant ones and :data:`LIGHT_SAMPLES` lights drawn from the light BVH per point (module docstring "Many
+        lights"); then the dome's rest, its sun and the emissive triangles. Each slot's rows into the strategy tables
+        (:meth:`_strategy_tables`) are one per slot, or one per point for the drawn lights. All slots' samples are
+        evaluated as one (3, J, M) batch and their shadow rays traced in one occlusion query."""
         m = points.shape[1]
-        wis, dists, radiances, pdfs, can_hit, shapes = [], [], [], [], [], []
-        for j, model in enumerate(self.lights.models):
+        tables = self._strategy_tables()
+        wis, dists, radiances, pdfs, rows = [], [], [], [], []
+        for j in self._enumerated:
             u = owners.random(2)
-            wi, dist, radiance, pdf = model.sample_soa(points, u[0], u[1])
-            wis.append(wi), dists.append(dist), radiances.append(radiance), pdfs.append(pdf)
-            can_hit.append(self._light_can_hit[j]), shapes.append(self._light_shape[j])
+            wi, dist, radiance, pdf = self.lights.models[j].sample_soa(points, u[0], u[1])
+            wis.append(wi), dists.append(dist), radiances.append(radiance), pdfs.append(pdf), rows.append(j)
+        for _ in range(LIGHT_SAMPLES if self._tree is not None else 0):
+            wi, dist, radiance, pdf, row = self._sample_tree(points, owners)
+            wis.append(wi), dists.append(dist), radiances.append(radiance), pdfs.append(pdf), rows.append(row)
+        n_lights = len(self.lights.models)
         if not self.dome.black:
             far = np.full(m, FAR, dtype=REAL)
             u0 = owners.random(dtype=np.float64)  # the texel choice in float64 (the CDF's resolution)
@@ -783,14 +839,13 @@ class ProbeRenderer:
                 pdf = self._dome_pdf(points, wi, pdf)
             else:
                 wi, radiance, pdf = self.dome.sample_rest_soa(u0, u[0], u[1])
-            wis.append(wi), dists.append(far), radiances.append(radiance), pdfs.append(pdf)
-            can_hit.append(True), shapes.append(-1)
+            wis.append(wi), dists.append(far), radiances.append(radiance), pdfs.append(pdf), rows.append(n_lights)
             if self.dome.has_sun:
                 u0 = owners.random(dtype=np.float64)
                 u = owners.random(2)
                 wi, radiance, pdf = self.dome.sample_sun_soa(u0, u[0], u[1])
                 wis.append(wi), dists.append(far), radiances.append(radiance), pdfs.append(pdf)
-                can_hit.append(True), shapes.append(-1)
+                rows.append(n_lights + 1)
         if self.emitters is not None and self.emitters.sampled:  # the emissive triangles, last (capture.emitters)
             u0 = owners.random(dtype=np.float64)
             u = owners.random(3)
@@ -803,60 +858,54 @@ class ProbeRenderer:
                 if self.surfaces.cutout:  # a cut-out or half-present emitter delivers its expected presence
                     radiance[:, sel] *= self.surfaces.presence(prims[sel], b1[sel].astype(np.float64),
                                                                b2[sel].astype(np.float64))
-            wis.append(wi), dists.append(dist), radiances.append(radiance), pdfs.append(pdf)
-            can_hit.append(True), shapes.append(-1)
+            wis.append(wi), dists.append(dist), radiances.append(radiance), pdfs.append(pdf), rows.append(n_lights + 2)
         count = len(wis)
         if count == 0:
             return np.zeros((3, m), dtype=REAL)
         wi = np.stack(wis, axis=1)  # (3, J, M)
         radiance = np.stack(radiances, axis=1)
         pdf = np.stack(pdfs)  # (J, M)
-        # strategies: the analytic lights, the dome's (rest, sun), the emissive triangles (_per_strategy)
+        per_point = any(np.ndim(r) for r in rows)
+        # (J, 1) rows, or (J, M) when drawn lights differ per point: what indexes every strategy table
+        row = np.stack([np.broadcast_to(np.asarray(r, dtype=np.int64), (m,)) for r in rows]) if per_point else \
+            np.asarray(rows, dtype=np.int64)[:, None]
         if self._lobes:  # each strategy's diffuse and specular multipliers weight the lobes apart
             value_d, value_s, pdf_b = bsdf.evaluate_lobes(wi)
-            lobes = np.array(self._per_strategy(self._light_lobes, self._dome_lobes, (1.0, 1.0), count),
-                             dtype=REAL)  # (J, 2)
-            value = value_d * lobes[:, 0, None] + value_s * lobes[:, 1, None]
+            lobes = tables.lobes[row]  # (J, 1 | M, 2)
+            value = value_d * lobes[..., 0] + value_s * lobes[..., 1]
         else:
             value, pdf_b = bsdf.evaluate(wi)
         valid = (pdf > 0) & (vmax(radiance) > 0) & (vmax(value) > 0)
-        if mesh is not None:  # light linking
-            for j, links in enumerate(self._per_strategy(self._light_links, self._dome_links, None, count)):
-                if links is not None:
-                    valid[j] &= links[mesh]
+        if mesh is not None and tables.links is not None:  # light linking
+            valid &= tables.links[row, mesh[None, :]]
         weight = power(pdf, pdf_b)
-        shadowless = np.array(self._per_strategy(self._shadowless, self._dome_shadowless, False, count))
-        shadow_colors = self._per_strategy(self._shadow_color, self._dome_shadow_color, (0.0, 0.0, 0.0), count)
-        nee_only = self._per_strategy(self._nee_only, self._dome_nee_only, False, count)
-        for j in range(count):
-            if not can_hit[j] or nee_only[j]:
-                weight[j] = 1  # found by next-event estimation alone
+        weight = np.where(tables.nee_only[row], REAL(1), weight)  # found by next-event estimation alone
+        shadowless = np.broadcast_to(tables.shadowless[row], (count, m))
         with np.errstate(divide="ignore"):
             inv = np.where(np.isinf(pdf), 1, np.where(pdf > 0, 1 / pdf, 0)).astype(REAL, copy=False)
         dist = np.stack(dists)
         short = np.where(dist < FAR, dist * (1.0 - SHADOW_EPSILON), FAR).astype(REAL, copy=False)
-        unblocked = valid & ~shadowless[:, None]  # the segments whose occlusion counts
+        unblocked = valid & ~shadowless  # the segments whose occlusion counts
         if self.lights.surfaces:  # light shapes first, on all (J, M) segments at once (no gathers)
-            skip = np.asarray(shapes, dtype=np.int64)[:, None]
-            unblocked &= ~self.lights.occluded_soa(points, wi, short, skip)
+            unblocked &= ~self.lights.occluded_soa(points, wi, short, tables.shape[row])
         idx = np.flatnonzero(unblocked)
         scale = np.zeros(count * m, dtype=REAL)
         tint = None
         if idx.size:
             sp, sw, sd = _take(points, idx % m), _take(wi.reshape(3, -1), idx), short.reshape(-1)[idx]
-            casters, ranges = self._caster_table(count), self._range_table(count)
-            if self.surfaces.cutout or casters is not None or ranges is not None:
+            seg_rows = row.reshape(-1)[idx] if per_point else row[idx // m, 0]
+            if self.surfaces.cutout or tables.casters is not None or tables.ranges is not None:
                 _p, t_hit, _u, _v, tint = self._intersect_through(
-                    sp, sw, owners.take(idx % m), sd, None if casters is None else (casters, idx // m))
+                    sp, sw, owners.take(idx % m), sd, None if tables.casters is None else (tables.casters, seg_rows))
                 visible = t_hit >= sd
             else:
                 visible = ~self.tracer.occluded(sp, sw, sd, soa=True)
                 owners.traced(idx % m)
             scale[idx[visible]] = 1
-            if ranges is not None:  # ShadowAPI shadow:distance: the nearest occluder shadows by its distance
+            if tables.ranges is not None:  # ShadowAPI shadow:distance: the nearest occluder shadows by its distance
                 blocked = np.flatnonzero(~visible)
-                row = ranges[idx[blocked] // m]
-                scale[idx[blocked]] = 1 - shadow_strength(t_hit[blocked], row[:, 0], row[:, 1], row[:, 2])
+                ranged = tables.ranges[seg_rows[blocked]]
+                scale[idx[blocked]] = 1 - shadow_strength(t_hit[blocked], ranged[:, 0], ranged[:, 1], ranged[:, 2])
         scale = scale.reshape(count, m)
         transmittance = None  # (3, J, M): the tint of the surfaces visible segments pass through
         if tint is not None:
@@ -864,47 +913,99 @@ class ProbeRenderer:
             transmittance[:, idx] = tint
             transmittance = transmittance.reshape(3, count, m)
         if shadowless.any():
-            scale[shadowless] = valid[shadowless]
-        elif idx.size == 0 and not any(any(colour) for colour in shadow_colors):
+            scale = np.where(shadowless, valid.astype(REAL), scale)
+        elif idx.size == 0 and tables.shadow_color is None:
             return np.zeros((3, m), dtype=REAL)
         terms = value * radiance * (scale * weight * inv)
         if transmittance is not None:
             terms *= transmittance
-        for j, colour in enumerate(shadow_colors):  # ShadowAPI shadow:color: occluded segments deliver
-            if any(colour):                                # that fraction, by next-event estimation alone
-                occluded = (valid[j] * (1 - scale[j])).astype(REAL) * inv[j]  # the shadowed share
-                terms[:, j] += value[:, j] * radiance[:, j] * (np.array(colour, dtype=REAL)[:, None] * occluded)
+        if tables.shadow_color is not None:  # ShadowAPI shadow:color: occluded segments deliver that fraction,
+            colours = tables.shadow_color[row]  # (J, 1 | M, 3)          # by next-event estimation alone
+            for j in range(count):
+                if colours[j].any():
+                    occluded = (valid[j] * (1 - scale[j])).astype(REAL) * inv[j]  # the shadowed share
+                    terms[:, j] += value[:, j] * radiance[:, j] * (colours[j].T * occluded)
         total = terms[:, 0]
         for j in range(1, count):  # in strategy order, element by element (a reduction's order may depend on M)
             total = total + terms[:, j]
         return total
 
-    def _per_strategy(self, per_light: list, dome: object, emitters: object, count: int) -> list:
-        """A value per next-event strategy of :meth:`_direct`: the analytic lights', the dome's for each of its
-        strategies (its rest, its sun), then the emissive triangles' (``count`` strategies in all)."""
-        tail = 1 if self.emitters is not None and self.emitters.sampled else 0
-        return list(per_light) + [dome] * (count - len(per_light) - tail) + [emitters] * tail
+    def _sample_tree(self, points: np.ndarray, owners: _Owners
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """One light per point (3, M) drawn from the light BVH and a next-event sample of it: direction (3, M),
+        shadow distance (M,), radiance (3, M), the pdf K·P(light | point)·pdf(ω) of the K draws (M,) (0 where no
+        light can reach the point) and the light's index (M,) (the strategy-table row)."""
+        m = points.shape[1]
+        leaf, pmf = self._tree.sample(points, owners.random(dtype=np.float64))
+        u = owners.random(2)
+        wi = np.zeros((3, m), dtype=REAL)
+        wi[2] = 1
+        dist = np.zeros(m, dtype=REAL)
+        radiance = np.zeros((3, m), dtype=REAL)
+        pdf = np.zeros(m, dtype=REAL)
+        light = np.where(leaf >= 0, self._tree_models[np.maximum(leaf, 0)], 0)
+        chosen = np.flatnonzero(leaf >= 0)
+        if self._tree_spheres:  # plain sphere lights: one call for all of them, per-point parameters
+            spheres = chosen[self._tree_sphere_of[leaf[chosen]] >= 0]
+            if spheres.size:
+                wi[:, spheres], dist[spheres], radiance[:, spheres], pdf[spheres] = sample_spheres(
+                    self._tree_spheres, self._tree_sphere_of[leaf[spheres]], _take(points, spheres), u[0][spheres],
+                    u[1][spheres])
+            chosen = chosen[self._tree_sphere_of[leaf[chosen]] < 0]
+        chosen = chosen[np.argsort(leaf[chosen], kind="stable")]  # the others grouped by light, ascending within
+        leaves = leaf[chosen]
+        starts = np.flatnonzero(np.r_[True, leaves[1:] != leaves[:-1]]) if chosen.size else np.zeros(0, np.int64)
+        for a, b in zip(starts, np.r_[starts[1:], chosen.size]):
+            sel = chosen[a:b]
+            model = self.lights.models[int(self._tree_models[leaves[a]])]
+            wi[:, sel], dist[sel], radiance[:, sel], pdf[sel] = model.sample_soa(_take(points, sel), u[0][sel],
+                                                                                 u[1][sel])
+        pdf = (pdf * (LIGHT_SAMPLES * pmf)).astype(REAL)  # delta lights: ∞ stays ∞ (their weight is 1 / (K·P))
+        return wi, dist, radiance, pdf, light
 
-    def _range_table(self, count: int) -> np.ndarray | None:
-        """(J, 3) float32 (d, f, γ) of ShadowAPI's shadow:distance/falloff/falloffGamma per next-event strategy
-        (d = FAR: unlimited); None when no light limits its shadows."""
-        rows = self._per_strategy(self._shadow_ranges, self._dome_shadow_range, None, count)
-        if all(r is None for r in rows):
-            return None
-        return np.array([(FAR, 0.0, 1.0) if r is None else r for r in rows], dtype=REAL)
+    def _tree_pdf(self, points: np.ndarray, model_index: int) -> np.ndarray:
+        """K·P(light | point) (M,) float32 of the light BVH's draws for the analytic light ``model_index`` (1 when
+        it is not drawn from the BVH): the factor of its next-event pdf against which BSDF hits are weighted."""
+        leaf = self._tree_leaf.get(model_index)
+        if leaf is None:
+            return np.ones(points.shape[1], dtype=REAL)
+        return (LIGHT_SAMPLES * self._tree.pmf(points, np.full(points.shape[1], leaf))).astype(REAL)
 
-    def _caster_table(self, count: int) -> np.ndarray | None:
-        """(J, meshes) bool: whether each mesh casts the shadows of next-event strategy j (the analytic lights, then
-        the dome's ``count − lights`` strategies); None when no light is shadow-linked."""
-        rows = self._per_strategy(self._casters, self._dome_casters, None, count)
-        linked = [casters for casters in rows if casters is not None]
-        if not linked:
-            return None
-        table = np.ones((count, len(linked[0])), dtype=bool)
-        for j, casters in enumerate(rows):
-            if casters is not None:
-                table[j] = casters
-        return table
+    def _strategy_tables(self) -> _StrategyTables:
+        """The next-event strategies' properties, one row per analytic light, then the dome's rest, its sun and the
+        emissive triangles (built once)."""
+        if self._tables is not None:
+            return self._tables
+        n = len(self.lights.models)
+        rows = n + 3
+        dome, emitters = (self._dome_lobes, self._dome_lobes), (1.0, 1.0)
+        lobes = np.array([*self._light_lobes, *dome, emitters], dtype=REAL)
+        shadowless = np.array([*self._shadowless, self._dome_shadowless, self._dome_shadowless, False])
+        can_hit = [*self._light_can_hit, True, True, True]
+        nee_only = np.array([*self._nee_only, self._dome_nee_only, self._dome_nee_only, False])
+        nee_only = nee_only | ~np.array(can_hit)
+        shape = np.array([*self._light_shape, -1, -1, -1], dtype=np.int64)
+        meshes = len(self.scene.meshes)
+
+        def mesh_table(per_light: list, dome_row: np.ndarray | None) -> np.ndarray | None:
+            entries = [*per_light, dome_row, dome_row, None]
+            if all(e is None for e in entries):
+                return None
+            table = np.ones((rows, meshes), dtype=bool)
+            for r, e in enumerate(entries):
+                if e is not None:
+                    table[r] = e
+            return table
+
+        links = mesh_table(self._light_links, self._dome_links)
+        casters = mesh_table(self._casters, self._dome_casters)
+        ranges_rows = [*self._shadow_ranges, self._dome_shadow_range, self._dome_shadow_range, None]
+        ranges = None if all(r is None for r in ranges_rows) else np.array(
+            [(FAR, 0.0, 1.0) if r is None else r for r in ranges_rows], dtype=REAL)
+        colours = [*self._shadow_color, self._dome_shadow_color, self._dome_shadow_color, (0.0, 0.0, 0.0)]
+        shadow_color = np.array(colours, dtype=REAL) if any(any(c) for c in colours) else None
+        self._tables = _StrategyTables(lobes, shadowless, nee_only, shape, links, casters, ranges, shadow_color)
+        return self._tables
 
     def _dome_pdf(self, points: np.ndarray, wi: np.ndarray, pdf: np.ndarray) -> np.ndarray:
         """Solid-angle pdf (M,) of the dome-rest next-event strategy from the dome's own ``pdf``: with portals the

@@ -35,6 +35,13 @@ the total area A for a sphere (its projected area is A/4), a margin the captures
 cube texels, and a capture's estimate of its irradiance was measured up to 2× the analytic L·πR²/d². Tables
 written before ``geometry`` was recorded fall back to the old + new bound. Probes with no stored irradiance SH
 (reflection-only) are re-baked whenever a light changes, unless (a) holds.
+
+Many lights: above ``ENUMERATED_LIGHTS`` non-distant lights the capture draws its next-event lights from a BVH
+whose probabilities follow the lights' power and places (:mod:`bakery.capture.light_tree`); the sampling enters
+the global part (its version, the threshold and the draws per vertex), so crossing the threshold re-bakes every
+probe. Between such scenes, an edit changes the draws of every probe, so a reused probe and a fresh bake of it are
+two estimates that differ by their noise (``/diagnostics/capture/sh_noise``) as well as by the bounds above: the
+guarantee holds for the expected capture, not bit for bit as it does with enumerated lights.
 """
 
 from __future__ import annotations
@@ -64,8 +71,14 @@ def file_digest(path: str) -> str:
 EMITTER_SAMPLING_VERSION = 1
 
 
+#: Version of the capture's many-lights sampling (the light BVH's draws, :mod:`bakery.capture.light_tree`; hashed
+#: only for scenes with more than ENUMERATED_LIGHTS non-distant lights: any other scene keeps its hash)
+LIGHT_SAMPLING_VERSION = 1
+
+
 def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN001 - bakery.capture.scene.CaptureScene
     """Hash of everything that can affect every probe (module docstring)."""
+    from bakery.capture.light_tree import ENUMERATED_LIGHTS, LIGHT_SAMPLES
     from bakery.capture.lights import light_model
     from bakery.capture.render import CAPTURE_MODEL_VERSION
     from bakery.environment.resample import RESAMPLE_MODEL_VERSION
@@ -97,6 +110,8 @@ def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN00
     parts.append((getattr(scene, "time_code", None), getattr(scene, "working_space", "lin_rec709")))
     if any(mesh.material.emits for mesh in scene.meshes):  # emissive triangles as lights (bakery.capture.emitters)
         parts.append(("emitter_sampling", EMITTER_SAMPLING_VERSION))
+    if sum(light.kind != "distant" for light in scene.lights) > ENUMERATED_LIGHTS:  # lights drawn from the BVH
+        parts.append(("light_sampling", LIGHT_SAMPLING_VERSION, ENUMERATED_LIGHTS, LIGHT_SAMPLES))
     parts += [file_digest(asset) for asset in sorted(set(assets))]
     parts.append((scene.meters_per_unit, scene.up_axis))
     parts.append(("capture model", CAPTURE_MODEL_VERSION))  # what the same scene captures to

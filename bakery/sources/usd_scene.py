@@ -125,7 +125,7 @@ class UsdSceneSource(Source):
             listing = "\n".join(f"  {issue}" for issue in reading.errors)
             raise SceneError(f"{self.path}: {len(reading.errors)} error(s); the bake cannot be trusted:\n{listing}")
         for issue in reading.issues:
-            warnings.warn(f"{self.path}: {issue}", SceneWarning, stacklevel=2)
+            warnings.warn(f"{self.path}: {issue.prim}: {issue.message}", SceneWarning, stacklevel=2)  # all warnings
         self._reading = reading
         self._protected = tuple(str(Path(p).resolve()) for p in reading.layers)
         scene_hash = environment_hash(reading.scene, tuple(reading.assets))

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -103,10 +104,25 @@ def open_stage(path: str | Path) -> Usd.Stage:
             if trap is not None:
                 trap.EraseMatching(lambda diagnostic: diagnostic.sourceFunction.endswith("UsdStage::_ReportErrors"))
     except Exception as exc:  # pxr raises Tf.ErrorException
-        raise SceneError(f"{path}: USD cannot open it: {exc}") from exc
+        raise SceneError(f"{path}: USD cannot open it: {tf_error_message(exc)}") from exc
     if stage is None:
         raise SceneError(f"{path}: USD cannot open it")
     return stage
+
+
+_TF_ERROR = re.compile(r"Error in '[^']*' at line \d+ in file \S+ : '(.*)'\s*$", re.DOTALL)
+
+
+def tf_error_message(error: Exception) -> str:
+    """One line from a ``Tf.ErrorException``: the message of its first error without pxr's function, source file
+    and line (``Error in 'pxrInternal…::Sdf_TextFileFormatParser…' at line 48 in file …/textParserHelpers.h :
+    'scene.usda:9:44: Expected ) at …'`` → ``scene.usda:9:44: Expected ) at …``), whitespace collapsed."""
+    messages = []
+    for arg in error.args or (str(error),):
+        match = _TF_ERROR.search(str(arg).strip())
+        messages.append(match.group(1) if match else str(arg))
+    text = " ".join(messages[0].split()) if messages else ""
+    return text if len(text) <= 300 else text[:297] + "..."
 
 
 class _Frame:

@@ -9,6 +9,7 @@ import pytest
 
 import bakery.capture.render as render_module
 from bakery.capture.render import ProbeRenderer
+from bakery.capture.scene import Light
 from bakery.capture.snapshot import write_capture_scene
 from bakery.capture.tracer import SceneTracer
 from bakery.pipeline.settings import CaptureSettings
@@ -31,6 +32,15 @@ def usd_scenes():
     scenes["translucent"] = dataclasses.replace(indoor, meshes=tuple(
         dataclasses.replace(m, material=dataclasses.replace(m.material, opacity=0.5)) if i % 2 == 0 else m
         for i, m in enumerate(indoor.meshes)))
+    # the room with 20 more sphere lamps inside it: more lights than are enumerated, so next-event lights are drawn
+    # from the light BVH (random numbers per path vertex, draws that depend on each point)
+    corners = np.concatenate([np.asarray(m.triangles, dtype=np.float64).reshape(-1, 3) for m in indoor.meshes])
+    low, high = np.percentile(corners, 10, axis=0), np.percentile(corners, 90, axis=0)
+    rng = np.random.default_rng(4)
+    lamps = tuple(Light("sphere", f"/Lamp{i}", radiance=tuple(rng.uniform(1, 10, 3)),
+                        position=tuple(rng.uniform(low, high)), size=(float(rng.uniform(0.01, 0.1)), 0.0))
+                  for i in range(20))
+    scenes["many_lights"] = dataclasses.replace(indoor, lights=indoor.lights + lamps)
     return scenes
 
 
@@ -44,7 +54,7 @@ def _render_many(renderer, probes):
 
 
 @pytest.mark.parametrize("adaptive", [False, True])
-@pytest.mark.parametrize("name", ["indoor", "outdoor", "translucent"])
+@pytest.mark.parametrize("name", ["indoor", "outdoor", "translucent", "many_lights"])
 def test_a_probe_renders_the_same_alone_batched_and_reordered(name, adaptive, usd_scenes, monkeypatch):
     """Small chunks and calls (several chunks per probe, chunks of several probes per call) so packing matters;
     adaptive: a noise target between the probes' first-pass noises, so some drop out after one pass."""
@@ -52,6 +62,7 @@ def test_a_probe_renders_the_same_alone_batched_and_reordered(name, adaptive, us
     monkeypatch.setattr(render_module, "CALL_RAYS", 400)
     probes = [p for p in usd_scenes[name].probes if not p.image][:5]
     renderer = ProbeRenderer(usd_scenes[name], samples=2, max_samples=12)
+    assert (renderer._tree is not None) == (name == "many_lights")  # lights drawn from the BVH
     if adaptive:
         first = sorted(stats.sh_noise for _cube, stats in _render_many(renderer, probes))
         renderer.target_noise = 0.5 * (first[1] + first[2])

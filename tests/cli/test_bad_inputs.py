@@ -338,6 +338,23 @@ def test_truncated_usda_check_and_bake(usd_ok, tmp_path, existing):
     assert untouched(existing)
 
 
+def test_usda_syntax_error_is_one_line_naming_file_and_line(usd_ok, tmp_path, existing):
+    """The parser's message (file:line:column and what it expected) on one line, without pxr's C++ location."""
+    s = usd_ok
+    text = s.header() + 'def Xform "A" (\n    kind = "component" stray\n)\n{\n}\n' + s.probe("P")
+    path = s.write(tmp_path / "syntax.usda", text)
+    line = text.splitlines().index('    kind = "component" stray') + 1
+    bake = run("bake", path, "-o", existing)
+    assert_clean_failure(bake, 2)
+    errors = [row for row in (bake.stdout + bake.stderr).splitlines() if row.strip()]
+    assert len(errors) == 1, errors
+    assert f"syntax.usda:{line}:" in errors[0] and "stray" in errors[0], errors
+    assert "pxrInternal" not in errors[0] and ".cpp" not in errors[0] and ".h " not in errors[0], errors
+    assert untouched(existing)
+    check = run("check", path)  # the same message as the issue of the scene's root
+    assert check.returncode == 5 and f"syntax.usda:{line}:" in check.stdout and "pxrInternal" not in check.stdout
+
+
 def test_missing_referenced_dome_texture_names_the_prim(usd_ok, tmp_path, existing):
     s = usd_ok
     path = s.write(tmp_path / "dome.usda",

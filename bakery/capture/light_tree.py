@@ -1,0 +1,269 @@
+"""Many lights: a bounding-volume hierarchy over the analytic lights, for ray culling and light selection (no ``pxr``).
+
+A scene with hundreds of lights (street lamps, bulbs, practicals) cannot test every light shape on every ray, nor
+send a shadow ray to every light from every path vertex: both cost O(lights × rays) time and memory. One binary BVH
+over the lights' bounding spheres serves both:
+
+Ray culling (:meth:`LightBVH.candidates`)
+    The (segment, light) pairs whose segment passes a light's box, found by descending the tree for all segments
+    at once (a frontier of (segment, node) pairs, one slab test per pair and level). The boxes enclose the bounding
+    spheres the renderer culls with, so the exact tests that follow see the same rays (conservative culling).
+
+Light selection (:meth:`LightBVH.sample`, :meth:`LightBVH.pmf`; pbrt-v4 §12.6.3 "BVH Light Sampling")
+    At every interior node a point picks a child with probability proportional to the child's importance
+        I(p) = Φ · cos θ' / max(d², (|diag| / 2)²),   θ' = max(0, θ_w − θ_o − θ_b)   (0 when θ' ≥ θ_e)
+    (Φ power bound, d distance to the box centre, θ_w the angle between the node's emission axis and the direction
+    to p, θ_o, θ_e its normal and emission cone angles, θ_b the half-angle the box subtends from p; pbrt-v4's
+    ``LightBounds::Importance`` without the surface-normal factor, so that transmission is never culled), reusing
+    one uniform number down the tree. The probability of the light reached is the product of the choices; a light
+    whose importance is > 0 wherever it can contribute is never missed, so next-event estimation stays unbiased.
+
+Build: top-down, splitting a node's lights at the median of the largest extent of their centres (ties by index):
+deterministic, O(L log L), depth ≤ ⌈log₂ L⌉ + 1.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Above this many (non-distant) lights the renderer draws LIGHT_SAMPLES next-event lights per path vertex from the
+#: BVH; at or below, it samples every light (lower variance). Measured on 128 probes of a 10-box scene (face 32,
+#: 4 rays per texel, one process): 16 lights 3.1 s drawn, 3.3 s enumerated; 100 lights 7.5 s drawn, 75 s
+#: enumerated; 1000 lights 12 s drawn (enumerated: > 10 min and 7.5 GB).
+ENUMERATED_LIGHTS = 16
+
+#: Lights selected per path vertex from the BVH (independent draws, each weighted 1/K).
+LIGHT_SAMPLES = 4
+
+#: Above this many light shapes the renderer finds the (ray, shape) pairs to test with the BVH; at or below, it
+#: culls every ray against every shape's bounding sphere (cheaper for few shapes: measured crossover ≈ 40).
+CULLED_SHAPES = 48
+
+
+@dataclass(frozen=True)
+class LightBound:
+    """What the tree knows of one light: the box (3,) ``lower``/``upper`` (metres) enclosing its surface, its power
+    bound ``power`` (> 0: luminance of the radiance × emitting area, any consistent scale), the axis ``axis`` (3,)
+    of its emission-normal cone with the cosines of the normal cone's half-angle ``cos_normal`` (−1: every
+    direction) and of the emission spread about it ``cos_emission`` (0: a hemisphere, Lambertian)."""
+
+    lower: tuple[float, float, float]
+    upper: tuple[float, float, float]
+    power: float
+    axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    cos_normal: float = -1.0
+    cos_emission: float = 0.0
+
+
+def _cone_union(w_a: np.ndarray, cos_a: float, w_b: np.ndarray, cos_b: float) -> tuple[np.ndarray, float]:
+    """The smallest cone holding two direction cones (pbrt-v4 ``Union(DirectionCone, DirectionCone)``)."""
+    if cos_a <= -1.0 or cos_b <= -1.0:
+        return np.array([0.0, 0.0, 1.0]), -1.0
+    theta_a, theta_b = math.acos(min(1.0, cos_a)), math.acos(min(1.0, cos_b))
+    theta_d = math.acos(float(np.clip(np.dot(w_a, w_b), -1.0, 1.0)))
+    if min(theta_d + theta_b, math.pi) <= theta_a:
+        return w_a, cos_a
+    if min(theta_d + theta_a, math.pi) <= theta_b:
+        return w_b, cos_b
+    theta_o = 0.5 * (theta_a + theta_d + theta_b)
+    if theta_o >= math.pi:
+        return np.array([0.0, 0.0, 1.0]), -1.0
+    axis = np.cross(w_a, w_b)
+    norm = float(np.linalg.norm(axis))
+    if norm < 1e-12:
+        return np.array([0.0, 0.0, 1.0]), -1.0
+    k, angle = axis / norm, theta_o - theta_a  # Rodrigues: w_a turned towards w_b by theta_o − theta_a
+    w = w_a * math.cos(angle) + np.cross(k, w_a) * math.sin(angle) + k * np.dot(k, w_a) * (1 - math.cos(angle))
+    return w / np.linalg.norm(w), math.cos(theta_o)
+
+
+def _cos_sub_clamped(sin_a: np.ndarray, cos_a: np.ndarray, sin_b: np.ndarray, cos_b: np.ndarray) -> np.ndarray:
+    """cos(max(0, a − b)) from the sines and cosines of a, b ∈ [0, π]."""
+    return np.where(cos_a > cos_b, 1.0, cos_a * cos_b + sin_a * sin_b)
+
+
+class LightBVH:
+    """Binary BVH over L lights (module docstring). Nodes in depth-first order, the root first. Arrays: ``lower``,
+    ``upper`` (N, 3) boxes; ``children`` (N, 2) (−1 at leaves); ``light`` (N,) the light of a leaf (−1 inside);
+    ``power`` (N,), ``axis`` (N, 3), ``cos_normal``, ``cos_emission`` (N,) the summed bounds; ``path`` (L, D) the
+    nodes from the root to each light's leaf's parent and ``side`` (L, D) the child taken there (−1 past the end)."""
+
+    def __init__(self, bounds: list[LightBound]) -> None:
+        if not bounds:
+            raise ValueError("a light BVH needs at least one light")
+        centres = np.array([[0.5 * (lo + hi) for lo, hi in zip(b.lower, b.upper)] for b in bounds])
+        nodes: list[dict] = []
+
+        def build(members: np.ndarray) -> int:
+            index = len(nodes)
+            nodes.append({})
+            if members.size == 1:
+                b = bounds[int(members[0])]
+                nodes[index] = {"lower": np.array(b.lower, float), "upper": np.array(b.upper, float),
+                                "children": (-1, -1), "light": int(members[0]), "power": float(b.power),
+                                "axis": np.array(b.axis, float) / max(np.linalg.norm(b.axis), 1e-30),
+                                "cos_normal": float(b.cos_normal), "cos_emission": float(b.cos_emission)}
+                return index
+            extent = centres[members].max(axis=0) - centres[members].min(axis=0)
+            axis = int(np.argmax(extent))
+            order = members[np.lexsort((members, centres[members, axis]))]  # by centre, ties by light index
+            left, right = build(order[: order.size // 2]), build(order[order.size // 2 :])
+            a, b = nodes[left], nodes[right]
+            w, cos_o = _cone_union(a["axis"], a["cos_normal"], b["axis"], b["cos_normal"])
+            nodes[index] = {"lower": np.minimum(a["lower"], b["lower"]), "upper": np.maximum(a["upper"], b["upper"]),
+                            "children": (left, right), "light": -1, "power": a["power"] + b["power"], "axis": w,
+                            "cos_normal": cos_o, "cos_emission": min(a["cos_emission"], b["cos_emission"])}
+            return index
+
+        build(np.arange(len(bounds)))
+        self.lower = np.array([n["lower"] for n in nodes])
+        self.upper = np.array([n["upper"] for n in nodes])
+        self.children = np.array([n["children"] for n in nodes], dtype=np.int64)
+        self.light = np.array([n["light"] for n in nodes], dtype=np.int64)
+        self.power = np.array([n["power"] for n in nodes])
+        self.axis = np.array([n["axis"] for n in nodes])
+        self.cos_normal = np.array([n["cos_normal"] for n in nodes])
+        self.cos_emission = np.array([n["cos_emission"] for n in nodes])
+        self.centre = 0.5 * (self.lower + self.upper)
+        self.half_diagonal2 = 0.25 * np.sum((self.upper - self.lower) ** 2, axis=1)
+        self.radius2 = self.half_diagonal2  # the box's bounding sphere (for the subtended cone θ_b)
+        self.sin_normal = np.sqrt(np.maximum(0.0, 1.0 - self.cos_normal**2))
+        self._omni = self.cos_normal <= -1.0  # emits in every direction: no orientation term
+        self._f32 = {"centre": self.centre.T, "axis": self.axis.T, "power": self.power,
+                     "half_diagonal2": self.half_diagonal2, "radius2": self.radius2, "sin_normal": self.sin_normal,
+                     "cos_normal": self.cos_normal, "cos_emission": self.cos_emission}
+        self._f32 = {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in self._f32.items()}
+        parents: dict[int, tuple[int, int]] = {}
+        for index, (left, right) in enumerate(self.children):
+            if left >= 0:
+                parents[int(left)], parents[int(right)] = (index, 0), (index, 1)
+        leaf_of = {int(self.light[i]): i for i in range(len(nodes)) if self.light[i] >= 0}
+        chains = []
+        for light in range(len(bounds)):
+            chain, node = [], leaf_of[light]
+            while node in parents:
+                node, side = parents[node]
+                chain.append((node, side))
+            chains.append(chain[::-1])
+        depth = max(1, max(len(c) for c in chains))
+        self.path = np.full((len(bounds), depth), -1, dtype=np.int64)
+        self.side = np.full((len(bounds), depth), -1, dtype=np.int64)
+        for light, chain in enumerate(chains):
+            for level, (node, side) in enumerate(chain):
+                self.path[light, level], self.side[light, level] = node, side
+
+    @property
+    def size(self) -> int:
+        return int(self.path.shape[0])
+
+    # -- light selection ------------------------------------------------------------------------------------------
+    def importance(self, points: np.ndarray, nodes: np.ndarray) -> np.ndarray:
+        """pbrt-v4's importance (module docstring) (M,) float32 of nodes (M,) for points (3, M) (float32
+        arithmetic; nodes that emit in every direction, θ_o = π, reduce to Φ / max(d², (|diag|/2)²))."""
+        f = self._f32
+        p = np.asarray(points, dtype=np.float32)
+        to_p = p - f["centre"][:, nodes]  # (3, M) box centre → point
+        d2 = to_p[0] * to_p[0] + to_p[1] * to_p[1] + to_p[2] * to_p[2]
+        value = f["power"].take(nodes) / np.maximum(d2, f["half_diagonal2"].take(nodes))
+        if self._omni.take(nodes).all():
+            return value
+        inv_d = 1.0 / np.sqrt(np.maximum(d2, np.float32(1e-30)))
+        axis = f["axis"][:, nodes]
+        cos_w = np.clip((to_p[0] * axis[0] + to_p[1] * axis[1] + to_p[2] * axis[2]) * inv_d, -1, 1)
+        sin_w = np.sqrt(np.maximum(0, 1 - cos_w * cos_w))
+        r2 = f["radius2"].take(nodes)
+        inside = d2 <= r2
+        sin2_b = np.where(inside, 1, r2 / np.maximum(d2, np.float32(1e-30)))
+        cos_b = np.where(inside, -1, np.sqrt(np.maximum(0, 1 - sin2_b)))
+        sin_b = np.where(inside, 0, np.sqrt(np.minimum(1, sin2_b)))
+        cos_x = _cos_sub_clamped(sin_w, cos_w, f["sin_normal"].take(nodes), f["cos_normal"].take(nodes))
+        sin_x = np.sqrt(np.maximum(0, 1 - cos_x * cos_x))
+        cos_p = np.where(inside, 1, _cos_sub_clamped(sin_x, cos_x, sin_b, cos_b))
+        keep = (cos_p > f["cos_emission"].take(nodes)) | self._omni.take(nodes)
+        return np.where(keep, value * np.where(self._omni.take(nodes), 1, np.maximum(cos_p, 0)), 0).astype(
+            np.float32, copy=False)
+
+    def sample(self, points: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """One light per point (3, M) from uniform numbers u (M,) float64: light indices (M,) (−1 where no light
+        can reach the point) and their selection probabilities (M,) float64 (0 there), the same bits as
+        :meth:`pmf` gives for them."""
+        m = points.shape[1]
+        node = np.zeros(m, dtype=np.int64)
+        pmf = np.ones(m)
+        u = np.asarray(u, dtype=np.float64).copy()
+        active = np.flatnonzero(self.children[node, 0] >= 0)
+        while active.size:
+            left, right = self.children[node[active], 0], self.children[node[active], 1]
+            pa = np.take(points, active, axis=1)
+            i_left = self.importance(pa, left).astype(np.float64)
+            i_right = self.importance(pa, right).astype(np.float64)
+            total = i_left + i_right
+            dead = total <= 0
+            p_left = np.where(dead, 0.5, i_left / np.where(dead, 1.0, total))
+            go_left = u[active] < p_left
+            chosen = np.where(go_left, p_left, i_right / np.where(dead, 1.0, total))  # as pmf() computes it
+            u[active] = np.where(go_left, u[active] / np.maximum(p_left, 1e-300),
+                                 (u[active] - p_left) / np.maximum(1.0 - p_left, 1e-300))
+            u[active] = np.minimum(u[active], np.nextafter(1.0, 0.0))
+            pmf[active] *= np.where(dead, 0.0, chosen)
+            node[active] = np.where(go_left, left, right)
+            active = active[self.children[node[active], 0] >= 0]
+        light = self.light[node]
+        return np.where(pmf > 0, light, -1), pmf
+
+    def pmf(self, points: np.ndarray, lights: np.ndarray) -> np.ndarray:
+        """The probability (M,) float64 that :meth:`sample` picks ``lights`` (M,) at points (3, M)."""
+        lights = np.asarray(lights, dtype=np.int64)
+        out = np.ones(lights.size)
+        for level in range(self.path.shape[1]):
+            node, side = self.path[lights, level], self.side[lights, level]
+            rows = np.flatnonzero(node >= 0)
+            if rows.size == 0:
+                break
+            pr = np.take(points, rows, axis=1)
+            i_left = self.importance(pr, self.children[node[rows], 0]).astype(np.float64)
+            i_right = self.importance(pr, self.children[node[rows], 1]).astype(np.float64)
+            total = i_left + i_right
+            taken = np.where(side[rows] == 0, i_left, i_right)
+            out[rows] *= np.where(total > 0, taken / np.where(total > 0, total, 1.0), 0.0)
+        return out
+
+    # -- ray culling ----------------------------------------------------------------------------------------------
+    def candidates(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray | float,
+                   origin_of: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(segment, light) index pairs (both (C,), by segment then light) whose segment origin + t·direction,
+        0 < t < distance, meets the light's box: directions (3, S), distances (S,) or a scalar, origins (3, S) or,
+        with ``origin_of`` (S,), (3, M) indexed by it."""
+        d = np.asarray(directions, dtype=np.float64)
+        s = d.shape[1]
+        o = np.asarray(origins, dtype=np.float64)
+        tmax = np.broadcast_to(np.asarray(distances, dtype=np.float64), (s,))
+        with np.errstate(divide="ignore"):  # ±1e300 for axis-parallel directions: (box − o)·inv stays finite
+            inv = np.where(d == 0, np.copysign(1e300, d), 1.0 / np.where(d == 0, 1.0, d))
+        seg = np.arange(s)
+        node = np.zeros(s, dtype=np.int64)
+        found_seg, found_light = [], []
+        while seg.size:
+            rows = seg if origin_of is None else origin_of[seg]
+            near = np.zeros(seg.size)  # the segments start at t = 0
+            far = tmax[seg].copy()
+            for axis in range(3):
+                oa, ia = o[axis].take(rows), inv[axis].take(seg)
+                t0 = (self.lower[:, axis].take(node) - oa) * ia
+                t1 = (self.upper[:, axis].take(node) - oa) * ia
+                np.maximum(near, np.minimum(t0, t1), out=near)
+                np.minimum(far, np.maximum(t0, t1), out=far)
+            hit = near <= far
+            seg, node = seg[hit], node[hit]
+            leaf = self.children[:, 0].take(node) < 0
+            found_seg.append(seg[leaf])
+            found_light.append(self.light.take(node[leaf]))
+            inner = ~leaf
+            seg = np.repeat(seg[inner], 2)
+            node = self.children[node[inner]].reshape(-1)
+        seg_all, light_all = np.concatenate(found_seg), np.concatenate(found_light)
+        order = np.lexsort((light_all, seg_all))
+        return seg_all[order], light_all[order]
