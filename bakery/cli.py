@@ -14,6 +14,7 @@ from pathlib import Path
 import click
 import numpy as np
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from bakery.environment.layouts import LAYOUTS
@@ -22,8 +23,13 @@ console = Console(stderr=True, soft_wrap=True)
 out = Console(soft_wrap=True)
 
 
+def _count(n: int, noun: str) -> str:
+    """'1 probe', '2 probes', '1 batch', '3 batches'."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}{'es' if noun.endswith(('s', 'ch')) else 's'}"
+
+
 def _show_warning(message, category, filename, lineno, file=None, line=None):  # noqa: ANN001
-    console.print(f"[yellow]warning:[/yellow] {message}")
+    console.print(f"[yellow]warning:[/yellow] {escape(str(message))}")
 
 
 class _Group(click.Group):
@@ -33,12 +39,12 @@ class _Group(click.Group):
         try:
             return super().invoke(ctx)
         except BakeryError as error:
-            console.print(f"[red]error:[/red] {error}")
+            console.print(f"[red]error:[/red] {escape(str(error))}")
             sys.exit(error.exit_code)
         except OSError as error:  # a file-system failure the library did not name (permissions, full disk, …)
             from bakery.files import os_error_message
 
-            console.print(f"[red]error:[/red] {os_error_message(error)}")
+            console.print(f"[red]error:[/red] {escape(os_error_message(error))}")
             sys.exit(2)
 
 
@@ -164,11 +170,11 @@ def bake(sources: tuple[Path, ...], output: Path | None, recipe: str | None, enc
         if as_json:
             out.print_json(json.dumps(info))
         else:
-            out.print(f"plan for {request.output}: {info['probes']} probes, {info['reused']} unchanged (reused), "
-                      f"{info['to_bake']} to bake in {info['batches']} batches; encodings: "
+            out.print(f"plan for {request.output}: {_count(info['probes'], 'probe')}, {info['reused']} unchanged "
+                      f"(reused), {info['to_bake']} to bake in {_count(info['batches'], 'batch')}; encodings: "
                       + ", ".join(info["encodings"]))
             for skip in plan.skipped:
-                out.print(f"  skipped {skip['probe']}: {skip['reason']}")
+                out.print(f"  skipped {escape(str(skip['probe']))}: {escape(str(skip['reason']))}")
         return
     executor = make_executor(jobs, scheduler, dask_local)
     try:
@@ -201,7 +207,7 @@ def bake(sources: tuple[Path, ...], output: Path | None, recipe: str | None, enc
                          else "")
                       + (f"; layer {summary.layer}" if summary.layer else ""))
         for name, message in summary.failed.items():
-            console.print(f"[red]failed[/red] {name}: {message}")
+            console.print(f"[red]failed[/red] {escape(name)}: {escape(message)}")
     if summary.failed:
         sys.exit(6)
 
@@ -322,9 +328,9 @@ def inspect(store: Path, as_json: bool, pattern: str | None, region: str | None)
                   f"{len(s.history)} bake(s) in the history")
     skipped = json.loads(s.attributes.get("skipped", "[]"))
     for skip in skipped:
-        out.print(f"skipped {skip.get('encoding') or skip.get('probe')}: {skip['reason']}")
+        out.print(f"skipped {escape(str(skip.get('encoding') or skip.get('probe')))}: {escape(str(skip['reason']))}")
     for note in json.loads(s.attributes.get("roughness_ranges", "[]")):
-        out.print(f"roughness range {note['probe']}: {note['reason']}")
+        out.print(f"roughness range {escape(str(note['probe']))}: {escape(str(note['reason']))}")
     if "capture/sh_noise" in s.diagnostics:  # capture settings and achieved noise (issue 11)
         noise = np.asarray(s.diagnostics["capture/sh_noise"], dtype=np.float64)
         noise = noise[np.isfinite(noise)]
@@ -515,7 +521,7 @@ def check(scene: Path) -> None:
     for issue in issues:
         colour = "red" if issue.severity == "error" else "yellow"
         errors += issue.severity == "error"
-        out.print(f"[{colour}]{issue.severity}[/{colour}] {issue.prim}: {issue.message}")
+        out.print(f"[{colour}]{issue.severity}[/{colour}] {escape(str(issue.prim))}: {escape(issue.message)}")
     out.print(f"{len(issues)} issue(s), {errors} error(s)")
     if check_exit_code(issues):
         sys.exit(check_exit_code(issues))
@@ -598,7 +604,7 @@ def _bake_shard(params: dict, probes: str | None, shard: str | None, base: Path 
     if params.get("as_json"):
         out.print_json(json.dumps(summary.as_dict(), default=str))
     for name, message in summary.failed.items():
-        console.print(f"[red]failed[/red] {name}: {message}")
+        console.print(f"[red]failed[/red] {escape(name)}: {escape(message)}")
     if summary.failed:
         sys.exit(6)
 
@@ -661,8 +667,9 @@ def plan_command(sources: tuple[Path, ...], output: Path | None, tasks: int, cal
         return
     probes, estimate, chunking = info["probes"], info["estimate"], info["chunking"]
     kinds = ", ".join(f"{v} {k}" for k, v in sorted(probes["by_kind"].items()))
-    out.print(f"plan {info['plan_id']} for {info['store']}: {probes['total']} probes ({kinds}), {info['reused']} "
-              f"reused, {info['to_bake']} to bake in {len(info['batches'])} batches; encodings: "
+    out.print(f"plan {info['plan_id']} for {info['store']}: {_count(probes['total'], 'probe')} ({kinds}), "
+              f"{info['reused']} reused, {info['to_bake']} to bake in {_count(len(info['batches']), 'batch')}; "
+              "encodings: "
               + ", ".join(info["encodings"]))
     out.print("estimated: " + ", ".join(f"{v * 1000:.2f} ms per {k} probe" for k, v in
                                         estimate["seconds_per_probe"].items())
@@ -671,9 +678,9 @@ def plan_command(sources: tuple[Path, ...], output: Path | None, tasks: int, cal
         f"{r} (~{s:.1f} s)" for r, s in zip(chunking["ranges"], chunking["estimated_seconds"]))
         + f"; merge ~{chunking['merge_seconds']:.1f} s")
     if chunking["note"]:
-        out.print(f"note: {chunking['note']}")
+        out.print(f"note: {escape(chunking['note'])}")
     for skip in info["skipped"]:
-        out.print(f"  skipped {skip['probe']}: {skip['reason']}")
+        out.print(f"  skipped {escape(str(skip['probe']))}: {escape(str(skip['reason']))}")
 
 
 @main.command()
@@ -699,7 +706,7 @@ def merge(shards: tuple[Path, ...], output: Path, layer: Path | None, sources: t
                       f"baked, {summary.reused} reused, {len(summary.failed)} failed in {summary.seconds:.1f} s"
                       + (f"; layer {summary.layer}" if summary.layer else ""))
     for name, message in summary.failed.items():
-        console.print(f"[red]failed[/red] {name}: {message}")
+        console.print(f"[red]failed[/red] {escape(name)}: {escape(message)}")
     if summary.failed:
         sys.exit(6)
 

@@ -564,12 +564,14 @@ class SceneReader:
         position = tuple(float(c) for c in self.frame.points(np.zeros(3), matrix))
         return Placement(position, axes, lengths, self.frame.mpu)
 
-    def _read_light(self, prim: Usd.Prim) -> None:
-        matrix = self.world(prim)
+    def _read_light(self, prim: Usd.Prim, matrix: np.ndarray | None = None, name: str | None = None) -> None:
+        """A UsdLux light at its world transform, or — one instance of a point instancer's prototype — at
+        ``matrix`` under ``name`` ("<path>#n")."""
+        matrix = self.world(prim) if matrix is None else matrix
         if abs(np.linalg.det(matrix[:3, :3])) < 1e-12:
             self.issue("error", prim, "non-invertible world transform; light skipped")
             return
-        name = str(prim.GetPath())
+        name = str(prim.GetPath()) if name is None else name
         if prim.IsA(UsdLux.PortalLight):
             width = float(self._input(prim, "width", 1.0))
             height = float(self._input(prim, "height", 1.0))
@@ -1066,14 +1068,19 @@ class SceneReader:
                 parts.append((part, sub_material, sub_primvar, subsets[k].GetPrim().GetName()))
         return parts
 
-    def _read_point_instancer(self, prim: Usd.Prim) -> None:
+    def _read_point_instancer(self, prim: Usd.Prim, instancer_world: np.ndarray | None = None,
+                              suffix: str = "") -> None:
+        """Every instance of every prototype: its meshes, gprims, points and curves (named "<path>#n"), its UsdLux
+        lights (one light per instance, "<path>#n"; a GeometryLight once, for all instances' meshes) and nested
+        point instancers (names "<path>#n#m"), skipping invisible and guide/proxy prims as the stage traversal
+        does. ``instancer_world``: the instancer's world matrix when it is itself an instance of a prototype."""
         instancer = UsdGeom.PointInstancer(prim)
         transforms = instancer.ComputeInstanceTransformsAtTime(self.time, self.time)
         proto_indices = np.asarray(instancer.GetProtoIndicesAttr().Get(self.time) or [], dtype=np.int64)
         prototypes = instancer.GetPrototypesRel().GetTargets()
         if transforms is None or len(proto_indices) == 0:
             return
-        instancer_world = self.world(prim)
+        instancer_world = self.world(prim) if instancer_world is None else instancer_world
         stage = prim.GetStage()
         for p_index, proto_path in enumerate(prototypes):
             proto = stage.GetPrimAtPath(proto_path)
@@ -1082,17 +1089,42 @@ class SceneReader:
                 continue
             parent_inv = np.linalg.inv(self.world(proto.GetParent()))
             chosen = np.flatnonzero(proto_indices == p_index)
-            for sub in Usd.PrimRange(proto, Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)):
-                if not (sub.IsA(UsdGeom.Mesh) or is_surface_gprim(sub)):
+            if chosen.size == 0:
+                continue
+            instances = [(f"{suffix}#{n}", _matrix(transforms[int(n)]) @ instancer_world) for n in chosen]
+            iterator = iter(Usd.PrimRange(proto, Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)))
+            for sub in iterator:
+                imageable = UsdGeom.Imageable(sub)
+                if imageable and (imageable.ComputeVisibility(self.time) == UsdGeom.Tokens.invisible or
+                                  imageable.ComputePurpose() in (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy)):
+                    iterator.PruneChildren()
                     continue
-                local, topology = self._mesh_geometry(sub)
-                if sub.HasAPI(UsdLux.MeshLightAPI) and chosen.size:  # every instance emits (names "<path>#n")
-                    self._read_mesh_light(sub)
-                to_proto = self.world(sub) @ parent_inv  # mesh → prototype-parent space (row vectors)
-                for n in chosen:
-                    instance = _matrix(transforms[int(n)])
-                    self._add_mesh(sub, local, to_proto @ instance @ instancer_world, f"{sub.GetPath()}#{n}",
-                                   topology)
+                to_proto = self.world(sub) @ parent_inv  # prim → prototype-parent space (row vectors)
+                path = str(sub.GetPath())
+                try:
+                    if sub.IsA(UsdGeom.PointInstancer):
+                        for tag, instance in instances:
+                            self._read_point_instancer(sub, to_proto @ instance, tag)
+                        iterator.PruneChildren()
+                    elif sub.IsA(UsdLux.GeometryLight):
+                        self._read_light(sub)
+                    elif sub.IsA(UsdLux.DomeLight) or sub.IsA(UsdLux.DomeLight_1):
+                        self.issue("warning", sub, "a dome light in a point instancer's prototype is not applied")
+                    elif sub.HasAPI(UsdLux.LightAPI) and not sub.HasAPI(UsdLux.MeshLightAPI):
+                        for tag, instance in instances:
+                            self._read_light(sub, to_proto @ instance, f"{path}{tag}")
+                    elif (sub.IsA(UsdGeom.Mesh) or is_surface_gprim(sub) or sub.IsA(UsdGeom.Points)
+                          or sub.IsA(UsdGeom.BasisCurves)):
+                        local, topology = self._mesh_geometry(sub)
+                        if sub.HasAPI(UsdLux.MeshLightAPI):  # every instance emits (names "<path>#n")
+                            self._read_mesh_light(sub)
+                        for tag, instance in instances:
+                            self._add_mesh(sub, local, to_proto @ instance, f"{path}{tag}", topology)
+                    elif sub.IsA(UsdGeom.Gprim):
+                        self.issue("warning", sub, f"{sub.GetTypeName()} gprims are not supported by the capture; "
+                                   "skipped")
+                except SceneError as exc:
+                    self.issue("error", sub, str(exc))
 
 
 def catmull_clark(points: np.ndarray, counts: np.ndarray, indices: np.ndarray, levels: int,

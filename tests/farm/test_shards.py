@@ -134,6 +134,9 @@ def test_plan_json_counts_kinds_reuse_batches_and_costs(tmp_path):
     assert estimate["seconds_per_probe"]["reflection"] > estimate["seconds_per_probe"]["irradiance"] > 0
     assert plan["chunking"]["useful_tasks"] == 5 and "at most 5 tasks" in plan["chunking"]["note"]
     assert not (tmp_path / "indoor.h5").exists()
+    text = cli("plan", INDOOR, "-o", tmp_path / "indoor.h5", "--recipe", recipe, *FAST, "--tasks", "8").stdout
+    assert "26 probes (25 irradiance, 1 reflection)" in text and "in 5 batches" in text
+    assert "a smaller [pipeline] batch_size" in text  # the recipe section is text, not console markup
 
 
 def _write_hdr(path, seed):

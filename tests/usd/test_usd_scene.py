@@ -437,3 +437,71 @@ def GeometryLight "Glow"
     reading = read_scene(write(tmp_path / "geo.usda", text))
     np.testing.assert_allclose(reading.scene.meshes[0].material.emission, (5.0, 2.5, 1.25))
     assert not reading.scene.lights
+
+
+def test_point_instancer_prototypes_bring_their_lights_points_and_nested_instancers(tmp_path):
+    """A street-lamp prototype (a pole, a SphereLight bulb at local (0, 3, 0), an invisible guide box, a proxy box)
+    scattered by a PointInstancer whose second prototype is itself an instancer of points: each instance has its
+    own bulb at instance position + (0, 3, 0) × scale, its pole, the nested instances multiply, and the invisible
+    and proxy prims are skipped."""
+    text = header() + f"""
+def PointInstancer "Street"
+{{
+    rel prototypes = [</Street/Protos/Lamp>, </Street/Protos/Cluster>]
+    int[] protoIndices = [0, 0, 1, 0]
+    point3f[] positions = [(0, 0, 0), (4, 0, 0), (0, 0, 9), (8, 0, 0)]
+    float3[] scales = [(1, 1, 1), (1, 2, 1), (1, 1, 1), (1, 1, 1)]
+    def Scope "Protos"
+    {{
+        def Xform "Lamp"
+        {{
+            {box_mesh("Pole", 0.1, "/NoMat")}
+            def SphereLight "Bulb"
+            {{
+                float inputs:radius = 0.1
+                float inputs:intensity = 7
+                double3 xformOp:translate = (0, 3, 0)
+                uniform token[] xformOpOrder = ["xformOp:translate"]
+            }}
+            def Xform "Hidden" (
+            )
+            {{
+                token visibility = "invisible"
+                {box_mesh("HiddenBox", 0.5, "/NoMat")}
+            }}
+            def Xform "Proxy"
+            {{
+                uniform token purpose = "proxy"
+                {box_mesh("ProxyBox", 0.5, "/NoMat")}
+            }}
+        }}
+        def PointInstancer "Cluster"
+        {{
+            rel prototypes = </Street/Protos/Cluster/Protos/Dots>
+            int[] protoIndices = [0, 0]
+            point3f[] positions = [(0, 1, 0), (0, 2, 0)]
+            def Scope "Protos"
+            {{
+                def Points "Dots"
+                {{
+                    point3f[] points = [(0, 0, 0), (1, 0, 0)]
+                    float[] widths = [0.2, 0.2]
+                }}
+            }}
+        }}
+    }}
+}}
+""" + probe("P", (0, 5, 0))
+    reading = read_scene(write(tmp_path / "street.usda", text))
+    assert not reading.errors, reading.errors
+    scene = reading.scene
+    bulbs = sorted((light.name, tuple(np.round(light.position, 6))) for light in scene.lights)
+    assert bulbs == [("/Street/Protos/Lamp/Bulb#0", (0.0, 3.0, 0.0)), ("/Street/Protos/Lamp/Bulb#1", (4.0, 6.0, 0.0)),
+                     ("/Street/Protos/Lamp/Bulb#3", (8.0, 3.0, 0.0))]
+    names = sorted(m.name for m in scene.meshes)
+    assert [n for n in names if "Pole" in n] == [f"/Street/Protos/Lamp/Pole#{i}" for i in (0, 1, 3)]
+    assert not [n for n in names if "Hidden" in n or "Proxy" in n]
+    dots = [m for m in scene.meshes if "Dots" in m.name]
+    assert sorted(m.name for m in dots) == ["/Street/Protos/Cluster/Protos/Dots#2#0", "/Street/Protos/Cluster/Protos/Dots#2#1"]
+    centres = sorted(tuple(np.round(m.triangles.reshape(-1, 3).mean(axis=0), 3)) for m in dots)
+    np.testing.assert_allclose(centres, [(0.5, 1.0, 9.0), (0.5, 2.0, 9.0)], atol=1e-3)
