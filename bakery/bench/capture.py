@@ -1,7 +1,8 @@
 """Capture benchmark (issues 11, 14): rays/s and probes/s of the capture alone (no encoding, no store).
 
 Scenes: the repository's examples (``examples/indoor``: a closed lit room, ``examples/outdoor``: a sphere row under the
-sunny StinsonBeach dome) at the default capture settings, plus any scene given. Per scene it records the probes
+sunny StinsonBeach dome, ``examples/plaza``: 272 lights, drawn from the light BVH) at the default capture settings,
+or the scenes given. Per scene it records the probes
 rendered, rays traced, capture seconds (rendering only; reading and renderer setup — the Embree scene, the
 once-per-process caches of :meth:`~bakery.capture.render.ProbeRenderer.prepare` and one warm-up render of the first
 probe under another name, which takes a fresh process's first-touch costs out of a sub-second measurement, as a
@@ -33,7 +34,8 @@ from pathlib import Path
 import numpy as np
 
 REPOSITORY = Path(__file__).resolve().parents[2]
-DEFAULT_SCENES = (REPOSITORY / "examples/indoor/indoor.usda", REPOSITORY / "examples/outdoor/outdoor.usda")
+DEFAULT_SCENES = (REPOSITORY / "examples/indoor/indoor.usda", REPOSITORY / "examples/outdoor/outdoor.usda",
+                  REPOSITORY / "examples/plaza/plaza.usda")
 
 
 def _render_share(scene, probes: list, face_size: int, samples: int, bounces: int, target_noise: float,  # noqa: ANN001

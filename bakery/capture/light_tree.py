@@ -43,6 +43,13 @@ LIGHT_SAMPLES = 4
 CULLED_SHAPES = 48
 
 
+def next_event_lights(kinds: list[str]) -> int:
+    """Next-event samples (shadow rays) per path vertex for analytic lights of these kinds: every light at or below
+    ENUMERATED_LIGHTS non-distant ones; above, the distant ones and LIGHT_SAMPLES draws."""
+    drawn = sum(kind != "distant" for kind in kinds)
+    return len(kinds) - drawn + (drawn if drawn <= ENUMERATED_LIGHTS else LIGHT_SAMPLES)
+
+
 @dataclass(frozen=True)
 class LightBound:
     """What the tree knows of one light: the box (3,) ``lower``/``upper`` (metres) enclosing its surface, its power

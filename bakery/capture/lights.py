@@ -470,14 +470,16 @@ class _PlanarLight(LightModel):
         wi = to_q / np.maximum(dist, TINY)
         cos_l = dotc(self.z_axis, wi)  # the emitting side is −Z: seen from points where ωᵢ·Z > 0
         facing = cos_l > 0
-        pdf = np.where(facing, dist * dist / (self.light.area * np.maximum(cos_l, TINY)), 0)
+        with np.errstate(over="ignore"):  # the far points behind the light (masked out) may overflow float32
+            pdf = np.where(facing, dist * dist / (self.light.area * np.maximum(cos_l, TINY)), 0)
         radiance = self.emitted_soa(wi, np.stack([a, b]), facing)
         return wi, dist, radiance, pdf.astype(points.dtype, copy=False)
 
     def pdf_soa(self, points, wi, t):  # noqa: ANN001, ANN201
         cos_l = dotc(self.z_axis, wi)
-        return np.where(cos_l > 0, t * t / (self.light.area * np.maximum(np.abs(cos_l), TINY)), 0).astype(
-            wi.dtype, copy=False)
+        with np.errstate(over="ignore"):  # as in sample_soa
+            pdf = np.where(cos_l > 0, t * t / (self.light.area * np.maximum(np.abs(cos_l), TINY)), 0)
+        return pdf.astype(wi.dtype, copy=False)
 
     def intersect_soa(self, origins, directions):  # noqa: ANN001, ANN201
         m = origins.shape[1]
@@ -603,7 +605,8 @@ class CylinderLightModel(LightModel):
         wi = to_q / np.maximum(dist, TINY)
         cos_l = -dot(wi, normal)
         facing = cos_l > 0
-        pdf = np.where(facing, dist * dist / (0.5 * self.light.area * np.maximum(cos_l, TINY)), 0)
+        with np.errstate(over="ignore"):  # as the planar lights'
+            pdf = np.where(facing, dist * dist / (0.5 * self.light.area * np.maximum(cos_l, TINY)), 0)
         return wi, dist, self.emitted_soa(wi, None, facing), pdf.astype(points.dtype, copy=False)
 
     def _hit(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -879,8 +879,10 @@ class ProbeRenderer:
         if mesh is not None and tables.links is not None:  # light linking
             valid &= tables.links[row, mesh[None, :]]
         weight = power(pdf, pdf_b)
-        weight = np.where(tables.nee_only[row], REAL(1), weight)  # found by next-event estimation alone
-        shadowless = np.broadcast_to(tables.shadowless[row], (count, m))
+        nee_only = tables.nee_only[row]
+        if nee_only.any():
+            weight = np.where(nee_only, REAL(1), weight)  # found by next-event estimation alone
+        shadowless = tables.shadowless[row]  # (J, 1 | M)
         with np.errstate(divide="ignore"):
             inv = np.where(np.isinf(pdf), 1, np.where(pdf > 0, 1 / pdf, 0)).astype(REAL, copy=False)
         dist = np.stack(dists)

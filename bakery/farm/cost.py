@@ -5,7 +5,8 @@ measures them)
 
     process  = process_seconds + per_probe_seconds · P                    start-up, stage read, snapshot, write
     capture  = capture_probe_seconds + seconds_per_ray · rays             rendered probes only
-    rays     = 6 n² · samples · (lights + 2) · (1 + b)                    primary + one shadow ray per light and the
+    rays     = 6 n² · samples · (lights + 2) · (1 + b)                    primary + one shadow ray per light (above 16
+                                                                          lights: per distant light and 4 drawn) and the
                                                                           dome, again per bounce; b = min(bounces,
                                                                           the calibrated effective bounces of the
                                                                           default maximum: paths escape or end by
@@ -31,6 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from bakery.capture.light_tree import next_event_lights
 from bakery.encodings import ENCODINGS
 from bakery.errors import ConfigError
 from bakery.pipeline.plan import BatchTask, Plan
@@ -83,6 +85,9 @@ class CostModel:
         reading = getattr(source, "_reading", None)
         self.scene = reading.scene if reading is not None else None
         self.lights = len(self.scene.lights) if self.scene is not None else 0
+        #: shadow rays per path vertex for the analytic lights (many lights are drawn, not all sampled)
+        self.next_event_lights = next_event_lights([light.kind for light in self.scene.lights]) \
+            if self.scene is not None else 0
         self.rendered = source.kind == "usd"
         self._size = {}
 
@@ -99,7 +104,8 @@ class CostModel:
             return 0.0
         n = (probe.resolution if probe is not None and probe.resolution else 0) or self.request.settings.face_size
         capture = self.request.capture
-        return 6.0 * n * n * capture.samples * (self.lights + 2) * (1 + self.effective_bounces(capture.bounces))
+        return 6.0 * n * n * capture.samples * (self.next_event_lights + 2) * (
+            1 + self.effective_bounces(capture.bounces))
 
     def effective_bounces(self, bounces: int) -> float:
         """Bounces a path really takes on average: ``bounces`` up to the calibrated effective bounces of the default

@@ -12,7 +12,7 @@ from bakery.usd.check import check_scene
 from bakery.usd.scene import read_scene
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
-SCENES = [EXAMPLES / "indoor" / "indoor.usda", EXAMPLES / "outdoor" / "outdoor.usda"]
+SCENES = [EXAMPLES / "indoor" / "indoor.usda", EXAMPLES / "outdoor" / "outdoor.usda", EXAMPLES / "plaza" / "plaza.usda"]
 
 
 def test_examples_reference_only_files_inside_the_repository():
@@ -35,3 +35,13 @@ def test_example_checks_clean_and_bakes(tmp_path, scene):
     assert (summary.baked + summary.reused) == len(irradiance) and not summary.failed
     assert len(summary.skipped) == len(reading.scene.probes) - len(irradiance)  # reflection: no sh3
     assert Path(summary.layer).is_file() and Path(summary.store).is_file()
+
+
+def test_plaza_is_what_its_generator_writes():
+    """examples/plaza/plaza.usda is generated (make_plaza.py, deterministic): the committed file is its output."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("make_plaza", EXAMPLES / "plaza" / "make_plaza.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert (EXAMPLES / "plaza" / "plaza.usda").read_text() == module.plaza()
