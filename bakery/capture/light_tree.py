@@ -39,8 +39,9 @@ ENUMERATED_LIGHTS = 16
 LIGHT_SAMPLES = 4
 
 #: Above this many light shapes the renderer finds the (ray, shape) pairs to test with the BVH; at or below, it
-#: culls every ray against every shape's bounding sphere (cheaper for few shapes: measured crossover ≈ 40).
-CULLED_SHAPES = 48
+#: culls every ray against every shape's bounding sphere (cheaper for few shapes; capture seconds, one process:
+#: 32 shapes (examples/plaza) 23 s enumerated, 31 s by the BVH; 100 shapes 6.3 s enumerated, 5.6 s by the BVH).
+CULLED_SHAPES = 64
 
 
 def next_event_lights(kinds: list[str]) -> int:
@@ -136,13 +137,12 @@ class LightBVH:
         self.cos_emission = np.array([n["cos_emission"] for n in nodes])
         self.centre = 0.5 * (self.lower + self.upper)
         self.half_diagonal2 = 0.25 * np.sum((self.upper - self.lower) ** 2, axis=1)
-        self.radius2 = self.half_diagonal2  # the box's bounding sphere (for the subtended cone θ_b)
         self.sin_normal = np.sqrt(np.maximum(0.0, 1.0 - self.cos_normal**2))
         self._omni = self.cos_normal <= -1.0  # emits in every direction: no orientation term
-        self._f32 = {"centre": self.centre.T, "axis": self.axis.T, "power": self.power,
-                     "half_diagonal2": self.half_diagonal2, "radius2": self.radius2, "sin_normal": self.sin_normal,
-                     "cos_normal": self.cos_normal, "cos_emission": self.cos_emission}
-        self._f32 = {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in self._f32.items()}
+        # per node, the importance's constants in one float32 row (one gather per evaluation)
+        self._packed = np.ascontiguousarray(np.column_stack([
+            self.centre, self.power, self.half_diagonal2, self.axis, self.sin_normal, self.cos_normal,
+            self.cos_emission]), dtype=np.float32)
         parents: dict[int, tuple[int, int]] = {}
         for index, (left, right) in enumerate(self.children):
             if left >= 0:
@@ -168,74 +168,84 @@ class LightBVH:
 
     # -- light selection ------------------------------------------------------------------------------------------
     def importance(self, points: np.ndarray, nodes: np.ndarray) -> np.ndarray:
-        """pbrt-v4's importance (module docstring) (M,) float32 of nodes (M,) for points (3, M) (float32
-        arithmetic; nodes that emit in every direction, θ_o = π, reduce to Φ / max(d², (|diag|/2)²))."""
-        f = self._f32
+        """pbrt-v4's importance (module docstring) float32 of ``nodes`` (any shape) for points (3, ...) that broadcast
+        against them (float32 arithmetic; nodes that emit in every direction, θ_o = π, reduce to
+        Φ / max(d², (|diag|/2)²))."""
         p = np.asarray(points, dtype=np.float32)
-        to_p = p - f["centre"][:, nodes]  # (3, M) box centre → point
-        d2 = to_p[0] * to_p[0] + to_p[1] * to_p[1] + to_p[2] * to_p[2]
-        value = f["power"].take(nodes) / np.maximum(d2, f["half_diagonal2"].take(nodes))
-        if self._omni.take(nodes).all():
+        node = np.moveaxis(self._packed[nodes], -1, 0)  # (11, ...): one gather of every node constant
+        cx, cy, cz, power, half_diagonal2 = node[0], node[1], node[2], node[3], node[4]
+        tx, ty, tz = p[0] - cx, p[1] - cy, p[2] - cz  # box centre → point
+        d2 = tx * tx + ty * ty + tz * tz
+        value = power / np.maximum(d2, half_diagonal2)
+        omni = self._omni.take(nodes)
+        if omni.all():
             return value
+        ax, ay, az, sin_o, cos_o, cos_e = node[5], node[6], node[7], node[8], node[9], node[10]
         inv_d = 1.0 / np.sqrt(np.maximum(d2, np.float32(1e-30)))
-        axis = f["axis"][:, nodes]
-        cos_w = np.clip((to_p[0] * axis[0] + to_p[1] * axis[1] + to_p[2] * axis[2]) * inv_d, -1, 1)
+        cos_w = np.clip((tx * ax + ty * ay + tz * az) * inv_d, -1, 1)
         sin_w = np.sqrt(np.maximum(0, 1 - cos_w * cos_w))
-        r2 = f["radius2"].take(nodes)
+        r2 = half_diagonal2  # the box's bounding sphere, for the subtended cone θ_b
         inside = d2 <= r2
         sin2_b = np.where(inside, 1, r2 / np.maximum(d2, np.float32(1e-30)))
         cos_b = np.where(inside, -1, np.sqrt(np.maximum(0, 1 - sin2_b)))
         sin_b = np.where(inside, 0, np.sqrt(np.minimum(1, sin2_b)))
-        cos_x = _cos_sub_clamped(sin_w, cos_w, f["sin_normal"].take(nodes), f["cos_normal"].take(nodes))
+        cos_x = _cos_sub_clamped(sin_w, cos_w, sin_o, cos_o)
         sin_x = np.sqrt(np.maximum(0, 1 - cos_x * cos_x))
         cos_p = np.where(inside, 1, _cos_sub_clamped(sin_x, cos_x, sin_b, cos_b))
-        keep = (cos_p > f["cos_emission"].take(nodes)) | self._omni.take(nodes)
-        return np.where(keep, value * np.where(self._omni.take(nodes), 1, np.maximum(cos_p, 0)), 0).astype(
-            np.float32, copy=False)
+        keep = (cos_p > cos_e) | omni
+        return np.where(keep, value * np.where(omni, 1, np.maximum(cos_p, 0)), 0).astype(np.float32, copy=False)
+
+    def _child_probabilities(self, points: np.ndarray, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The probabilities (float64, (K,) each) of descending from interior ``nodes`` (K,) to their left and right
+        child at points (3, K): the children's importances over their sum (both 0 where neither can reach)."""
+        both = self.importance(points[:, None, :], self.children[nodes].T).astype(np.float64)  # (2, K)
+        total = both[0] + both[1]
+        scale = np.where(total > 0, 1.0 / np.where(total > 0, total, 1.0), 0.0)
+        return both[0] * scale, both[1] * scale
 
     def sample(self, points: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """One light per point (3, M) from uniform numbers u (M,) float64: light indices (M,) (−1 where no light
         can reach the point) and their selection probabilities (M,) float64 (0 there), the same bits as
         :meth:`pmf` gives for them."""
         m = points.shape[1]
+        points = np.asarray(points, dtype=np.float32)
         node = np.zeros(m, dtype=np.int64)
         pmf = np.ones(m)
         u = np.asarray(u, dtype=np.float64).copy()
-        active = np.flatnonzero(self.children[node, 0] >= 0)
-        while active.size:
-            left, right = self.children[node[active], 0], self.children[node[active], 1]
-            pa = np.take(points, active, axis=1)
-            i_left = self.importance(pa, left).astype(np.float64)
-            i_right = self.importance(pa, right).astype(np.float64)
-            total = i_left + i_right
-            dead = total <= 0
-            p_left = np.where(dead, 0.5, i_left / np.where(dead, 1.0, total))
-            go_left = u[active] < p_left
-            chosen = np.where(go_left, p_left, i_right / np.where(dead, 1.0, total))  # as pmf() computes it
-            u[active] = np.where(go_left, u[active] / np.maximum(p_left, 1e-300),
-                                 (u[active] - p_left) / np.maximum(1.0 - p_left, 1e-300))
-            u[active] = np.minimum(u[active], np.nextafter(1.0, 0.0))
-            pmf[active] *= np.where(dead, 0.0, chosen)
-            node[active] = np.where(go_left, left, right)
-            active = active[self.children[node[active], 0] >= 0]
+        below_one = np.nextafter(1.0, 0.0)
+        active = None if self.children[0, 0] >= 0 else np.zeros(0, dtype=np.int64)  # None: every point
+        while active is None or active.size:
+            at = node if active is None else node[active]
+            p_left, p_right = self._child_probabilities(points if active is None else points[:, active], at)
+            ua = u if active is None else u[active]
+            go_left = ua < p_left
+            ua = np.where(go_left, ua / np.maximum(p_left, 1e-300), (ua - p_left) / np.maximum(p_right, 1e-300))
+            chosen = np.where(go_left, p_left, p_right)  # 0 where neither child can reach the point
+            at = np.where(go_left, self.children[at, 0], self.children[at, 1])
+            if active is None:
+                u, node = np.minimum(ua, below_one), at
+                pmf *= chosen
+                inner = self.children[node, 0] >= 0
+                active = None if inner.all() else np.flatnonzero(inner)
+            else:
+                u[active], node[active] = np.minimum(ua, below_one), at
+                pmf[active] *= chosen
+                active = active[self.children[at, 0] >= 0]
         light = self.light[node]
         return np.where(pmf > 0, light, -1), pmf
 
     def pmf(self, points: np.ndarray, lights: np.ndarray) -> np.ndarray:
         """The probability (M,) float64 that :meth:`sample` picks ``lights`` (M,) at points (3, M)."""
         lights = np.asarray(lights, dtype=np.int64)
+        points = np.asarray(points, dtype=np.float32)
         out = np.ones(lights.size)
         for level in range(self.path.shape[1]):
             node, side = self.path[lights, level], self.side[lights, level]
             rows = np.flatnonzero(node >= 0)
             if rows.size == 0:
                 break
-            pr = np.take(points, rows, axis=1)
-            i_left = self.importance(pr, self.children[node[rows], 0]).astype(np.float64)
-            i_right = self.importance(pr, self.children[node[rows], 1]).astype(np.float64)
-            total = i_left + i_right
-            taken = np.where(side[rows] == 0, i_left, i_right)
-            out[rows] *= np.where(total > 0, taken / np.where(total > 0, total, 1.0), 0.0)
+            p_left, p_right = self._child_probabilities(points[:, rows], node[rows])
+            out[rows] *= np.where(side[rows] == 0, p_left, p_right)
         return out
 
     # -- ray culling ----------------------------------------------------------------------------------------------

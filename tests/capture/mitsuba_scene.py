@@ -50,8 +50,11 @@ def scene_dict(scene, folder: Path) -> dict:  # noqa: ANN001 - bakery.capture.sc
         w, h = light.size
         # Mitsuba's rectangle spans [-1, 1]² in its xy plane and emits towards +z; bakery's emits towards −Z
         to_world = _frame(light.position, axes[0] * w / 2, -axes[1] * h / 2, -axes[2])
+        # a light's shape does not reflect (bakery.capture.render: paths end on it); Mitsuba's default BSDF is a
+        # diffuse 0.5, so the shape gets a black one
         result[f"light{i}"] = {"type": "rectangle", "to_world": to_world, "emitter": {
-            "type": "area", "radiance": {"type": "rgb", "value": list(map(float, light.radiance))}}}
+            "type": "area", "radiance": {"type": "rgb", "value": list(map(float, light.radiance))}},
+            "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}}}
     if scene.dome is not None or scene.portals:
         raise ValueError("domes are not converted")
     return result
