@@ -41,7 +41,10 @@ whose probabilities follow the lights' power and places (:mod:`bakery.capture.li
 the global part (its version, the threshold and the draws per vertex), so crossing the threshold re-bakes every
 probe. Between such scenes, an edit changes the draws of every probe, so a reused probe and a fresh bake of it are
 two estimates that differ by their noise (``/diagnostics/capture/sh_noise``) as well as by the bounds above: the
-guarantee holds for the expected capture, not bit for bit as it does with enumerated lights.
+guarantee holds for the expected capture, not bit for bit as it does with enumerated lights. Scenes with visible
+light shapes hash the version of the small-light splat (those shapes that look small from a probe are sampled
+from it, :mod:`bakery.capture.render` "Small lights"), so they re-bake once when it changes; scenes without keep
+their hash.
 """
 
 from __future__ import annotations
@@ -71,6 +74,10 @@ def file_digest(path: str) -> str:
 EMITTER_SAMPLING_VERSION = 1
 
 
+#: Version of the capture's splat of light shapes that look small from a probe (:meth:`bakery.capture.render.
+#: ProbeRenderer._add_small_lights`; hashed only for scenes with visible light shapes)
+SMALL_LIGHT_SPLAT_VERSION = 1
+
 #: Version of the capture's many-lights sampling (the light BVH's draws, :mod:`bakery.capture.light_tree`; hashed
 #: only for scenes with more than ENUMERATED_LIGHTS non-distant lights: any other scene keeps its hash)
 LIGHT_SAMPLING_VERSION = 1
@@ -79,6 +86,7 @@ LIGHT_SAMPLING_VERSION = 1
 def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN001 - bakery.capture.scene.CaptureScene
     """Hash of everything that can affect every probe (module docstring)."""
     from bakery.capture.light_tree import ENUMERATED_LIGHTS, LIGHT_SAMPLES
+    from bakery.capture.render import SPLAT_LIGHT_GRID, SPLAT_LIGHT_TEXELS
     from bakery.capture.lights import light_model
     from bakery.capture.render import CAPTURE_MODEL_VERSION
     from bakery.environment.resample import RESAMPLE_MODEL_VERSION
@@ -112,6 +120,8 @@ def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN00
         parts.append(("emitter_sampling", EMITTER_SAMPLING_VERSION))
     if sum(light.kind != "distant" for light in scene.lights) > ENUMERATED_LIGHTS:  # lights drawn from the BVH
         parts.append(("light_sampling", LIGHT_SAMPLING_VERSION, ENUMERATED_LIGHTS, LIGHT_SAMPLES))
+    if any(light.visible and light.kind != "distant" for light in scene.lights):  # small shapes are splatted
+        parts.append(("small_light_splat", SMALL_LIGHT_SPLAT_VERSION, SPLAT_LIGHT_TEXELS, SPLAT_LIGHT_GRID))
     parts += [file_digest(asset) for asset in sorted(set(assets))]
     parts.append((scene.meters_per_unit, scene.up_axis))
     parts.append(("capture model", CAPTURE_MODEL_VERSION))  # what the same scene captures to

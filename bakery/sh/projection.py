@@ -1,4 +1,4 @@
-"""Projection of radiance onto SH as one matrix product per batch of probes (method notes §4).
+"""Projection of radiance onto SH as one fixed matrix product per probe (method notes §4).
 
 L_lm = Σ_t Y_lm(ω_t) Ω_t L(ω_t), i.e. coefficients = (Y ⊙ Ω)ᵀ · L for a fixed grid: the weighted basis is built
 once per grid and band limit and reused for every probe.
@@ -25,11 +25,23 @@ class SHProjector:
         self.max_band = max_band
         #: (T, K) basis weighted by solid angle.
         self.weighted_basis = evaluate_sh_basis(directions, max_band) * np.asarray(solid_angles)[:, None]
+        self._basis_t = np.ascontiguousarray(self.weighted_basis.T)  # (K, T)
 
     def project(self, radiance: np.ndarray) -> np.ndarray:
-        """Radiance (P, T, C) or (T, C) → radiance SH (P, K, C) or (K, C)."""
+        """Radiance (P, T, C) or (T, C) → radiance SH (P, K, C) or (K, C).
+
+        One (K, T)·(T, C) product per probe, not one for the batch: a batch-wide GEMM's blocking depends on the
+        number of probes, and with it the last bits of every coefficient, which a nonlinear encoding (the ZH3 axis
+        solve) can carry into its float32 output — a probe's SH must not depend on what it is batched with."""
         r = np.asarray(radiance, dtype=np.float64)
-        return np.einsum("tk,...tc->...kc", self.weighted_basis, r, optimize=True)
+        if r.ndim == 2:
+            return self._basis_t @ r
+        lead = r.shape[:-2]
+        flat = r.reshape((-1,) + r.shape[-2:])
+        out = np.empty((flat.shape[0], self._basis_t.shape[0], flat.shape[-1]))
+        for i, probe in enumerate(flat):
+            np.matmul(self._basis_t, probe, out=out[i])
+        return out.reshape(lead + out.shape[1:])
 
 
 def project_radiance_sh(

@@ -185,3 +185,23 @@ def test_cube_projection_through_reflections_needs_an_even_face():
 
     with pytest.raises(ValueError, match="even face size"):
         CubeSHProjector(cube_texel_directions(5).reshape(-1, 3), cube_texel_solid_angles(5).reshape(-1), 4)
+
+
+@given(seed=st.integers(0, 2**31 - 1), count=st.integers(2, 9), face=st.sampled_from([4, 8, 16]))
+def test_a_probe_projects_to_the_same_bits_whatever_it_is_batched_with(seed, count, face):
+    """The projection of a batch is each probe's own projection, bit for bit (no batch-wide GEMM whose blocking
+    depends on the batch): a nonlinear encoding downstream (the ZH3 axis solve) cannot then store different bits
+    for a probe baked in another batch (pipeline batch size, dilation's re-encoded batches)."""
+    from bakery.irradiance.zh3 import solve_zh3_axis
+
+    rng = np.random.default_rng(seed)
+    cubes = rng.lognormal(0.0, 1.0, (count, 6 * face * face, 3)).astype(np.float32)
+    projector = cube_projector(face, 2)
+    together = projector.project(cubes)
+    for i in range(count):
+        np.testing.assert_array_equal(together[i], projector.project(cubes[i]))
+        np.testing.assert_array_equal(together[i], projector.project(cubes[i : i + 1])[0])
+    linear, zonal, _ = solve_zh3_axis(together)
+    alone = [solve_zh3_axis(together[i : i + 1]) for i in (0, count - 1)]
+    np.testing.assert_array_equal(linear[[0, count - 1]], np.concatenate([a[0] for a in alone]))
+    np.testing.assert_array_equal(zonal[[0, count - 1]], np.concatenate([a[1] for a in alone]))
