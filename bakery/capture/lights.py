@@ -225,11 +225,16 @@ class LightModel:
     # -- many lights ----------------------------------------------------------------------------------------------
     def tree_bound(self) -> LightBound:
         """The light for the light BVH (:mod:`bakery.capture.light_tree`): its bounding sphere's box, its power
-        (luminance of the radiance × area; shaping, IES and textures only ever lower it) and, by default, emission
-        in every direction."""
+        (luminance of the radiance × area; shaping, IES and textures only ever lower it) and its emission cone:
+        every direction, or the directions within its ShapingAPI cone angle of −Z."""
         r, c = self.bounding_radius, self.centre
         power = float(np.dot(LUMINANCE_WEIGHTS, np.maximum(self.colour, 0.0))) * self.light.area
-        return LightBound(tuple(c - r), tuple(c + r), power)
+        bound = LightBound(tuple(c - r), tuple(c + r), power)
+        cone = float(self.light.shaping[0]) if self.light.shaping else 180.0
+        if cone < 180.0:  # ShapingAPI's cone: no emission beyond it (1 − smoothstep reaches 0 at the cone angle)
+            bound = dataclasses.replace(bound, axis=tuple(-self.axes[2]), cos_normal=1.0,
+                                        cos_emission=math.cos(math.radians(cone)))
+        return bound
 
 
 def _soa(a: np.ndarray) -> np.ndarray:
@@ -449,9 +454,10 @@ class SphereLightModel(LightModel):
 
 class _PlanarLight(LightModel):
     def tree_bound(self) -> LightBound:
-        """One-sided: every emission direction is within 90° of the light's −Z."""
+        """One-sided: every emission direction is within 90° of the light's −Z (and of its shaping cone)."""
         bound = super().tree_bound()
-        return dataclasses.replace(bound, axis=tuple(-self.axes[2]), cos_normal=1.0, cos_emission=0.0)
+        return dataclasses.replace(bound, axis=tuple(-self.axes[2]), cos_normal=1.0,
+                                   cos_emission=max(0.0, bound.cos_emission))
 
     """Rect and disk: a surface in the local XY plane emitting towards local −Z, sampled uniformly by area."""
 

@@ -255,3 +255,47 @@ def test_drawn_lights_keep_every_light_s_linking_shadows_and_multipliers(tmp_pat
     monkeypatch.setattr(render, "ENUMERATED_LIGHTS", 100)
     enumerated, _ = capture_probes(scene, 12, samples=256, bounces=1)
     np.testing.assert_allclose(drawn[0].mean(axis=(1, 2)), enumerated[0].mean(axis=(1, 2)), rtol=0.03)
+
+
+def test_spot_lights_are_drawn_only_where_their_cone_reaches_and_converge(tmp_path, monkeypatch):
+    """ShapingAPI cones bound the BVH's emission cones: under a spot only that spot is drawn (a point outside
+    every cone draws none: nothing can light it), and drawn and enumerated spots over a glossy floor agree on every
+    face's mean to 3 % at 256 rays per texel (measured ≤ 1.1 %)."""
+    import dataclasses
+
+    from bakery.capture import render
+    from bakery.capture.lights import light_model
+
+    down = ((1.0, 0.0, 0.0), (0.0, 0.0, -1.0), (0.0, 1.0, 0.0))  # local −Z = world −Y
+    rng = np.random.default_rng(8)
+    spots = []
+    for i in range(ENUMERATED_LIGHTS + 8):
+        position = (float(rng.uniform(-4, 4)), float(rng.uniform(2.5, 3.5)), float(rng.uniform(-4, 4)))
+        shaping = (float(rng.uniform(15, 40)), 0.2, 0.0, 1.0, 1.0, 1.0)
+        if i % 4 == 0:
+            spots.append(Light("rect", f"/Panel{i}", radiance=(2.0, 2.0, 2.0), position=position, axes=down,
+                               size=(0.4, 0.4), shaping=shaping))
+        else:
+            spots.append(Light("sphere", f"/Spot{i}", radiance=(6.0, 5.0, 4.0), position=position, axes=down,
+                               size=(0.1, 0.0), shaping=shaping))
+    tree = LightBVH([light_model(s).tree_bound() for s in spots])
+    under = np.array([[s.position[0], 0.0, s.position[2]] for s in spots]).T
+    pmf = tree.pmf(np.repeat(under, len(spots), axis=1), np.tile(np.arange(len(spots)), len(spots)))
+    pmf = pmf.reshape(len(spots), len(spots))
+    for k, s in enumerate(spots):  # the spots whose cone (plus the light's own size) misses the point get 0
+        for j, other in enumerate(spots):
+            offset = np.hypot(other.position[0] - s.position[0], other.position[2] - s.position[2])
+            off_axis = math.degrees(math.atan2(offset, other.position[1]))
+            if off_axis > other.shaping[0] + 10.0:
+                assert pmf[k, j] == 0.0, (k, j)
+        assert pmf[k, k] > 0
+    light, probability = tree.sample(np.array([[0.0, 5.0, 0.0]] * 8).T, np.linspace(0.05, 0.95, 8))
+    assert np.all(light == -1) and np.all(probability == 0)  # above every downward spot
+    text = header() + material("Ground", diffuse=(0.4,) * 3, inputs="float inputs:roughness = 0.3\n        ")
+    reading = read_scene(write(tmp_path / "spots.usda", text + plane_mesh("Plane", 1e4, "/Ground")
+                               + probe("P", (0.3, 1.0, -0.2))))
+    scene = dataclasses.replace(reading.scene, lights=tuple(spots))
+    drawn, _ = capture_probes(scene, 12, samples=256, bounces=1)
+    monkeypatch.setattr(render, "ENUMERATED_LIGHTS", 100)
+    enumerated, _ = capture_probes(scene, 12, samples=256, bounces=1)
+    np.testing.assert_allclose(drawn[0].mean(axis=(1, 2)), enumerated[0].mean(axis=(1, 2)), rtol=0.03)
