@@ -339,6 +339,11 @@ def inspect(store: Path, as_json: bool, pattern: str | None, region: str | None)
             out.print(f"capture: {a.get('capture_samples')} rays/texel, ≤ {a.get('capture_bounces')} bounces, target "
                       f"noise {a.get('capture_target_noise', 0)}; SH noise median {np.median(noise):.3g}, "
                       f"max {noise.max():.3g} ({noise.size} rendered probes)")
+        sampling = json.loads(a.get("capture_light_sampling", "null") or "null")
+        if sampling and sampling.get("drawn"):
+            out.print(f"lights: {sampling['lights']}; {sampling['draws_per_vertex']} of the {sampling['non_distant']} "
+                      f"non-distant ones drawn per path vertex from the light BVH (all sampled up to "
+                      f"{sampling['enumerated_up_to']})")
     if "capture/backface_fraction" in s.diagnostics:  # probe validity
         from bakery.conventions import INSIDE_BACKFACE_FRACTION
         from bakery.pipeline.merge import inside_geometry

@@ -51,6 +51,15 @@ def next_event_lights(kinds: list[str]) -> int:
     return len(kinds) - drawn + (drawn if drawn <= ENUMERATED_LIGHTS else LIGHT_SAMPLES)
 
 
+def light_sampling(kinds: list[str]) -> dict:
+    """How next-event estimation samples analytic lights of these kinds (recorded with a scene bake): the lights,
+    the non-distant ones, whether those are drawn from the BVH, and the draws per vertex."""
+    local = sum(kind != "distant" for kind in kinds)
+    drawn = local > ENUMERATED_LIGHTS
+    return {"lights": len(kinds), "non_distant": local, "drawn": drawn, "draws_per_vertex": LIGHT_SAMPLES if drawn
+            else 0, "enumerated_up_to": ENUMERATED_LIGHTS, "next_event_samples_per_vertex": next_event_lights(kinds)}
+
+
 @dataclass(frozen=True)
 class LightBound:
     """What the tree knows of one light: the box (3,) ``lower``/``upper`` (metres) enclosing its surface, its power

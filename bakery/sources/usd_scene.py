@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from bakery.capture.light_tree import light_sampling
 from bakery.encodings import ENCODINGS
 from bakery.environment.resample import RESAMPLE_MODEL_VERSION
 from bakery.errors import SceneError, SceneWarning
@@ -175,6 +176,7 @@ class UsdSceneSource(Source):
             "capture_time": "default" if reading.scene.time_code is None else float(reading.scene.time_code),
             "capture_working_space": reading.scene.working_space,
             "capture_texture_color_spaces": _json_attribute(sorted({t.color_space for t in reading.scene.textures})),
+            "capture_light_sampling": _json_attribute(light_sampling([light.kind for light in reading.scene.lights])),
         }
         if roughness_notes:
             attributes["roughness_ranges"] = _json_attribute(roughness_notes)

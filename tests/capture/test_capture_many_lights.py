@@ -299,3 +299,23 @@ def test_spot_lights_are_drawn_only_where_their_cone_reaches_and_converge(tmp_pa
     monkeypatch.setattr(render, "ENUMERATED_LIGHTS", 100)
     enumerated, _ = capture_probes(scene, 12, samples=256, bounces=1)
     np.testing.assert_allclose(drawn[0].mean(axis=(1, 2)), enumerated[0].mean(axis=(1, 2)), rtol=0.03)
+
+
+def test_a_scene_bake_records_and_inspect_prints_how_its_lights_were_sampled(tmp_path):
+    """examples/plaza (272 lights): the store's capture_light_sampling says they were drawn, 4 per vertex, and
+    `bakery inspect` says so in one line."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import bakery
+
+    plaza = Path(__file__).resolve().parents[2] / "examples" / "plaza" / "plaza.usda"
+    bakery.bake(plaza, tmp_path / "plaza.h5", face_size=8, encodings=["sh3"], samples=2)
+    sampling = json.loads(bakery.open_store(tmp_path / "plaza.h5").attributes["capture_light_sampling"])
+    assert sampling == {"lights": 272, "non_distant": 272, "drawn": True, "draws_per_vertex": 4,
+                        "enumerated_up_to": ENUMERATED_LIGHTS, "next_event_samples_per_vertex": 4}
+    shown = subprocess.run([sys.executable, "-m", "bakery.cli", "inspect", str(tmp_path / "plaza.h5")],
+                           capture_output=True, text=True, check=True).stdout
+    assert "lights: 272; 4 of the 272 non-distant ones drawn per path vertex from the light BVH" in shown
