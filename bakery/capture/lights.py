@@ -369,6 +369,24 @@ def _sample_sphere(points: np.ndarray, centre: np.ndarray, r: np.ndarray | float
     return wi, dist, outside, pdf.astype(points.dtype, copy=False)
 
 
+def _sphere_hits(origins: np.ndarray, directions: np.ndarray, centre: np.ndarray, r2: np.ndarray | float
+                 ) -> np.ndarray:
+    """Nearest hit t (M,) (FAR if none) of rays (3, M) with spheres of centres (3, 1 | M) and squared radii r² (a
+    Python float, or (M,) of the rays' dtype holding the same rounded values): one sphere, or one per ray."""
+    oc = origins - centre
+    b = dot(oc, directions)
+    c = dot(oc, oc) - r2
+    perp = oc - b * directions
+    disc = r2 - dot(perp, perp)
+    sq = np.sqrt(np.maximum(disc, 0))
+    q = sq - b  # the far root −b + √disc
+    with np.errstate(divide="ignore", invalid="ignore"):
+        near = c / q  # (−b − √disc) without cancellation (the product of the roots is c)
+    t = np.where(c > 0, near, q)
+    hit = (disc >= 0) & (t > 0) & (q > 0)
+    return np.where(hit, t, FAR).astype(origins.dtype, copy=False)
+
+
 def sample_spheres(models: list[SphereLightModel], which: np.ndarray, points: np.ndarray, u0: np.ndarray,
                    u1: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:meth:`SphereLightModel.sample_soa` for many plain sphere lights at once: point i (of (3, M)) samples
@@ -436,20 +454,8 @@ class SphereLightModel(LightModel):
         m = origins.shape[1]
         if not self.visible:
             return np.full(m, FAR, dtype=origins.dtype), None
-        r = self.radius
         centre, _ = self._cols(origins.dtype)
-        oc = origins - centre
-        b = dot(oc, directions)
-        c = dot(oc, oc) - r * r
-        perp = oc - b * directions
-        disc = (r * r) - dot(perp, perp)
-        sq = np.sqrt(np.maximum(disc, 0))
-        q = sq - b  # the far root −b + √disc
-        with np.errstate(divide="ignore", invalid="ignore"):
-            near = c / q  # (−b − √disc) without cancellation (the product of the roots is c)
-        t = np.where(c > 0, near, q)
-        hit = (disc >= 0) & (t > 0) & (q > 0)
-        return np.where(hit, t, FAR).astype(origins.dtype, copy=False), None
+        return _sphere_hits(origins, directions, centre, self.radius * self.radius), None
 
 
 class _PlanarLight(LightModel):
@@ -671,16 +677,33 @@ class LightSet:
                 r, c = self._cull_radius(model), model.centre
                 boxes.append(LightBound(tuple(c - r), tuple(c + r), 1.0))
             self._shape_bvh = LightBVH(boxes)
+        #: with the BVH, the sphere shapes' (segment, shape) pairs are intersected together (:func:`_sphere_hits`)
+        self._sphere = np.array([isinstance(m, SphereLightModel) for m in self.surfaces], dtype=bool)
+        self._sphere_centres = np.array([m.centre for m in self.surfaces], dtype=np.float64).reshape(-1, 3).T
+        self._sphere_r2 = [m.radius * m.radius if isinstance(m, SphereLightModel) else 0.0 for m in self.surfaces]
+
+    def _sphere_pairs_hits(self, origins: np.ndarray, directions: np.ndarray, seg: np.ndarray, light: np.ndarray,
+                           origin_of: np.ndarray | None = None) -> np.ndarray:
+        """t (K,) of the (segment, sphere shape) pairs, all at once: the arithmetic of
+        :meth:`SphereLightModel.intersect_soa` with per-pair centres and radii."""
+        dtype = directions.dtype
+        o = np.take(origins, seg if origin_of is None else origin_of[seg], axis=1)
+        centres = np.take(self._sphere_centres.astype(dtype), light, axis=1)
+        r2 = np.array(self._sphere_r2, dtype=dtype).take(light)  # each r·r rounded once, as a Python float would be
+        return _sphere_hits(o, np.take(directions, seg, axis=1), centres, r2)
 
     @staticmethod
     def _cull_radius(model: LightModel) -> float:
         return model.bounding_radius * 1.01 + 1e-4
 
     def _pairs(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray | float,
-               skip: np.ndarray | int | None = None) -> list[tuple[int, np.ndarray]]:
+               skip: np.ndarray | int | None = None
+               ) -> tuple[list[tuple[int, np.ndarray]], tuple[np.ndarray, np.ndarray] | None]:
         """Per light shape k (ascending), the segments (ascending flat indices of ``directions`` (3, ..., M)) that
-        pass its culling sphere — every shape's test over all segments, or the BVH's pairs (above CULLED_SHAPES shapes) (the same segments up to
-        the looser boxes, which the exact tests then reject) — without those whose ``skip`` is k."""
+        pass its culling sphere — every shape's test over all segments, or the BVH's pairs (above CULLED_SHAPES
+        shapes; the same segments up to the looser boxes, which the exact tests then reject) — without those whose
+        ``skip`` is k; with the BVH, the sphere shapes' pairs apart as (segment, shape) arrays, by segment then
+        shape (None without it)."""
         shape = directions.shape[1:]
         m = directions.shape[-1]
         skip_flat = None if skip is None or np.ndim(skip) == 0 else np.broadcast_to(skip, shape).reshape(-1)
@@ -693,7 +716,7 @@ class LightSet:
                 idx = np.flatnonzero(cand)
                 if idx.size:
                     out.append((k, idx))
-            return out
+            return out, None
         d_flat = directions.reshape(3, -1)
         dist_flat = np.broadcast_to(np.asarray(distances, dtype=np.float64), shape).reshape(-1)
         broadcast = origins.ndim != directions.ndim
@@ -703,12 +726,15 @@ class LightSet:
         if skip is not None:
             keep = light != (skip_flat[seg] if skip_flat is not None else int(skip))
             seg, light = seg[keep], light[keep]
+        sphere = self._sphere[light]
+        spheres = (seg[sphere], light[sphere])
+        seg, light = seg[~sphere], light[~sphere]
         order = np.argsort(light, kind="stable")  # by light, each light's segments ascending
         seg, light = seg[order], light[order]
         starts = np.flatnonzero(np.r_[True, light[1:] != light[:-1]]) if light.size else np.zeros(0, np.int64)
         for a, b in zip(starts, np.r_[starts[1:], light.size]):
             out.append((int(light[a]), seg[a:b]))
-        return out
+        return out, spheres
 
     def _candidates(self, model: LightModel, origins: np.ndarray, directions: np.ndarray,
                     distances: np.ndarray | float) -> np.ndarray:
@@ -733,10 +759,18 @@ class LightSet:
         if not self.surfaces:
             return best, which, None
         coords: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # per textured light: (tested rays, their coords)
-        for k, idx in self._pairs(origins, directions, FAR):
+        groups, spheres = self._pairs(origins, directions, FAR)
+        if spheres is not None and spheres[0].size:  # the nearest sphere per ray: least t, then least index
+            seg, light = spheres
+            t = self._sphere_pairs_hits(origins, directions, seg, light)
+            order = np.lexsort((light, t, seg))
+            first = order[np.r_[True, seg[order][1:] != seg[order][:-1]]]
+            first = first[t[first] < FAR]
+            best[seg[first]], which[seg[first]] = t[first], light[first]
+        for k, idx in groups:  # every other shape in index order, as the loop over all shapes
             model = self.surfaces[k]
             t, c = model.intersect_soa(np.take(origins, idx, axis=1), np.take(directions, idx, axis=1))
-            closer = t < best[idx]
+            closer = (t < best[idx]) | ((t == best[idx]) & (t < FAR) & (k < which[idx]))
             sel = idx[closer]
             best[sel] = t[closer]
             which[sel] = k
@@ -783,7 +817,14 @@ class LightSet:
         m = directions.shape[-1]
         d_flat = directions.reshape(3, -1)
         dist_flat = np.broadcast_to(distances, shape).reshape(-1)
-        for k, idx in self._pairs(origins, directions, distances, skip):
+        groups, spheres = self._pairs(origins, directions, distances, skip)
+        if spheres is not None and spheres[0].size:
+            seg, light = spheres
+            broadcast = origins.ndim != directions.ndim
+            t = self._sphere_pairs_hits(origins if broadcast else origins.reshape(3, -1), d_flat, seg, light,
+                                        np.arange(d_flat.shape[1]) % m if broadcast else None)
+            flat[seg[t < dist_flat[seg]]] = True
+        for k, idx in groups:
             model = self.surfaces[k]
             if not model.visible:
                 continue
