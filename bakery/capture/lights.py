@@ -387,16 +387,52 @@ def _sphere_hits(origins: np.ndarray, directions: np.ndarray, centre: np.ndarray
     return np.where(hit, t, FAR).astype(origins.dtype, copy=False)
 
 
-def sample_spheres(models: list[SphereLightModel], which: np.ndarray, points: np.ndarray, u0: np.ndarray,
-                   u1: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """:meth:`SphereLightModel.sample_soa` for many plain sphere lights at once: point i (of (3, M)) samples
-    ``models[which[i]]``; the same arithmetic, with per-point centres, radii and radiances."""
-    dtype = points.dtype
-    centres = np.array([m.centre for m in models], dtype=dtype).T.take(which, axis=1)
-    radii = np.array([m.radius for m in models], dtype=dtype).take(which)
-    colours = np.array([m.colour for m in models], dtype=dtype).T.take(which, axis=1)
-    wi, dist, outside, pdf = _sample_sphere(points, centres, radii, u0, u1)
-    return wi, dist, colours * outside.astype(dtype), pdf
+class LightSampler:
+    """Next-event samples of many lights at once, point i sampling light ``which[i]`` of ``models``: the plain sphere
+    lights (:attr:`SphereLightModel.plain`) in one call with per-point centres, radii and radiances — the arithmetic
+    of :meth:`SphereLightModel.sample_soa` — and every other light with its own :meth:`LightModel.sample_soa` on its
+    points. Used for the lights drawn from the light BVH and for the splatted small lights
+    (:mod:`bakery.capture.render`)."""
+
+    def __init__(self, models: list[LightModel] | tuple[LightModel, ...]) -> None:
+        self.models = tuple(models)
+        plain = [k for k, m in enumerate(self.models) if isinstance(m, SphereLightModel) and m.plain]
+        #: per model, its index among the plain spheres (−1: sampled on its own)
+        self.sphere_of = np.full(len(self.models), -1, dtype=np.int64)
+        self.sphere_of[plain] = np.arange(len(plain))
+        self._centres = np.array([self.models[k].centre for k in plain], dtype=np.float64).reshape(-1, 3).T
+        self._radii = np.array([self.models[k].radius for k in plain], dtype=np.float64)
+        self._colours = np.array([self.models[k].colour for k in plain], dtype=np.float64).reshape(-1, 3).T
+
+    def sample(self, points: np.ndarray, which: np.ndarray, u0: np.ndarray, u1: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Directions (3, M), shadow distances (M,), radiances (3, M) and solid-angle pdfs (M,) of points (3, M),
+        each sampling ``models[which[i]]`` with u0, u1 (M,); ``which`` < 0: no sample (pdf 0)."""
+        m, dtype = points.shape[1], points.dtype
+        wi = np.zeros((3, m), dtype=dtype)
+        wi[2] = 1
+        dist = np.zeros(m, dtype=dtype)
+        radiance = np.zeros((3, m), dtype=dtype)
+        pdf = np.zeros(m, dtype=dtype)
+        chosen = np.flatnonzero(which >= 0)
+        sphere = self.sphere_of[which[chosen]]
+        sel = chosen[sphere >= 0]
+        if sel.size:  # the plain spheres together
+            k = sphere[sphere >= 0]
+            centres = self._centres.astype(dtype).take(k, axis=1)
+            radii = self._radii.astype(dtype).take(k)
+            wi[:, sel], dist[sel], outside, pdf[sel] = _sample_sphere(np.take(points, sel, axis=1), centres, radii,
+                                                                      u0[sel], u1[sel])
+            radiance[:, sel] = self._colours.astype(dtype).take(k, axis=1) * outside.astype(dtype)
+        rest = chosen[sphere < 0]
+        rest = rest[np.argsort(which[rest], kind="stable")]  # grouped by light, ascending within
+        lights = which[rest]
+        starts = np.flatnonzero(np.r_[True, lights[1:] != lights[:-1]]) if rest.size else np.zeros(0, np.int64)
+        for a, b in zip(starts, np.r_[starts[1:], rest.size]):
+            sel = rest[a:b]
+            wi[:, sel], dist[sel], radiance[:, sel], pdf[sel] = self.models[int(lights[a])].sample_soa(
+                np.take(points, sel, axis=1), u0[sel], u1[sel])
+        return wi, dist, radiance, pdf
 
 
 @register_light
@@ -438,7 +474,8 @@ class SphereLightModel(LightModel):
 
     @property
     def plain(self) -> bool:
-        """Radiance independent of direction (no shaping, no IES profile): :func:`sample_spheres` samples it."""
+        """Radiance independent of direction (no shaping, no IES profile): :class:`LightSampler` samples it with
+        the other plain spheres."""
         return not self.light.shaping and self.light.ies is None
 
     def sample_soa(self, points, u0, u1):  # noqa: ANN001, ANN201

@@ -88,8 +88,7 @@ from bakery.capture.lights import (
     DistantLightModel,
     LightSet,
     RectLightModel,
-    SphereLightModel,
-    sample_spheres,
+    LightSampler,
 )
 from bakery.capture.light_tree import ENUMERATED_LIGHTS, LIGHT_SAMPLES, LightBVH
 from bakery.capture.scene import CaptureScene, Dome, Light
@@ -382,19 +381,13 @@ class ProbeRenderer:
             self._tree = LightBVH([self.lights.models[j].tree_bound() for j in drawn])
             self._tree_models = np.array(drawn, dtype=np.int64)
             self._tree_leaf = {j: leaf for leaf, j in enumerate(drawn)}
-        # the drawn lights sampled together (sample_spheres), and each leaf's index among them (−1: on its own)
-        self._tree_spheres = [self.lights.models[j] for j in self._tree_models
-                              if isinstance(self.lights.models[j], SphereLightModel) and self.lights.models[j].plain]
-        plain = {id(m): k for k, m in enumerate(self._tree_spheres)}
-        self._tree_sphere_of = np.array([plain.get(id(self.lights.models[j]), -1) for j in self._tree_models],
-                                        dtype=np.int64)
+        self._tree_sampler = LightSampler([self.lights.models[j] for j in self._tree_models])  # by BVH leaf
         self._enumerated = [j for j in range(len(self.lights.models)) if j not in self._tree_leaf]
-        # the light surfaces' culling spheres and which are plain spheres (the small-light splat)
+        # the light surfaces' culling spheres and their sampler (the small-light splat)
         surfaces = self.lights.surfaces
         self._surface_spheres = (np.array([m.centre for m in surfaces]).reshape(-1, 3),
                                  np.array([m.bounding_radius for m in surfaces], dtype=np.float64))
-        self._surface_plain_sphere = np.array([isinstance(m, SphereLightModel) and m.plain for m in surfaces],
-                                              dtype=bool)
+        self._surface_sampler = LightSampler(surfaces)
 
     # ------------------------------------------------------------------------------------------------------------
     def prepare(self, face_size: int) -> None:
@@ -970,31 +963,10 @@ class ProbeRenderer:
         """One light per point (3, M) drawn from the light BVH and a next-event sample of it: direction (3, M),
         shadow distance (M,), radiance (3, M), the pdf K·P(light | point)·pdf(ω) of the K draws (M,) (0 where no
         light can reach the point) and the light's index (M,) (the strategy-table row)."""
-        m = points.shape[1]
         leaf, pmf = self._tree.sample(points, owners.random(dtype=np.float64))
         u = owners.random(2)
-        wi = np.zeros((3, m), dtype=REAL)
-        wi[2] = 1
-        dist = np.zeros(m, dtype=REAL)
-        radiance = np.zeros((3, m), dtype=REAL)
-        pdf = np.zeros(m, dtype=REAL)
         light = np.where(leaf >= 0, self._tree_models[np.maximum(leaf, 0)], 0)
-        chosen = np.flatnonzero(leaf >= 0)
-        if self._tree_spheres:  # plain sphere lights: one call for all of them, per-point parameters
-            spheres = chosen[self._tree_sphere_of[leaf[chosen]] >= 0]
-            if spheres.size:
-                wi[:, spheres], dist[spheres], radiance[:, spheres], pdf[spheres] = sample_spheres(
-                    self._tree_spheres, self._tree_sphere_of[leaf[spheres]], _take(points, spheres), u[0][spheres],
-                    u[1][spheres])
-            chosen = chosen[self._tree_sphere_of[leaf[chosen]] < 0]
-        chosen = chosen[np.argsort(leaf[chosen], kind="stable")]  # the others grouped by light, ascending within
-        leaves = leaf[chosen]
-        starts = np.flatnonzero(np.r_[True, leaves[1:] != leaves[:-1]]) if chosen.size else np.zeros(0, np.int64)
-        for a, b in zip(starts, np.r_[starts[1:], chosen.size]):
-            sel = chosen[a:b]
-            model = self.lights.models[int(self._tree_models[leaves[a]])]
-            wi[:, sel], dist[sel], radiance[:, sel], pdf[sel] = model.sample_soa(_take(points, sel), u[0][sel],
-                                                                                 u[1][sel])
+        wi, dist, radiance, pdf = self._tree_sampler.sample(points, leaf, u[0], u[1])
         pdf = (pdf * (LIGHT_SAMPLES * pmf)).astype(REAL)  # delta lights: ∞ stays ∞ (their weight is 1 / (K·P))
         return wi, dist, radiance, pdf, light
 
@@ -1142,23 +1114,7 @@ class ProbeRenderer:
         u0 = ((cell % side + jitter[0]) / side).astype(REAL)
         u1 = ((cell // side + jitter[1]) / side).astype(REAL)
         points = np.ascontiguousarray(np.broadcast_to(origin.astype(REAL).reshape(3, 1), (3, total)))
-        wi = np.zeros((3, total), dtype=REAL)
-        wi[2] = 1
-        dist = np.zeros(total, dtype=REAL)
-        radiance = np.zeros((3, total), dtype=REAL)
-        pdf = np.zeros(total, dtype=REAL)
-        plain = self._surface_plain_sphere[light]
-        if plain.any():  # the plain sphere lights in one call
-            sel = np.flatnonzero(plain)
-            spheres = [self.lights.surfaces[int(k)] for k in chosen[self._surface_plain_sphere[chosen]]]
-            index = {int(k): i for i, k in enumerate(chosen[self._surface_plain_sphere[chosen]])}
-            which = np.array([index[int(k)] for k in light[sel]], dtype=np.int64)
-            wi[:, sel], dist[sel], radiance[:, sel], pdf[sel] = sample_spheres(spheres, which, points[:, sel],
-                                                                               u0[sel], u1[sel])
-        for k in chosen[~self._surface_plain_sphere[chosen]]:  # the others light by light
-            sel = np.flatnonzero(light == k)
-            wi[:, sel], dist[sel], radiance[:, sel], pdf[sel] = self.lights.surfaces[int(k)].sample_soa(
-                points[:, sel], u0[sel], u1[sel])
+        wi, dist, radiance, pdf = self._surface_sampler.sample(points, light, u0, u1)
         good = (pdf > 0) & np.isfinite(pdf) & (vmax(radiance) > 0)
         if good.any():
             sel = np.flatnonzero(good)

@@ -85,7 +85,7 @@ LIGHT_SAMPLING_VERSION = 1
 
 def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN001 - bakery.capture.scene.CaptureScene
     """Hash of everything that can affect every probe (module docstring)."""
-    from bakery.capture.light_tree import ENUMERATED_LIGHTS, LIGHT_SAMPLES
+    from bakery.capture.light_tree import light_sampling
     from bakery.capture.render import SPLAT_LIGHT_GRID, SPLAT_LIGHT_TEXELS
     from bakery.capture.lights import light_model
     from bakery.capture.render import CAPTURE_MODEL_VERSION
@@ -118,8 +118,10 @@ def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN00
     parts.append((getattr(scene, "time_code", None), getattr(scene, "working_space", "lin_rec709")))
     if any(mesh.material.emits for mesh in scene.meshes):  # emissive triangles as lights (bakery.capture.emitters)
         parts.append(("emitter_sampling", EMITTER_SAMPLING_VERSION))
-    if sum(light.kind != "distant" for light in scene.lights) > ENUMERATED_LIGHTS:  # lights drawn from the BVH
-        parts.append(("light_sampling", LIGHT_SAMPLING_VERSION, ENUMERATED_LIGHTS, LIGHT_SAMPLES))
+    sampling = light_sampling([light.kind for light in scene.lights])
+    if sampling["drawn"]:  # next-event lights drawn from the BVH
+        parts.append(("light_sampling", LIGHT_SAMPLING_VERSION, sampling["enumerated_up_to"],
+                      sampling["draws_per_vertex"]))
     if any(light.visible and light.kind != "distant" for light in scene.lights):  # small shapes are splatted
         parts.append(("small_light_splat", SMALL_LIGHT_SPLAT_VERSION, SPLAT_LIGHT_TEXELS, SPLAT_LIGHT_GRID))
     parts += [file_digest(asset) for asset in sorted(set(assets))]
