@@ -527,7 +527,7 @@ def check(scene: Path) -> None:
         colour = "red" if issue.severity == "error" else "yellow"
         errors += issue.severity == "error"
         out.print(f"[{colour}]{issue.severity}[/{colour}] {escape(str(issue.prim))}: {escape(issue.message)}")
-    out.print(f"{len(issues)} issue(s), {errors} error(s)")
+    out.print(f"{_count(len(issues), 'issue')}, {_count(errors, 'error')}")
     if check_exit_code(issues):
         sys.exit(check_exit_code(issues))
 

@@ -79,6 +79,25 @@ def Material "{name}"
 """
 
 
+def glowing_mtlx_document(nodes: str, output: str) -> str:
+    """A MaterialX document whose material ``Glow`` is an emissive standard_surface (base 0, specular 0, emission 1)
+    with emission_color connected to the node ``output`` among ``nodes`` (XML text)."""
+    return f"""<?xml version="1.0"?>
+<materialx version="1.39">
+  {nodes}
+  <standard_surface name="SR_glow" type="surfaceshader">
+    <input name="base" type="float" value="0" />
+    <input name="specular" type="float" value="0" />
+    <input name="emission" type="float" value="1" />
+    <input name="emission_color" type="color3" nodename="{output}" />
+  </standard_surface>
+  <surfacematerial name="Glow" type="material">
+    <input name="surfaceshader" type="surfaceshader" nodename="SR_glow" />
+  </surfacematerial>
+</materialx>
+"""
+
+
 def mtlx_material(name: str, shader_id: str, inputs: str) -> str:
     """A MaterialX surface authored in USD (a ``mtlx`` surface output of a shader ``shader_id``, e.g.
     ``ND_standard_surface_surfaceshader``); ``inputs``: its authored inputs (usda lines)."""

@@ -74,7 +74,7 @@ def inside_geometry_issues(scene: CaptureScene, shown: int = 3) -> list[Issue]:
                f"{', bakery:volume:dilate' if len(done) == 2 else ''})" if done else
                "set bakery:volume:relocate or bakery:volume:dilate, move the volume, or author doubleSided on open "
                "sheets")
-        issues.append(Issue("warning", prim, f"{len(members)} of its probes are likely inside geometry ({rule}: "
+        issues.append(Issue("warning", prim, f"{len(members)} of its probes {'is' if len(members) == 1 else 'are'} likely inside geometry ({rule}: "
                             f"{names}{more}); {fix}"))
     return issues
 

@@ -424,6 +424,16 @@ class MaterialReader:
     def texture_mean(self, index: int) -> np.ndarray:
         return self._means[index]
 
+    def computed_texture(self, pixels: np.ndarray, name: str, is_color: bool) -> int:
+        """Index in :attr:`textures` of a texture computed by the reader (a flattened MaterialX graph,
+        :mod:`bakery.usd.mtlx_graph`): ``pixels`` (H, W, C ≤ 4) in the working space (colour) or raw (data); one
+        channel fills RGB, a missing alpha is 1."""
+        pixels = _rgba(np.asarray(pixels, dtype=np.float64))
+        self._means[len(self.textures)] = pixels.reshape(-1, 4).mean(axis=0)
+        self.textures.append(Texture(name=name, pixels=pixels.astype(np.float32),
+                                     color_space="lin_rec709" if is_color else "raw"))
+        return len(self.textures) - 1
+
     # ------------------------------------------------------------------------------------------------------------
     def _read_mtlx_document(self, target: str, document: str, material_name: str) -> tuple[Material, bool, str | None]:
         from bakery.usd.mtlx import MaterialXError, surface_from_document

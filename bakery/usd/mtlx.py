@@ -30,6 +30,8 @@ Mapping (metallic workflow of the capture; see ``docs/capture.md``)
     are converted with OpenColorIO), address modes and default; a scalar weight multiplying a textured colour
     (base · base_color) folds into the map's scale. Chains of ``multiply``/``add``/``subtract``/``mix`` with
     constant operands over one image (or ``geompropvalue``) fold into the map's scale and bias (:func:`fold_affine`);
+    any other graph over images (several images, a textured mix amount, separate/extract, clamp, …) is flattened into
+    a texture of its own (:mod:`bakery.usd.mtlx_graph`);
     a colour input fed by ``geompropvalue`` reads that primvar per hit (vertex colours); image coordinates follow
     ``tiledimage`` tiling and a ``place2d``; a tangent-space ``normalmap`` of an image is a normal map (2·in − 1, x
     and y times its ``scale``), and a ``normalize`` of an image through constant arithmetic a world-space one.
@@ -54,6 +56,7 @@ from bakery.usd.materials import (
     udim_tile_size,
     vertex_color_entry,
 )
+from bakery.usd.mtlx_graph import GraphAccess, GraphError, flatten_graph
 
 _SUPPORTED = ("standard_surface", "open_pbr_surface", "UsdPreviewSurface", "gltf_pbr")
 #: Lobe weights the capture does not model: (input, neutral value).
@@ -445,10 +448,12 @@ def surface_from_document(reader, document: str, material_name: str, prim: str) 
     for inp in shader.getActiveInputs():
         name = inp.getName()
         upstream = inp.getConnectedNode()
+        upstream_output = inp.getOutputString() or "out"  # the output of a multi-output node (separate3: outg)
         if upstream is None and inp.getNodeGraphString():
             graph = doc.getNodeGraph(inp.getNodeGraphString())
             output = graph.getOutput(inp.getOutputString() or "out") if graph is not None else None
             upstream = output.getConnectedNode() if output is not None else None
+            upstream_output = (output.getOutputString() if output is not None else "") or "out"
         if upstream is None:
             if inp.getValue() is not None:
                 values[name] = _py(inp.getValue())
@@ -459,9 +464,9 @@ def surface_from_document(reader, document: str, material_name: str, prim: str) 
                 maps[name] = entry
             continue
         folded = fold_affine(upstream, lambda node: node.getCategory(), _document_operand)
-        if folded is None:
-            notes.append(f"input {name} is computed by a {upstream.getCategory()} node, which the capture does not "
-                         "evaluate; its default is used")
+        if folded is None:  # a graph over several images, or other nodes: flattened into a texture of its own
+            _put_flattened(reader, name, prim, upstream, upstream_output, _document_access(reader, base_dir, prim),
+                           values, maps, notes)
             continue
         leaf, scale, bias = folded  # an image or a colour primvar, through constant multiply/add/subtract/mix
         if leaf.getCategory() == "geompropvalue":  # a colour primvar read per hit
@@ -693,7 +698,7 @@ def _document_operand(node, name: str):  # noqa: ANN001, ANN202
             if upstream.getCategory() == "constant":
                 value = upstream.getInputValue("value")
                 return None if value is None else ("value", value)
-            return "node", upstream
+            return "node", upstream, inp.getOutputString() or "out"
         interface = inp.getInterfaceInput() if inp.hasInterfaceName() else None
         if interface is not None:
             return None if interface.getValue() is None else ("value", interface.getValue())
@@ -702,6 +707,48 @@ def _document_operand(node, name: str):  # noqa: ANN001, ANN202
     node_def = node.getNodeDef()
     default = node_def.getInput(name) if node_def is not None else None
     return None if default is None or default.getValue() is None else ("value", default.getValue())
+
+
+def _document_access(reader, base_dir: Path, prim: str) -> GraphAccess:  # noqa: ANN001
+    """:class:`GraphAccess` to a MaterialX document's nodes (images read next to the document)."""
+    return GraphAccess(
+        category=lambda node: node.getCategory(), node_type=lambda node: node.getType(), operand=_document_operand,
+        image=lambda node: _image_map(reader, node, base_dir, node.getType() in ("color3", "color4"), prim),
+        pixels=lambda index: reader.textures[index].pixels, key=lambda node: node.getNamePath())
+
+
+def _usd_access(reader) -> GraphAccess:  # noqa: ANN001
+    """:class:`GraphAccess` to MaterialX shaders authored as USD prims (``ND_…`` ids)."""
+    def node_type(shader) -> str:  # noqa: ANN001
+        node_def = _library().getNodeDef(shader.GetShaderId() or "")
+        return node_def.getType() if node_def is not None else ""
+
+    return GraphAccess(
+        category=_usd_node_category, node_type=node_type, operand=lambda node, n: _usd_operand(reader, node, n),
+        image=lambda node: _usd_image_map(reader, node, node_type(node) in ("color3", "color4")),
+        pixels=lambda index: reader.textures[index].pixels, key=lambda shader: str(shader.GetPath()))
+
+
+def _put_flattened(reader, name: str, prim: str, node, output: str, access: GraphAccess,  # noqa: ANN001
+                   values: dict[str, object], maps: dict[str, dict], notes: list[str]) -> None:
+    """Surface input ``name`` computed by ``node``'s ``output``: flattened (:func:`bakery.usd.mtlx_graph.
+    flatten_graph`) into a texture map, a constant value when the graph reads no image, or a note and the input's
+    default when the graph cannot be flattened."""
+    try:
+        flat = flatten_graph(node, output, access)
+    except GraphError as error:
+        notes.append(f"input {name} is computed by {error}; its default is used")
+        return
+    fallback = np.broadcast_to(flat.fallback, 3) if flat.fallback.size == 1 else flat.fallback
+    if flat.pixels is None:
+        values[name] = float(flat.fallback[0]) if flat.fallback.size == 1 else tuple(float(x) for x in fallback[:3])
+        return
+    index = reader.computed_texture(flat.pixels, f"{prim}: {name} (MaterialX graph)", _is_colour(name))
+    rgba = np.r_[fallback[:3], fallback[3] if fallback.size > 3 else 1.0]
+    entry = {"texture": index, "channels": "rgb" if flat.pixels.shape[-1] >= 3 else "r",
+             "scale": (1.0, 1.0, 1.0, 1.0), "bias": (0.0, 0.0, 0.0, 0.0), "fallback": tuple(float(x) for x in rgba),
+             "wrap": flat.wrap, "_mean": tuple(float(x) for x in reader.texture_mean(index)[:3])}
+    maps[name] = _with_transform(entry, flat.st_transform)
 
 
 def _usd_node_category(shader) -> str:  # noqa: ANN001
@@ -719,7 +766,7 @@ def _usd_operand(reader, shader, name: str):  # noqa: ANN001, ANN202
             if _usd_node_category(upstream) == "constant":
                 constant = reader._input_value(upstream, "value", None)
                 return None if constant is None else ("value", constant)
-            return "node", upstream
+            return "node", upstream, _output or "out"
         if value is not None:
             return "value", value
     node_def = _library().getNodeDef(shader.GetShaderId() or "")
@@ -762,6 +809,10 @@ def surface_from_usd_shader(reader, shader, shader_id: str) -> Surface | None:  
                 maps[name] = dict(entry, _mean=mean)
             continue
         folded = fold_affine(upstream, _usd_node_category, lambda node, n: _usd_operand(reader, node, n))
+        if folded is None and _usd_node_category(upstream):  # a MaterialX graph: flattened into a texture
+            _put_flattened(reader, name, str(upstream.GetPath()), upstream, output or "out", _usd_access(reader),
+                           values, maps, notes)
+            continue
         if folded is not None:  # an image or a colour primvar, through constant multiply/add/subtract/mix
             leaf, scale, bias = folded
             leaf_id = leaf.GetShaderId() or ""

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import OpenImageIO as oiio
 import pytest
-from usd_scenes import glowing_material, glowing_mtlx_material, header, probe, write
+from usd_scenes import glowing_material, glowing_mtlx_document, glowing_mtlx_material, header, probe, write
 
 from bakery.capture import capture_probes
 from bakery.sphere.cubemap import cube_texel_directions
@@ -165,23 +165,8 @@ def test_place2d_pivot_and_order_follow_the_stdlib_graph():
 
 # --- MaterialX graphs of constant arithmetic over an image, folded into the map's scale and bias ------------------
 def _document(file: str, graph: str, output: str) -> str:
-    return f"""<?xml version="1.0"?>
-<materialx version="1.39">
-  <image name="halves" type="color3">
-    <input name="file" type="filename" value="{file}" />
-  </image>
-  {graph}
-  <standard_surface name="SR_glow" type="surfaceshader">
-    <input name="base" type="float" value="0" />
-    <input name="specular" type="float" value="0" />
-    <input name="emission" type="float" value="1" />
-    <input name="emission_color" type="color3" nodename="{output}" />
-  </standard_surface>
-  <surfacematerial name="Glow" type="material">
-    <input name="surfaceshader" type="surfaceshader" nodename="SR_glow" />
-  </surfacematerial>
-</materialx>
-"""
+    return glowing_mtlx_document(f'<image name="halves" type="color3"><input name="file" type="filename" '
+                                 f'value="{file}" /></image>{graph}', output)
 
 
 def _seen_through_document(tmp_path) -> list[np.ndarray]:
@@ -221,18 +206,6 @@ def test_materialx_constant_arithmetic_over_an_image_is_folded(tmp_path, graph, 
     (tmp_path / "glow.mtlx").write_text(_document(file, graph, output))
     expected = [colour(np.asarray(c)) for c in _expected(lambda s, t: (s, t))]
     np.testing.assert_allclose(_seen_through_document(tmp_path), expected, atol=2e-3)
-
-
-def test_an_image_times_an_image_is_still_reported(tmp_path):
-    file = _halves(tmp_path / "halves.exr")
-    graph = ('<image name="other" type="color3"><input name="file" type="filename" value="' + file + '" /></image>'
-             '<multiply name="both" type="color3"><input name="in1" type="color3" nodename="halves" />'
-             '<input name="in2" type="color3" nodename="other" /></multiply>')
-    (tmp_path / "glow.mtlx").write_text(_document(file, graph, "both"))
-    text = header() + 'def Scope "Looks" (\n    references = @./glow.mtlx@</MaterialX>\n)\n{\n}\n' + _floor("").replace(
-        "</Glow>", "</Looks/Materials/Glow>")
-    reading = read_scene(write(tmp_path / "scene.usda", text))
-    assert [i for i in reading.issues if "multiply node, which the capture does not evaluate" in i.message]
 
 
 def test_a_node_graph_with_an_interface_input_is_folded(tmp_path):
