@@ -679,6 +679,11 @@ def plan_command(sources: tuple[Path, ...], output: Path | None, tasks: int, cal
     out.print("estimated: " + ", ".join(f"{v * 1000:.2f} ms per {k} probe" for k, v in
                                         estimate["seconds_per_probe"].items())
               + f"; {estimate['one_process_seconds']:.1f} s in one process")
+    pilot = estimate["capture"].get("pilot")
+    if pilot:
+        out.print("capture from a pilot of the scene: " + ", ".join(
+            f"{rho:.2f} rays per camera ray ({kind})" for kind, rho in pilot["rays_per_camera_ray"].items())
+            + f", {pilot['seconds_per_ray'] * 1e9:.0f} ns per ray on this machine")
     out.print(f"{chunking['useful_tasks']} tasks: " + ", ".join(
         f"{r} (~{s:.1f} s)" for r, s in zip(chunking["ranges"], chunking["estimated_seconds"]))
         + f"; merge ~{chunking['merge_seconds']:.1f} s")

@@ -1,14 +1,15 @@
 """Calibrating the cost model (:mod:`bakery.farm.cost`) on this machine: ``bakery farm calibrate -o FILE``.
 
-Six real ``bakery bake`` processes (``--jobs 1``, fresh, so each pays its start-up and encoder set-ups) of the
+Eight real ``bakery bake`` processes (``--jobs 1``, fresh, so each pays its start-up and encoder set-ups) of the
 scale benchmark's generated hall (:func:`bakery.bench.scale.generate_scene`: pillars, three sphere lights, a dome)
-at two sizes and two face sizes (one bounce, every encoding), then the largest with reference errors and the
-smaller grid at the default bounces; and the merges of two shards of a 2,000-probe
-volume, alone and with 200 and 400 reflection probes. From their ``--json``
-timings and wall times,
-non-negative least squares gives each constant of the model: per encoding a set-up and a per-probe cost, each
-``f0 + f2·N²``; capture seconds per probe and per modelled ray; the effective bounces of the default (paths that
-escape or end by Russian roulette); the irradiance diagnostics and reference errors; the process overhead; the merge's seconds per probe.
+at two sizes and three face sizes (:data:`FACE_SIZES`; one bounce, every encoding), then the larger hall at the
+largest face size with reference errors and at the smallest at the default bounces; and the merges of two shards
+of a 2,000-probe volume, alone and with 200 and 400 reflection probes. From their ``--json`` timings and wall
+times, non-negative least squares gives each constant of the model: per encoding a set-up and a per-probe cost,
+each ``f0 + f2·N²``; capture seconds per probe and per modelled ray, and per ray the bakes really traced (with the
+pilot capture's own seconds per ray on the hall: the yardstick of `bakery plan`'s pilot); the effective bounces of
+the default (paths that escape or end by Russian roulette); the irradiance diagnostics and reference errors; the
+process overhead; the merge's seconds per probe.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ from bakery.pipeline.settings import CaptureSettings
 
 #: (volume counts, reflection probes) of the two sizes; (face sizes) of the two grids.
 SIZES = (((3, 2, 3), 2), ((6, 3, 6), 24))
-FACE_SIZES = (8, 16)
+FACE_SIZES = (8, 16, 32)
 SAMPLES, BOUNCES = 2, 1
 
 
@@ -104,6 +105,18 @@ def _merge_run(folder: Path, generate_scene: Any, reflection: int) -> float:
         return time.perf_counter() - start
 
 
+def _pilot_seconds_per_ray(scene: Path, repeats: int = 3) -> float:
+    """The pilot capture's seconds per traced ray on the calibration hall (default bounces; median of ``repeats``):
+    the yardstick of :attr:`bakery.farm.cost.CostModel.ray_cost_ratio`."""
+    from bakery.farm.cost import pilot_capture
+    from bakery.pipeline.run import plan_bake
+    from bakery.pipeline.settings import request_from
+
+    request = request_from([scene], scene.with_suffix(".h5"), face_size=FACE_SIZES[0], samples=SAMPLES)
+    source, plan = plan_bake(request)
+    return float(np.median([pilot_capture(request, source, plan).seconds_per_ray for _ in range(repeats)]))
+
+
 def _fit(rows: list[list[float]], values: list[float]) -> list[float]:
     solution, _ = nnls(np.asarray(rows, dtype=np.float64), np.asarray(values, dtype=np.float64))
     return [float(v) for v in solution]
@@ -127,6 +140,7 @@ def calibrate(output: Path, work: Path | None = None) -> dict[str, Any]:
         # And at the default bounces (paths end early: escaping rays, Russian roulette): the effective bounces.
         default_bounces = _bake(scene, Path(folder) / "hall-bounces.h5", FACE_SIZES[0], reference=False, bounces=None)
         merges = [_merge_run(Path(folder), generate_scene, count) for count in MERGE_REFLECTION]
+        pilot_seconds = _pilot_seconds_per_ray(scene)
     irradiance_encodings = sum(1 for cls in ENCODINGS.values() if cls.kind == "irradiance")
     encodings: dict[str, dict[str, list[float]]] = {}
     for name, cls in ENCODINGS.items():
@@ -150,14 +164,19 @@ def calibrate(output: Path, work: Path | None = None) -> dict[str, Any]:
         rest_rows.append([1.0, run["probes"]])
         rest_values.append(run["wall"] - measured)
     capture_probe, per_ray = _fit(capture_rows, capture_values)
+    # The same against the rays the bakes really traced (the pilot-based estimates of `bakery plan`), with the
+    # default-bounces bake as a seventh row: its paths are longer, its rays as cheap.
+    traced = [(r["probes"], r["summary"]["timings"].get("capture_rays", 0.0), r["summary"]["timings"].get(
+        "capture_seconds", 0.0)) for r in runs + [dict(default_bounces, probes=runs[len(FACE_SIZES)]["probes"])]]
+    _traced_probe, per_traced_ray = _fit([[p, rays] for p, rays, _ in traced], [t for _, _, t in traced])
     process, per_probe = _fit(rest_rows, rest_values)
     largest = runs[-1]
     extra = with_reference["summary"]["timings"].get("diagnostics/irradiance", 0.0) \
         - largest["summary"]["timings"].get("diagnostics/irradiance", 0.0)
     reference = max(extra, 0.0) / (largest["irradiance"] * largest["n"] ** 2)
-    # capture ∝ 1 + b_eff: b_eff(default) from the capture time at the default bounces against BOUNCES (run 3: the
-    # same scene and face size).
-    one_bounce = runs[2]["summary"]["timings"].get("capture_seconds", 0.0)
+    # capture ∝ 1 + b_eff: b_eff(default) from the capture time at the default bounces against BOUNCES (the larger
+    # hall's first run: the same scene and face size).
+    one_bounce = runs[len(FACE_SIZES)]["summary"]["timings"].get("capture_seconds", 0.0)
     ratio = default_bounces["summary"]["timings"].get("capture_seconds", 0.0) / max(one_bounce, 1e-9)
     effective = max(ratio * (1 + BOUNCES) - 1, float(BOUNCES))
     data = {
@@ -175,6 +194,8 @@ def calibrate(output: Path, work: Path | None = None) -> dict[str, Any]:
         "process_seconds": process, "per_probe_seconds": per_probe,
         **_merge_fit(merges),
         "capture_probe_seconds": capture_probe, "seconds_per_ray": per_ray,
+        "seconds_per_traced_ray": per_traced_ray,
+        "pilot_seconds_per_ray": pilot_seconds,
         "loaded_probe_seconds": 0.002, "unknown_encoding_seconds": 0.01,
         "irradiance_diagnostics": _fit(diag_rows, diag_values),
         "reference_seconds_per_texel": reference,

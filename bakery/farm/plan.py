@@ -6,7 +6,13 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from bakery.farm.cost import CostModel, load_calibration
+from bakery.farm.cost import (
+    PILOT_FACES,
+    PILOT_PROBES,
+    CostModel,
+    load_calibration,
+    pilot_capture,
+)
 from bakery.pipeline.settings import BakeRequest
 from bakery.pipeline.shards import (
     batch_ranges,
@@ -22,7 +28,9 @@ def plan_info(request: BakeRequest, tasks: int = 4, base: Path | None = None,
     """The plan of ``request`` as JSON-able data (``bakery plan --json``)."""
     source, plan, identity, _ = plan_against(request, base)
     cal = load_calibration(calibration)
-    model = CostModel(request, source, plan, cal)
+    pilot = pilot_capture(request, source, plan) if plan.batches else None
+    model = CostModel(request, source, plan, cal, pilot)  # the estimates: this scene's traced rays
+    chunk_model = CostModel(request, source, plan, cal)  # the chunking: modelled rays, the same on every host
     kinds: dict[str, int] = {}
     for task in plan.tasks:
         for kind in task.probe.kinds:
@@ -38,7 +46,7 @@ def plan_info(request: BakeRequest, tasks: int = 4, base: Path | None = None,
     for task, cost in zip(pending, costs):
         by_kind.setdefault(",".join(task.probe.kinds), []).append(cost.total + cal["per_probe_seconds"])
     batch_cost = [model.batch(b) for b in plan.batches]
-    groups = suggest_chunking(batch_cost, tasks)
+    groups = suggest_chunking([chunk_model.batch(b) for b in plan.batches], tasks)
     ranges = chunk_ranges(plan, groups)
     task_seconds = [model.process(plan.batches[a: b + 1]) for a, b in groups]
     merge_seconds = model.merge(plan)
@@ -71,7 +79,13 @@ def plan_info(request: BakeRequest, tasks: int = 4, base: Path | None = None,
             "one_process_seconds": round(one_process, 2),
             "capture": {"face_size": request.settings.face_size, "samples": request.capture.samples,
                         "bounces": request.capture.bounces, "lights": model.lights,
-                        "next_event_lights": model.next_event_lights},
+                        "next_event_lights": model.next_event_lights,
+                        "pilot": None if model.pilot is None else {
+                            "probes_per_kind": PILOT_PROBES, "face_sizes": list(PILOT_FACES),
+                            "rays_per_camera_ray": {k: round(v, 4) for k, v in
+                                                    sorted(model.pilot.rays_per_camera_ray.items())},
+                            "seconds_per_ray": model.pilot.seconds_per_ray,
+                            "seconds_per_probe": model.pilot.seconds_per_probe}},
             "calibration": {"path": cal["path"], "measured": cal.get("measured"), "machine": cal.get("machine")},
         },
         "chunking": {

@@ -131,7 +131,9 @@ def test_plan_json_counts_kinds_reuse_batches_and_costs(tmp_path):
     assert (plan["reused"], plan["to_bake"], len(plan["batches"])) == (0, 26, 5)
     assert [b["range"] for b in plan["batches"]] == ["0-7", "8-15", "16-23", "24-24", "25-25"]
     estimate = plan["estimate"]
-    assert estimate["seconds_per_probe"]["reflection"] > estimate["seconds_per_probe"]["irradiance"] > 0
+    assert estimate["seconds_per_probe"]["reflection"] > 0 and estimate["seconds_per_probe"]["irradiance"] > 0
+    assert set(estimate["encode_seconds"]) == {"zh3_hallucinated", "zh3_quantized", "sh3", "zh3_deringed", "shexp",
+                                               "splitsum"}
     assert plan["chunking"]["useful_tasks"] == 5 and "at most 5 tasks" in plan["chunking"]["note"]
     assert not (tmp_path / "indoor.h5").exists()
     text = cli("plan", INDOOR, "-o", tmp_path / "indoor.h5", "--recipe", recipe, *FAST, "--tasks", "8").stdout
