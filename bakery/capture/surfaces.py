@@ -3,7 +3,9 @@
 Each mesh has one :class:`bakery.capture.scene.Material`; its textured inputs (``Material.maps``) are evaluated at
 the hit's texture coordinates (the mesh's ``uvs`` interpolated with the hit's barycentrics), as UsdUVTexture does:
 ``value = scale · texel + bias`` with ``wrapS``/``wrapT`` (repeat, mirror, clamp, black; "useMetadata" = repeat)
-and the ``fallback`` where a texture has no coordinates.
+and the ``fallback`` where a texture has no coordinates. An entry with a ``primvar`` reads a colour per vertex
+instead (the mesh's ``colors`` at the hit's barycentrics); one with a ``tint_primvar`` multiplies its texel by it
+(``value = scale · texel · colour + bias``: a MaterialX ``multiply`` of an image graph by a ``geompropvalue``).
 
 Filtering
     Textures are mip-mapped (2×2 box pyramid, built once per texture) and looked up trilinearly. The level of detail
@@ -316,7 +318,7 @@ class Surfaces:
         #: per-corner colours (T, 3, 3) of every triangle (zeros on meshes without them) for the colour inputs read
         #: per vertex (``Material.maps`` entries with a ``primvar``), and as float32 (9, T) rows, or None
         self.colors = self._colors_soa = None
-        if any("primvar" in entry for m in self.materials for entry in m.maps):
+        if any("primvar" in entry or "tint_primvar" in entry for m in self.materials for entry in m.maps):
             self.colors = np.concatenate([np.asarray(m.colors, dtype=np.float64).reshape(-1, 3, 3)
                                           if m.colors is not None else
                                           np.zeros((np.asarray(m.triangles).reshape(-1, 3, 3).shape[0], 3, 3))
@@ -520,6 +522,9 @@ class Surfaces:
                 channels = entry.get("channels", "rgb")
                 index = {"r": (0,), "g": (1,), "b": (2,), "a": (3,)}.get(channels, (0, 1, 2))
                 texels = texture.lookup_soa(s_, t_, lod, tuple(entry.get("wrap", ("repeat", "repeat"))), index)
+                if "tint_primvar" in entry:  # times a colour read per vertex (a MaterialX multiply by a primvar)
+                    texels = [x * (w0 * np.take(self._colors_soa[c], prim) + bu * np.take(self._colors_soa[3 + c], prim)
+                                   + bv * np.take(self._colors_soa[6 + c], prim)) for x, c in zip(texels, index)]
             scale = entry.get("scale", (1.0, 1.0, 1.0, 1.0))
             bias = entry.get("bias", (0.0, 0.0, 0.0, 0.0))
             texels = [x * float(scale[c]) + float(bias[c]) for x, c in zip(texels, index)]
@@ -644,6 +649,10 @@ class Surfaces:
                     footprint = np.maximum(t * spread * self.uv_density[prim] * size, 1e-12)
                     lod = np.log2(np.maximum(footprint, 1.0))
                 rgba = texture.lookup(np.stack([s_, t_], axis=-1), lod, tuple(entry.get("wrap", ("repeat", "repeat"))))
+                if "tint_primvar" in entry:  # times a colour read per vertex (RGB; alpha unchanged)
+                    corners = self.colors[prim]
+                    rgba = rgba * np.concatenate([(1.0 - bu - bv)[:, None] * corners[:, 0] + bu[:, None] * corners[:, 1]
+                                                  + bv[:, None] * corners[:, 2], np.ones((prim.size, 1))], axis=1)
             rgba = rgba * np.asarray(entry.get("scale", (1.0, 1.0, 1.0, 1.0))) + np.asarray(
                 entry.get("bias", (0.0, 0.0, 0.0, 0.0)))
             value = _channels(rgba, entry.get("channels", "rgb"))

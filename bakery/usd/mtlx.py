@@ -740,6 +740,9 @@ def _put_flattened(reader, name: str, prim: str, node, output: str, access: Grap
         notes.append(f"input {name} is computed by {error}; its default is used")
         return
     fallback = np.broadcast_to(flat.fallback, 3) if flat.fallback.size == 1 else flat.fallback
+    if flat.pixels is None and flat.tint_primvar:  # a constant times the primvar: the colour read per hit, scaled
+        maps[name] = dict(vertex_color_entry(flat.tint_primvar), scale=(*map(float, fallback[:3]), 1.0))
+        return
     if flat.pixels is None:
         values[name] = float(flat.fallback[0]) if flat.fallback.size == 1 else tuple(float(x) for x in fallback[:3])
         return
@@ -748,6 +751,8 @@ def _put_flattened(reader, name: str, prim: str, node, output: str, access: Grap
     entry = {"texture": index, "channels": "rgb" if flat.pixels.shape[-1] >= 3 else "r",
              "scale": (1.0, 1.0, 1.0, 1.0), "bias": (0.0, 0.0, 0.0, 0.0), "fallback": tuple(float(x) for x in rgba),
              "wrap": flat.wrap, "_mean": tuple(float(x) for x in reader.texture_mean(index)[:3])}
+    if flat.tint_primvar:
+        entry["tint_primvar"] = flat.tint_primvar
     maps[name] = _with_transform(entry, flat.st_transform)
 
 

@@ -12,6 +12,8 @@ graph's result instead of its inputs (as any texture baker that flattens a graph
 share their texture coordinates (the same ``st_transform`` — ``place2d``, ``tiledimage`` tiling — and the same
 address modes) and must not be UDIM sets; anything else, and every node outside :data:`NODES`, raises
 :class:`GraphError` naming the reason, which the reader reports per prim and falls back to the input's default.
+A colour primvar (``geompropvalue``) cannot live in a texture: a graph multiplied by one at its root is flattened
+and tinted by the primvar per hit (vertex colours over a texture), anywhere else it is reported.
 
 Node semantics are MaterialX's standard library (``stdlib_defs.mtlx``, ``stdlib_ng.mtlx``; specification v1.39,
 "Standard Nodes"); defaults of unconnected inputs come from the node definitions (the ``operand`` callback).
@@ -68,12 +70,15 @@ class GraphAccess:
 class FlatGraph:
     """A flattened graph: ``pixels`` (H, W, C) float64 of the graph's output on its images' grid with the images'
     ``wrap`` and ``st_transform``, and ``fallback`` (C,) its value with every image at its default (where a surface
-    has no texture coordinates); ``pixels`` is None when the graph reads no image (a constant, ``fallback``)."""
+    has no texture coordinates); ``pixels`` is None when the graph reads no image (a constant, ``fallback``).
+    ``tint_primvar``: the colour primvar the whole graph is multiplied by per hit (a ``multiply`` at its root with a
+    ``geompropvalue``: vertex colours tinting a texture), or None."""
 
     pixels: np.ndarray | None
     fallback: np.ndarray
     wrap: tuple[str, str] = ("repeat", "repeat")
     st_transform: tuple | None = None
+    tint_primvar: str | None = None
 
 
 def _constant(value: Any) -> np.ndarray:
@@ -286,11 +291,30 @@ def _input_names(category: str) -> tuple[str, ...]:
     raise GraphError(f"a {category or 'untyped'} node, which the capture does not evaluate")
 
 
+def _primvar_tint(node: Any, output: str, access: GraphAccess) -> tuple[Any, str, str | None]:
+    """(graph, output, primvar): a root ``multiply`` of a graph by a colour ``geompropvalue`` is that graph tinted per
+    hit by the primvar (the capture multiplies per hit: a texture cannot hold vertex colours); else (node, output,
+    None)."""
+    if access.category(node) != "multiply":
+        return node, output, None
+    operands = [access.operand(node, "in1"), access.operand(node, "in2")]
+    for this, other in (operands, operands[::-1]):
+        if not (this and other and this[0] == "node" and other[0] == "node"):
+            continue
+        if access.category(this[1]) != "geompropvalue" or CHANNELS.get(access.node_type(this[1])) != 3:
+            continue
+        name = access.operand(this[1], "geomprop")
+        if name and name[0] == "value" and name[1]:
+            return other[1], other[2] if len(other) > 2 else "out", str(name[1])
+    return node, output, None
+
+
 def flatten_graph(node: Any, output: str, access: GraphAccess) -> FlatGraph:
     """The output ``output`` of ``node`` evaluated over its images' texel grid (module docstring).
 
     Raises GraphError when the graph has a node the capture does not evaluate, images with different texture
     coordinates or address modes, or UDIM images."""
+    node, output, tint = _primvar_tint(node, output, access)
     images: dict[str, tuple[dict | None, Any, Any]] = {}
     _collect_images(node, access, images, set())
     entries = [entry for entry, _default, _node in images.values() if entry is not None]
@@ -305,10 +329,10 @@ def flatten_graph(node: Any, output: str, access: GraphAccess) -> FlatGraph:
     by_id = {key: (entry, default) for key, (entry, default, _node) in images.items()}
     fallback = _Evaluator(access, by_id, None, at_defaults=True).node(node, output).reshape(-1)
     if not entries:
-        return FlatGraph(pixels=None, fallback=fallback)
+        return FlatGraph(pixels=None, fallback=fallback, tint_primvar=tint)
     shapes = [access.pixels(int(entry["texture"])).shape[:2] for entry in entries]
     shape = (max(s[0] for s in shapes), max(s[1] for s in shapes))
     values = _Evaluator(access, by_id, shape, at_defaults=False).node(node, output)
     pixels = np.broadcast_to(values, shape + (values.shape[-1],)).astype(np.float64)
     return FlatGraph(pixels=pixels, fallback=fallback, wrap=next(iter(wraps)),
-                     st_transform=entries[0].get("st_transform"))
+                     st_transform=entries[0].get("st_transform"), tint_primvar=tint)

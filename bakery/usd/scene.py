@@ -1016,9 +1016,11 @@ class SceneReader:
 
     def _vertex_colors(self, prim: Usd.Prim, material: Material, topology) -> tuple[np.ndarray | None, Material]:  # noqa: ANN001
         """The corner colours (T, 3, 3) float32 of the colour primvar the material's per-hit colour entries read
-        (``displayColor`` of Hydra's fallback surface, or a ``UsdPrimvarReader_float3``'s ``varname``), and the
-        material — without those entries (their fallback values stand) where the primvar cannot be read."""
-        names = list(dict.fromkeys(entry["primvar"] for entry in material.maps if "primvar" in entry))
+        (``displayColor`` of Hydra's fallback surface, a ``UsdPrimvarReader_float3``'s ``varname``, a MaterialX
+        ``geompropvalue``, also one tinting a texture), and the material — without those entries (their fallback
+        values stand; tinted textures untinted) where the primvar cannot be read."""
+        names = list(dict.fromkeys(entry.get("primvar") or entry["tint_primvar"] for entry in material.maps
+                                   if "primvar" in entry or "tint_primvar" in entry))
         if not names:
             return None, material
         if len(names) > 1:
@@ -1030,8 +1032,9 @@ class SceneReader:
                        f"primvar {names[0]!r} is read as its fallback")
         else:
             corner = self._corner_primvar(prim, names[0], topology, components=3)
-        if corner is None:
-            return None, dataclasses.replace(material, maps=tuple(e for e in material.maps if "primvar" not in e))
+        if corner is None:  # colour entries keep their fallback, tinted textures lose the tint
+            return None, dataclasses.replace(material, maps=tuple(
+                {k: v for k, v in e.items() if k != "tint_primvar"} for e in material.maps if "primvar" not in e))
         return corner.astype(np.float32), material
 
     def _material_parts(self, prim: Usd.Prim, topology, triangles: int):  # noqa: ANN001, ANN202

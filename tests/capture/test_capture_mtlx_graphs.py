@@ -11,7 +11,13 @@ import numpy as np
 import OpenImageIO as oiio
 import pytest
 from scipy import ndimage
-from usd_scenes import glowing_mtlx_document, glowing_mtlx_material, header, probe, write
+from usd_scenes import (
+    glowing_mtlx_document,
+    glowing_mtlx_material,
+    header,
+    probe,
+    write,
+)
 
 from bakery.capture import capture_probes
 from bakery.sphere.cubemap import cube_texel_directions
@@ -20,6 +26,8 @@ from bakery.usd.scene import read_scene
 SIZE = 8
 #: MaterialX stdlib ``luminance`` default ``lumacoeffs`` (stdlib_defs.mtlx, ND_luminance_color3)
 LUMA = np.array([0.2722287, 0.6740818, 0.0536895])
+#: the probes' height over the floor (m)
+HEIGHT = 0.01
 #: texel (row, column) centres the capture test looks at (row 0 = the top of the image, t = 1)
 TEXELS = [(0, 0), (1, 6), (3, 3), (5, 2), (6, 7), (7, 4)]
 
@@ -44,8 +52,8 @@ def _images(tmp_path) -> dict[str, np.ndarray]:
     return {k: v.astype(np.float32).astype(np.float64) for k, v in images.items()}
 
 
-def _floor(material_path: str) -> str:
-    """A 2 m square floor at y = 0 with st = ((x + 1)/2, (1 − z)/2)."""
+def _floor(material_path: str, extra: str = "") -> str:
+    """A 2 m square floor at y = 0 with st = ((x + 1)/2, (1 − z)/2) (``extra``: more attributes)."""
     return f"""
 def Mesh "Floor" (
     prepend apiSchemas = ["MaterialBindingAPI"]
@@ -57,7 +65,7 @@ def Mesh "Floor" (
     texCoord2f[] primvars:st = [(0, 0), (1, 0), (1, 1), (0, 1)] (
         interpolation = "vertex"
     )
-    rel material:binding = <{material_path}>
+    rel material:binding = <{material_path}>{extra}
 }}
 """
 
@@ -69,11 +77,12 @@ def _document(graph: str, output: str) -> str:
     return glowing_mtlx_document(images + graph, output)
 
 
-def _scene(tmp_path, document: str, probes: bool = True):  # noqa: ANN202
+def _scene(tmp_path, document: str, probes: bool = True, extra: str = ""):  # noqa: ANN202
+    """The floor bound to ``document``'s material Glow (``extra``: more floor attributes), probes over TEXELS."""
     (tmp_path / "glow.mtlx").write_text(document)
     points = [(2 * (c + 0.5) / SIZE - 1, 2 * (r + 0.5) / SIZE - 1) for r, c in TEXELS]  # z = 1 − 2t, t = 1 − row
     text = header() + 'def Scope "Looks" (\n    references = @./glow.mtlx@</MaterialX>\n)\n{\n}\n' + _floor(
-        "/Looks/Materials/Glow") + ("".join(probe(f"P{k}", (x, 0.05, z)) for k, (x, z) in enumerate(points))
+        "/Looks/Materials/Glow", extra) + ("".join(probe(f"P{k}", (x, HEIGHT, z)) for k, (x, z) in enumerate(points))
                                     if probes else "")
     return read_scene(write(tmp_path / "scene.usda", text))
 
@@ -282,7 +291,7 @@ def test_a_graph_of_constants_is_a_value(tmp_path):
       _node("multiply", "out", "color3", in1=A, in2="color3 node:a2")],
      "images with different texture coordinates"),
     ([_node("geompropvalue", "tint", "color3", geomprop="string displayColor"),
-      _node("multiply", "out", "color3", in1=A, in2="color3 node:tint")], "a geompropvalue (primvar) node"),
+      _node("mix", "out", "color3", fg=A, bg="color3 node:tint", mix="float 0.5")], "a geompropvalue (primvar) node"),
 ])
 def test_a_graph_that_cannot_be_flattened_is_reported_and_the_default_used(tmp_path, nodes, reason):
     _images(tmp_path)
@@ -291,3 +300,40 @@ def test_a_graph_that_cannot_be_flattened_is_reported_and_the_default_used(tmp_p
     assert messages and reason in messages[0] and "its default is used" in messages[0], reading.issues
     (floor,) = [m for m in reading.scene.meshes if m.name.endswith("Floor")]
     assert not floor.material.maps
+
+
+#: the floor's corner colours, in its point order (-1, 0, 1), (1, 0, 1), (1, 0, -1), (-1, 0, -1)
+CORNERS = np.array([(1.0, 0.2, 0.1), (0.1, 1.0, 0.3), (0.3, 0.1, 1.0), (0.8, 0.8, 0.2)])
+
+
+def test_vertex_colours_tint_a_graph_at_every_hit(tmp_path):
+    """multiply(mix(a, b, m), geompropvalue displayColor): the graph is flattened, and the capture multiplies its
+    texel by the primvar interpolated at the hit — the floor's two triangles (0, 1, 2) and (0, 2, 3), barycentric
+    weights of the corners, by hand, times what the capture sees of the untinted graph. Before: reported, and the
+    default (black) used."""
+    _images(tmp_path)
+    nodes = [_node("mix", "blend", "color3", fg=A, bg=B, mix=M),
+             _node("geompropvalue", "tint", "color3", geomprop="string displayColor"),
+             _node("multiply", "out", "color3", in1="color3 node:blend", in2="color3 node:tint")]
+    colours = ", ".join(f"({r}, {g}, {b})" for r, g, b in CORNERS)
+    reading = _scene(tmp_path, _document("".join(nodes), "out"), extra=f"""
+    color3f[] primvars:displayColor = [{colours}] (
+        interpolation = "vertex"
+    )""")
+    assert not [i for i in reading.issues if "emission_color" in i.message], reading.issues
+    untinted = tmp_path / "untinted"  # the same graph without the tint: what the capture sees of the texture
+    untinted.mkdir()
+    for name in "abm":
+        (untinted / f"{name}.exr").write_bytes((tmp_path / f"{name}.exr").read_bytes())
+    blend = _seen_below(_scene(untinted, _document(nodes[0].replace('name="blend"', 'name="out"'), "out")))
+    expected = []
+    corners = np.array([(-1.0, 1.0), (1.0, 1.0), (1.0, -1.0), (-1.0, -1.0)])  # (x, z)
+    d = cube_texel_directions(16)
+    down = d[np.unravel_index(np.argmin(d[..., 1]), d.shape[:3])]  # the texel looked through, not exactly −y
+    for k, (r, c) in enumerate(TEXELS):
+        x, z = np.array([2 * (c + 0.5) / SIZE - 1, 2 * (r + 0.5) / SIZE - 1]) + HEIGHT * down[[0, 2]] / -down[1]
+        triangle = (0, 1, 2) if z >= -x else (0, 2, 3)  # the diagonal from corner 0 (-1, 1) to corner 2 (1, -1)
+        a, b, q = (corners[i] for i in triangle)
+        weights = np.linalg.solve(np.array([[a[0], b[0], q[0]], [a[1], b[1], q[1]], [1, 1, 1]]), [x, z, 1])
+        expected.append(blend[k] * (weights @ CORNERS[list(triangle)]))
+    np.testing.assert_allclose(_seen_below(reading), expected, rtol=5e-3, atol=1e-6)  # measured ≤ 0.25 %
