@@ -325,7 +325,7 @@ def inspect(store: Path, as_json: bool, pattern: str | None, region: str | None)
     if s.history:
         last = s.history[-1]
         out.print(f"last bake {last.get('time_utc')} (bakery {last.get('bakery_version')}); "
-                  f"{len(s.history)} bake(s) in the history")
+                  f"{_count(len(s.history), 'bake')} in the history")
     skipped = json.loads(s.attributes.get("skipped", "[]"))
     for skip in skipped:
         out.print(f"skipped {escape(str(skip.get('encoding') or skip.get('probe')))}: {escape(str(skip['reason']))}")
@@ -338,7 +338,7 @@ def inspect(store: Path, as_json: bool, pattern: str | None, region: str | None)
         if noise.size:
             out.print(f"capture: {a.get('capture_samples')} rays/texel, ≤ {a.get('capture_bounces')} bounces, target "
                       f"noise {a.get('capture_target_noise', 0)}; SH noise median {np.median(noise):.3g}, "
-                      f"max {noise.max():.3g} ({noise.size} rendered probes)")
+                      f"max {noise.max():.3g} ({_count(noise.size, 'rendered probe')})")
         sampling = json.loads(a.get("capture_light_sampling", "null") or "null")
         if sampling and sampling.get("drawn"):
             out.print(f"lights: {sampling['lights']}; {sampling['draws_per_vertex']} of the {sampling['non_distant']} "
@@ -351,19 +351,19 @@ def inspect(store: Path, as_json: bool, pattern: str | None, region: str | None)
         threshold = float(s.attributes.get("inside_geometry_backface_fraction", INSIDE_BACKFACE_FRACTION))
         inside = inside_geometry(s.diagnostics, threshold)
         names = ", ".join(s.probe_names[i] for i in inside[:5]) + (" …" if inside.size > 5 else "")
-        out.print(f"validity: {inside.size} probe(s) likely inside geometry (≥ {threshold:.0%} of their rays see "
+        out.print(f"validity: {_count(inside.size, 'probe')} likely inside geometry (≥ {threshold:.0%} of their rays see "
                   f"back faces){': ' + names if inside.size else ''}")
         if "capture/offset" in s.diagnostics:
             offset = np.linalg.norm(np.asarray(s.diagnostics["capture/offset"], dtype=np.float64), axis=-1)
             moved = np.flatnonzero(offset > 0)
             if moved.size:
-                out.print(f"relocated: {moved.size} probe(s) captured from outside the geometry they were in "
+                out.print(f"relocated: {_count(moved.size, 'probe')} captured from outside the geometry they were in "
                           f"(bakery:volume:relocate; largest offset {offset[moved].max():.3g} m)")
         from bakery.pipeline.dilate import NEIGHBOURS_KEY
 
         sources = np.nan_to_num(np.asarray(s.diagnostics.get(NEIGHBOURS_KEY, ()), dtype=np.float64))
         if np.any(sources > 0):
-            out.print(f"dilated: {np.count_nonzero(sources > 0)} probe(s) inside geometry store the inverse-square-"
+            out.print(f"dilated: {_count(int(np.count_nonzero(sources > 0)), 'probe')} inside geometry store the inverse-square-"
                       "distance-weighted mean of their volume's valid probes (bakery:volume:dilate)")
 
 
@@ -818,7 +818,7 @@ def export_command(store: Path, out_dir: Path, fmt: str, profile: str | None, pa
     if as_json:
         out.print_json(json.dumps(result.as_dict()))
     else:
-        console.print(f"{out_dir}: {len(result.files)} {fmt} file(s), profile {result.profile}"
+        console.print(f"{out_dir}: {_count(len(result.files), fmt + ' file')}, profile {result.profile}"
                       + (f"; layer {result.layer}" if result.layer else ""))
 
 
@@ -833,7 +833,7 @@ def _run_recipe_exports(recipe: str, store: Path, layer: str | None) -> None:
         result = export_store(store, target, entry["format"], profile=entry.get("profile"),
                               probes=entry.get("probes"), options=entry.get("options", {}),
                               layer=Path(layer) if layer else None)
-        console.print(f"exported {len(result.files)} {entry['format']} file(s) to {target}")
+        console.print(f"exported {_count(len(result.files), entry['format'] + ' file')} to {target}")
 
 
 if __name__ == "__main__":  # pragma: no cover

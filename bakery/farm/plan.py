@@ -3,6 +3,7 @@ suggested chunking of the work into N farm tasks (:mod:`bakery.pipeline.shards`)
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -23,12 +24,22 @@ from bakery.pipeline.shards import (
 )
 
 
+def _pilot(request: BakeRequest, source: Any, plan: Any) -> Any:
+    """:func:`bakery.farm.cost.pilot_capture`, or None (with a warning) if the scene cannot be rendered: the plan
+    then estimates with the modelled rays, and the bake reports the error."""
+    try:
+        return pilot_capture(request, source, plan)
+    except (ValueError, RuntimeError, MemoryError, FloatingPointError) as error:
+        warnings.warn(f"the pilot capture failed ({error}); the estimates use the modelled rays", stacklevel=2)
+        return None
+
+
 def plan_info(request: BakeRequest, tasks: int = 4, base: Path | None = None,
               calibration: str | Path | None = None) -> dict[str, Any]:
     """The plan of ``request`` as JSON-able data (``bakery plan --json``)."""
     source, plan, identity, _ = plan_against(request, base)
     cal = load_calibration(calibration)
-    pilot = pilot_capture(request, source, plan) if plan.batches else None
+    pilot = _pilot(request, source, plan) if plan.batches else None
     model = CostModel(request, source, plan, cal, pilot)  # the estimates: this scene's traced rays
     chunk_model = CostModel(request, source, plan, cal)  # the chunking: modelled rays, the same on every host
     kinds: dict[str, int] = {}

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade
+from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, UsdSkel
 
 from bakery.capture.ies import IesError, IesShaping, parse_ies
 from bakery.capture.lights import LIGHT_MODELS, Placement
@@ -195,6 +195,8 @@ class SceneReader:
         self.geometry_lights: list[tuple] = []
         self._linked: list[tuple[str, int, Usd.Prim]] = []  # ("light" | "dome", index, prim): light linking
         self._cage_faces: dict[str, np.ndarray] = {}  # refined meshes: the control-cage face of each triangle
+        #: UsdSkel: skinned points (or None: rigid) and placement per skinned prim (:meth:`_read_skel_root`)
+        self._skinned: dict[str, tuple[np.ndarray | None, np.ndarray]] = {}
 
     def issue(self, severity: str, prim: Usd.Prim | str, message: str) -> None:
         path = prim if isinstance(prim, str) else str(prim.GetPath())
@@ -202,6 +204,49 @@ class SceneReader:
 
     def world(self, prim: Usd.Prim) -> np.ndarray:
         return _matrix(self.xforms.GetLocalToWorldTransform(prim))
+
+    def _read_skel_root(self, root_prim: Usd.Prim) -> None:
+        """UsdSkel, at the reader's time (met in the traversal before the prims it skins): into ``_skinned``, per
+        skinned prim path, its points (N, 3) skinned into skeleton space — or None for a rigidly deformed prim — and
+        the world matrix that places them: the skeleton's, times the rigid skinning transform. Computed by
+        ``UsdSkelSkinningQuery`` (linear blend or dual-quaternion skinning, as ``skel:skinningMethod`` says); as
+        UsdSkel specifies and Hydra draws it, a skinned prim's own transform does not place it (its
+        ``geomBindTransform`` does, inside the skinning). Blend shapes are not applied (reported)."""
+        predicate = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)
+        cache = UsdSkel.Cache()
+        root = UsdSkel.Root(root_prim)
+        cache.Populate(root, predicate)
+        for binding in cache.ComputeSkelBindings(root, predicate):
+            skeleton = binding.GetSkeleton().GetPrim()
+            query = cache.GetSkelQuery(binding.GetSkeleton())
+            transforms = query.ComputeSkinningTransforms(self.time) if query else None
+            if transforms is None:
+                self.issue("warning", skeleton, "its skinning transforms cannot be computed; the prims it skins are "
+                           "baked in their bind pose")
+                continue
+            skeleton_world = self.world(skeleton)
+            for target in binding.GetSkinningTargets():
+                prim = target.GetPrim()
+                if target.HasBlendShapes():
+                    self.issue("warning", prim, "blend shapes are not applied by the capture (skinning is)")
+                if target.IsRigidlyDeformed():
+                    rigid = target.ComputeSkinnedTransform(transforms, self.time)
+                    if rigid is not None:
+                        self._skinned[str(prim.GetPath())] = (None, _matrix(rigid) @ skeleton_world)
+                    continue
+                if not prim.IsA(UsdGeom.PointBased):
+                    continue
+                points = UsdGeom.PointBased(prim).GetPointsAttr().Get(self.time)
+                if points is not None and target.ComputeSkinnedPoints(transforms, points, self.time):
+                    self._skinned[str(prim.GetPath())] = (np.asarray(points, dtype=np.float64).reshape(-1, 3),
+                                                          skeleton_world)
+                else:
+                    self.issue("warning", prim, "its skinned points cannot be computed; baked in its bind pose")
+
+    def _gprim_world(self, prim: Usd.Prim) -> np.ndarray:
+        """The world matrix of a gprim: its own, or for a skinned prim its skeleton's (:meth:`_read_skel_root`)."""
+        skinned = self._skinned.get(str(prim.GetPath()))
+        return self.world(prim) if skinned is None else skinned[1]
 
     # ------------------------------------------------------------------------------------------------------------
     def _composition_issues(self) -> None:
@@ -237,6 +282,8 @@ class SceneReader:
                 continue
             type_name = str(prim.GetTypeName())
             try:
+                if prim.IsA(UsdSkel.Root):  # before the prims it skins
+                    self._read_skel_root(prim)
                 if type_name in PROBE_TYPES:
                     self._read_probe(prim, type_name)
                 elif "probe" in type_name.lower():
@@ -818,7 +865,9 @@ class SceneReader:
         (point indices, face-vertex positions, face indices) for primvar interpolation."""
         if prim.IsA(UsdGeom.Mesh):
             mesh = UsdGeom.Mesh(prim)
-            points = np.asarray(mesh.GetPointsAttr().Get(self.time) or [], dtype=np.float64).reshape(-1, 3)
+            skinned = self._skinned.get(str(prim.GetPath()), (None, None))[0]
+            points = skinned if skinned is not None else np.asarray(
+                mesh.GetPointsAttr().Get(self.time) or [], dtype=np.float64).reshape(-1, 3)
             counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(self.time) or [], dtype=np.int64)
             indices = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(self.time) or [], dtype=np.int64)
             scheme_attr = mesh.GetSubdivisionSchemeAttr()
@@ -922,7 +971,7 @@ class SceneReader:
 
     def _read_mesh(self, prim: Usd.Prim) -> None:
         local, topology = self._mesh_geometry(prim)
-        self._add_mesh(prim, local, self.world(prim), str(prim.GetPath()), topology)
+        self._add_mesh(prim, local, self._gprim_world(prim), str(prim.GetPath()), topology)
 
     _read_gprim = _read_mesh
 
@@ -956,6 +1005,11 @@ class SceneReader:
         if scheme and scheme.HasAuthoredValue() and str(scheme.Get()) != "none":
             return None
         primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar("normals")
+        if self._skinned.get(str(prim.GetPath()), (None, None))[0] is not None:  # bind-pose normals
+            if (primvar and primvar.HasValue()) or mesh.GetNormalsAttr().HasAuthoredValue():
+                self.issue("warning", prim, "skinned: its authored normals are not skinned; the geometric normals "
+                           "of the skinned points are used")
+            return None
         if primvar and primvar.HasValue():
             values, interpolation = primvar.ComputeFlattened(self.time), primvar.GetInterpolation()
         elif mesh.GetNormalsAttr().HasAuthoredValue():

@@ -191,7 +191,7 @@ def test_exports_layer_and_inspect_say_which_probe_was_dilated(dilated_row):
     from bakery.cli import main
 
     out = CliRunner().invoke(main, ["inspect", str(folder / "row.h5")])
-    assert out.exit_code == 0 and "dilated: 1 probe(s) inside geometry" in out.output
+    assert out.exit_code == 0 and "dilated: 1 probe inside geometry" in out.output
     from bakery.report.build import build_report
 
     data, html = build_report(folder / "row.h5", previews=False)
