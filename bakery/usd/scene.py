@@ -880,19 +880,34 @@ class SceneReader:
                     self.issue("warning", prim, "subdivisionScheme 'loop' on faces that are not triangles: baked as "
                                "its control cage")
                 elif levels > 0 and refine is not None:
+                    holes = self._hole_faces(mesh, counts.size)
                     points, counts, indices, cage = refine(points, counts, indices, levels, with_faces=True)
                     self.issue("warning", prim, f"{scheme} subdivision refined {levels} level(s) (creases and "
                                "boundary rules simplified; primvars are read on the control cage)")
                     tris, corners, faces = self._triangulate(prim, points, counts, indices)
-                    self._cage_faces[str(prim.GetPath())] = cage[faces]  # for GeomSubsets
-                    return points[tris], None
+                    keep = ~np.isin(cage[faces], holes)  # the refined faces of hole faces are holes (OpenSubdiv)
+                    self._cage_faces[str(prim.GetPath())] = cage[faces][keep]  # for GeomSubsets
+                    return points[tris[keep]], None
                 else:
                     self.issue("warning", prim, f"subdivisionScheme {scheme!r}: baked as its control cage "
                                + ("(set the recipe's capture.subdivision to refine)" if refine is not None else
                                   "(only catmullClark and loop can be refined)"))
             tris, corners, faces = self._triangulate(prim, points, counts, indices)
+            holes = self._hole_faces(mesh, counts.size)
+            if holes.size:  # hole faces are not surfaces (UsdGeomMesh holeIndices); primvars keep their face indices
+                keep = ~np.isin(faces, holes)
+                tris, corners, faces = tris[keep], corners[keep], faces[keep]
             return points[tris], (tris, corners, faces, counts.size)
         return self._implicit_surface(prim), None
+
+    def _hole_faces(self, mesh: UsdGeom.Mesh, faces: int) -> np.ndarray:
+        """The mesh's ``holeIndices`` (faces that are holes), those outside 0..faces − 1 dropped (reported)."""
+        holes = np.asarray(mesh.GetHoleIndicesAttr().Get(self.time) or [], dtype=np.int64)
+        valid = (holes >= 0) & (holes < faces)
+        if not valid.all():
+            self.issue("warning", mesh.GetPrim(), f"holeIndices {holes[~valid][:5].tolist()} are not faces of the mesh "
+                       f"(0..{faces - 1}); ignored")
+        return holes[valid]
 
     def _implicit_surface(self, prim: Usd.Prim) -> gprims.Tessellation:
         """Local triangles and normals of a Sphere, Cube, Cylinder(_1), Cone, Capsule(_1) or Plane
