@@ -273,7 +273,7 @@ class SceneReader:
             if prim.IsPseudoRoot():
                 continue
             imageable = UsdGeom.Imageable(prim)
-            if imageable and imageable.ComputeVisibility() == UsdGeom.Tokens.invisible:
+            if imageable and imageable.ComputeVisibility(self.time) == UsdGeom.Tokens.invisible:
                 iterator.PruneChildren()
                 continue
             purpose = imageable.ComputePurpose() if imageable else UsdGeom.Tokens.default_

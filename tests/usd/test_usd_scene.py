@@ -402,6 +402,33 @@ def SphereLight "Lamp"
     assert early.scene.time_code is None and late.scene.time_code == 10.0
 
 
+def test_animated_visibility_is_read_at_the_time_code(tmp_path):
+    """A lamp and a box hidden from t = 10 (visibility time samples): present at t = 0, gone at t = 10 (before: the
+    default-time visibility was read at every time)."""
+    text = header() + """
+def Xform "Set"
+{
+    token visibility.timeSamples = {0: "inherited", 10: "invisible"}
+    def SphereLight "Lamp"
+    {
+        float inputs:intensity = 1
+    }
+    def Cube "Box"
+    {
+        double3 xformOp:translate = (3, 0, 0)
+        uniform token[] xformOpOrder = ["xformOp:translate"]
+    }
+}
+def DistantLight "Sun"
+{
+}
+""" + probe("P")
+    path = write(tmp_path / "hide.usda", text)
+    early, late = read_scene(path, time=0.0), read_scene(path, time=10.0)
+    assert [m.name for m in early.scene.meshes] == ["/Set/Box"] and len(early.scene.lights) == 2
+    assert not late.scene.meshes and [light.name for light in late.scene.lights] == ["/Sun"]
+
+
 @pytest.mark.parametrize("kind", ["SphereLight", "DiskLight", "CylinderLight"])
 def test_normalize_divides_by_the_world_space_area_in_stage_units(tmp_path, kind):
     """HdEmbree's areas: sphere 4πr² (ellipsoid formula for non-uniform scale), disk πr², cylinder 2πr·length, all
