@@ -98,6 +98,25 @@ def glowing_mtlx_document(nodes: str, output: str) -> str:
 """
 
 
+def textured_floor(material_path: str, extra: str = "") -> str:
+    """A 2 m square Mesh "Floor" at y = 0 with st = ((x + 1)/2, (1 − z)/2) (t grows towards −z) bound to
+    ``material_path``; ``extra``: more attributes (usda lines)."""
+    return f"""
+def Mesh "Floor" (
+    prepend apiSchemas = ["MaterialBindingAPI"]
+)
+{{
+    int[] faceVertexCounts = [4]
+    int[] faceVertexIndices = [0, 1, 2, 3]
+    point3f[] points = [(-1, 0, 1), (1, 0, 1), (1, 0, -1), (-1, 0, -1)]
+    texCoord2f[] primvars:st = [(0, 0), (1, 0), (1, 1), (0, 1)] (
+        interpolation = "vertex"
+    )
+    rel material:binding = <{material_path}>{extra}
+}}
+"""
+
+
 def mtlx_material(name: str, shader_id: str, inputs: str) -> str:
     """A MaterialX surface authored in USD (a ``mtlx`` surface output of a shader ``shader_id``, e.g.
     ``ND_standard_surface_surfaceshader``); ``inputs``: its authored inputs (usda lines)."""

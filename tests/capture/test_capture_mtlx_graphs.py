@@ -16,6 +16,7 @@ from usd_scenes import (
     glowing_mtlx_material,
     header,
     probe,
+    textured_floor,
     write,
 )
 
@@ -52,22 +53,6 @@ def _images(tmp_path) -> dict[str, np.ndarray]:
     return {k: v.astype(np.float32).astype(np.float64) for k, v in images.items()}
 
 
-def _floor(material_path: str, extra: str = "") -> str:
-    """A 2 m square floor at y = 0 with st = ((x + 1)/2, (1 − z)/2) (``extra``: more attributes)."""
-    return f"""
-def Mesh "Floor" (
-    prepend apiSchemas = ["MaterialBindingAPI"]
-)
-{{
-    int[] faceVertexCounts = [4]
-    int[] faceVertexIndices = [0, 1, 2, 3]
-    point3f[] points = [(-1, 0, 1), (1, 0, 1), (1, 0, -1), (-1, 0, -1)]
-    texCoord2f[] primvars:st = [(0, 0), (1, 0), (1, 1), (0, 1)] (
-        interpolation = "vertex"
-    )
-    rel material:binding = <{material_path}>{extra}
-}}
-"""
 
 
 def _document(graph: str, output: str) -> str:
@@ -81,7 +66,7 @@ def _scene(tmp_path, document: str, probes: bool = True, extra: str = ""):  # no
     """The floor bound to ``document``'s material Glow (``extra``: more floor attributes), probes over TEXELS."""
     (tmp_path / "glow.mtlx").write_text(document)
     points = [(2 * (c + 0.5) / SIZE - 1, 2 * (r + 0.5) / SIZE - 1) for r, c in TEXELS]  # z = 1 − 2t, t = 1 − row
-    text = header() + 'def Scope "Looks" (\n    references = @./glow.mtlx@</MaterialX>\n)\n{\n}\n' + _floor(
+    text = header() + 'def Scope "Looks" (\n    references = @./glow.mtlx@</MaterialX>\n)\n{\n}\n' + textured_floor(
         "/Looks/Materials/Glow", extra) + ("".join(probe(f"P{k}", (x, HEIGHT, z)) for k, (x, z) in enumerate(points))
                                     if probes else "")
     return read_scene(write(tmp_path / "scene.usda", text))
@@ -252,7 +237,7 @@ def _usd_graph(tmp_path) -> str:
 
 def test_a_graph_authored_in_usd_is_flattened_as_the_same_graph_in_a_document(tmp_path):
     images = _images(tmp_path)
-    text = header() + _usd_graph(tmp_path) + _floor("/Glow")
+    text = header() + _usd_graph(tmp_path) + textured_floor("/Glow")
     reading = read_scene(write(tmp_path / "usd.usda", text))
     assert not [i for i in reading.issues if "emission_color" in i.message], reading.issues
     (floor,) = [m for m in reading.scene.meshes if m.name.endswith("Floor")]

@@ -10,7 +10,15 @@ from __future__ import annotations
 import numpy as np
 import OpenImageIO as oiio
 import pytest
-from usd_scenes import glowing_material, glowing_mtlx_document, glowing_mtlx_material, header, probe, write
+from usd_scenes import (
+    glowing_material,
+    glowing_mtlx_document,
+    glowing_mtlx_material,
+    header,
+    probe,
+    textured_floor,
+    write,
+)
 
 from bakery.capture import capture_probes
 from bakery.sphere.cubemap import cube_texel_directions
@@ -32,21 +40,8 @@ def _halves(path) -> str:
 
 
 def _floor(material: str) -> str:
-    """A 2 m square floor at y = 0, st = ((x + 1)/2, (1 − z)/2) (t grows towards −z), emitting its texture."""
-    return material + """
-def Mesh "Floor" (
-    prepend apiSchemas = ["MaterialBindingAPI"]
-)
-{
-    int[] faceVertexCounts = [4]
-    int[] faceVertexIndices = [0, 1, 2, 3]
-    point3f[] points = [(-1, 0, 1), (1, 0, 1), (1, 0, -1), (-1, 0, -1)]
-    texCoord2f[] primvars:st = [(0, 0), (1, 0), (1, 1), (0, 1)] (
-        interpolation = "vertex"
-    )
-    rel material:binding = </Glow>
-}
-"""
+    """The textured floor (``usd_scenes.textured_floor``) bound to </Glow>, after ``material``."""
+    return material + textured_floor("/Glow")
 
 
 def _preview(file: str, transform: str) -> str:

@@ -7,7 +7,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from usd_scenes import glowing_material, glowing_mtlx_material, header, probe, write
+from usd_scenes import (
+    glowing_material,
+    glowing_mtlx_document,
+    glowing_mtlx_material,
+    header,
+    probe,
+    write,
+)
 
 from bakery.capture import capture_probes
 from bakery.capture.snapshot import read_capture_scene, write_capture_scene
@@ -130,22 +137,8 @@ def test_colours_survive_the_worker_snapshot(tmp_path):
     assert mesh.material == reading.scene.meshes[0].material
 
 
-GEOMPROP_MTLX = """<?xml version="1.0"?>
-<materialx version="1.39">
-  <geompropvalue name="cd" type="color3">
-    <input name="geomprop" type="string" value="Cd" />
-  </geompropvalue>
-  <standard_surface name="SR_glow" type="surfaceshader">
-    <input name="base" type="float" value="0" />
-    <input name="specular" type="float" value="0" />
-    <input name="emission" type="float" value="1" />
-    <input name="emission_color" type="color3" nodename="cd" />
-  </standard_surface>
-  <surfacematerial name="Glow" type="material">
-    <input name="surfaceshader" type="surfaceshader" nodename="SR_glow" />
-  </surfacematerial>
-</materialx>
-"""
+GEOMPROP_MTLX = glowing_mtlx_document(
+    '<geompropvalue name="cd" type="color3"><input name="geomprop" type="string" value="Cd" /></geompropvalue>', "cd")
 
 
 @pytest.mark.parametrize("authored", ["usd", "document"])
