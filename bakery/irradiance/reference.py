@@ -139,19 +139,75 @@ def texel_chord(face_size: int) -> float:
                      np.linalg.norm(corners[1] - corners[2], axis=-1).max()))
 
 
+def _row_intervals(normals: np.ndarray, face_size: int) -> tuple[np.ndarray, ...]:
+    """Per normal d, face f and texel row r (arrays (D, 6, N) int64): the columns [p0, p1) of the texels entirely on
+    the positive side of n_d and [s0, s1) of those straddling it (module doc "Full-resolution quadratures").
+
+    On face f a direction is ∝ F0 + u·F1 + v·F2 (``_FACE_FRAMES``), so n·direction has the sign of the linear
+    γ + α u + β v (γ, α, β = n·F0, n·F1, n·F2). A texel (corners u_c, u_{c+1} × v_r, v_{r+1}) is positive when the
+    least of it over the corners is ≥ 0, negative when the largest is ≤ 0; in a row both are monotone in c, so the
+    positive texels are one run of columns, the negative ones another at the other end, and the straddling ones the
+    run between: thresholds, not D × 6N² corner signs."""
+    from bakery.sphere.cubemap import _FACE_FRAMES
+
+    n = face_size
+    g, a, b = (normals @ _FACE_FRAMES[:, k, :].T for k in range(3))  # (D, 6) each: γ, α, β
+    v = np.linspace(-1.0, 1.0, n + 1)
+    bv_lo, bv_hi = b[..., None] * v[None, None, :-1], b[..., None] * v[None, None, 1:]  # β v_r, β v_{r+1}
+    b_min, b_max = np.minimum(bv_lo, bv_hi), np.maximum(bv_lo, bv_hi)  # (D, 6, N)
+    alpha = np.broadcast_to(a[..., None], b_min.shape)
+    gamma = g[..., None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # column c's corners u_c = −1 + 2c/N: α·u ≥ T holds for c ≥ (T/α + 1)·N/2 (α > 0) or c + 1 ≤ … (α < 0)
+        pos_t = (-gamma - b_min) / alpha  # positive: min_c(α u) ≥ −γ − β_min
+        neg_t = (-gamma - b_max) / alpha  # negative: max_c(α u) ≤ −γ − β_max
+        pos_edge = (pos_t + 1.0) * (0.5 * n)
+        neg_edge = (neg_t + 1.0) * (0.5 * n)
+    rising = alpha > 0
+    flat = alpha == 0
+    clip = lambda x: np.clip(np.nan_to_num(x, nan=0.0, posinf=n, neginf=0), 0, n).astype(np.int64)  # noqa: E731
+    # α > 0: positive [ceil(pos_edge), N), negative [0, floor(neg_edge)); α < 0: positive [0, floor(pos_edge)),
+    # negative [ceil(neg_edge), N)
+    p0 = np.where(rising, clip(np.ceil(pos_edge)), 0)
+    p1 = np.where(rising, n, clip(np.floor(pos_edge)))
+    q0 = np.where(rising, 0, clip(np.ceil(neg_edge)))
+    q1 = np.where(rising, clip(np.floor(neg_edge)), n)
+    all_positive, all_negative = gamma + b_min >= 0, gamma + b_max <= 0  # α = 0: the row is one kind
+    p0, p1 = np.where(flat, 0, p0), np.where(flat, np.where(all_positive, n, 0), p1)
+    q0, q1 = np.where(flat, 0, q0), np.where(flat, np.where(all_negative & ~all_positive, n, 0), q1)
+    p1 = np.maximum(p1, p0)
+    q1 = np.maximum(q1, q0)
+    # the straddling run lies between the negative and the positive runs
+    s0 = np.where(flat, 0, np.where(rising, q1, p1))
+    s1 = np.where(flat, np.where(~all_positive & ~all_negative, n, 0), np.where(rising, p0, q0))
+    return p0, p1, np.minimum(s0, s1), s1
+
+
 @lru_cache(maxsize=_CACHE_FACES)
-def _binned_operators(face_size: int, key: tuple[int, bytes]) -> tuple[np.ndarray, np.ndarray]:
-    """P[d, t] = [texel t on the positive side of n_d] and S[d, t] = [t straddles n_d]·max(0, n_d·c_t) (both
-    (D, 6N²) float32; module doc "Full-resolution quadratures")."""
-    positive, straddles = _texel_sides(_NORMALS[key], face_size)
-    centres = cube_texel_directions(face_size).reshape(-1, 3).astype(np.float32)
-    s = _NORMALS[key].astype(np.float32) @ centres.T
-    np.maximum(s, 0.0, out=s)
-    s *= straddles
-    out = (positive.astype(np.float32), s)
-    for array in out:
-        array.setflags(write=False)
-    return out
+def _binned_operators(face_size: int, key: tuple[int, bytes]):  # noqa: ANN202 - (csr, csr)
+    """Sparse Q (D, 6N(N+1)) and S (D, 6N²) float32 (module doc "Full-resolution quadratures"): Q · M, with M the
+    moments' prefix sums along each texel row, is Σ_{t positive for n_d} m_t (+1 at the end of a row's positive
+    run, −1 at its start); S[d, t] = max(0, n_d·c_t) over the texels t straddling n_d. O(D·N) to build."""
+    from scipy.sparse import csr_matrix
+
+    normals = _NORMALS[key]
+    d, n = normals.shape[0], face_size
+    p0, p1, s0, s1 = _row_intervals(normals, n)
+    rows = (np.arange(6)[:, None] * n + np.arange(n)[None, :]).reshape(1, 6, n) * (n + 1)  # prefix row offsets
+    columns = np.stack([rows + p1, rows + p0], axis=-1).reshape(d, -1)  # (D, 12N)
+    signs = np.tile(np.array([1.0, -1.0], dtype=np.float32), 6 * n)
+    keep = (p1 > p0).reshape(d, -1).repeat(2, axis=1)
+    q = csr_matrix((np.broadcast_to(signs, columns.shape)[keep], columns[keep],
+                    np.concatenate([[0], np.cumsum(keep.sum(axis=1))])), shape=(d, 6 * n * (n + 1)))
+    counts = (s1 - s0).reshape(d, -1)  # straddling texels per (face, row)
+    run = np.repeat(np.arange(counts.size), counts.reshape(-1))
+    offset = np.arange(run.size) - np.repeat(np.cumsum(counts.reshape(-1)) - counts.reshape(-1), counts.reshape(-1))
+    texel = ((run % (6 * n)) * n + s0.reshape(-1)[run] + offset).astype(np.int64)  # (f·N + r)·N + c
+    normal = run // (6 * n)
+    centres = cube_texel_directions(n).reshape(-1, 3)
+    weight = np.maximum(np.einsum("ij,ij->i", normals[normal], centres[texel]), 0.0).astype(np.float32)
+    straddle = csr_matrix((weight, texel, np.concatenate([[0], np.cumsum(counts.sum(axis=1))])), shape=(d, 6 * n * n))
+    return q, straddle
 
 
 def _texel_sides(normals: np.ndarray, face_size: int) -> tuple[np.ndarray, np.ndarray]:
@@ -243,12 +299,14 @@ def reference_irradiance_binned(samples: list[SphericalSamples], normals: np.nda
                        for s, (index, _) in zip(samples, splits, strict=True)])  # (P, D, C)
     if not any(rest.any() for _, rest in splits):  # small quadratures: all by brute force
         return bright.astype(np.float32)
-    positive, straddle = _binned_operators(face_size, _remember(normals))
+    prefix, straddle = _binned_operators(face_size, _remember(normals))
     binned = [bin_samples(s, face_size, rest) for s, (_, rest) in zip(samples, splits, strict=True)]
-    p, c, t = len(samples), bright.shape[2], positive.shape[1]
-    phi = np.stack([b[0] for b in binned], axis=1).reshape(t, -1).astype(np.float32)  # (T, P·C)
-    moment = np.stack([b[1] for b in binned], axis=1).reshape(t, -1).astype(np.float32)  # (T, P·C·3)
-    linear = (positive @ moment).reshape(-1, p, c, 3).astype(np.float64)  # (D, P, C, 3): Σ_{t positive} m_t
+    p, c, n = len(samples), bright.shape[2], face_size
+    phi = np.stack([b[0] for b in binned], axis=1).reshape(6 * n * n, -1)  # (T, P·C)
+    moment = np.stack([b[1] for b in binned], axis=1).reshape(6 * n, n, -1)  # (6N rows, N columns, P·C·3)
+    cumulative = np.zeros((6 * n, n + 1, moment.shape[2]))  # prefix sums of each texel row's moments
+    np.cumsum(moment, axis=1, out=cumulative[:, 1:])
+    linear = (prefix @ cumulative.reshape(6 * n * (n + 1), -1)).reshape(-1, p, c, 3)  # Σ_{t positive} m_t
     e = np.einsum("dpcj,dj->pdc", linear, normals) + (straddle @ phi).reshape(-1, p, c).transpose(1, 0, 2)
     return (e + bright).astype(np.float32)
 

@@ -35,6 +35,11 @@ _FACE_FRAMES = np.array(
 )
 
 
+#: Per face (rows: major, U, V), the coordinate axis each frame vector lies on and its sign.
+_FACE_AXIS = np.argmax(np.abs(_FACE_FRAMES), axis=-1).T
+_FACE_SIGN = np.take_along_axis(_FACE_FRAMES, _FACE_AXIS.T[..., None], axis=-1)[..., 0].T
+
+
 def cube_face_uv_to_direction(face: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Unit directions (..., 3) of face coordinates ``u, v`` ∈ [-1, 1] on faces ``face`` (ints 0–5)."""
     frames = _FACE_FRAMES[np.asarray(face)]
@@ -129,10 +134,10 @@ def direction_to_cube_face_uv(directions: np.ndarray) -> tuple[np.ndarray, np.nd
     axis = np.where((a[..., 0] >= a[..., 1]) & (a[..., 0] >= a[..., 2]), 0, np.where(a[..., 1] >= a[..., 2], 1, 2))
     major = np.take_along_axis(d, axis[..., None], axis=-1)[..., 0]
     face = 2 * axis + (major < 0)
-    frames = _FACE_FRAMES[face]
     scale = np.where(np.abs(major) > 0, 1.0 / np.abs(major), 0.0)
-    u = np.einsum("...k,...k->...", d, frames[..., 1, :]) * scale
-    v = np.einsum("...k,...k->...", d, frames[..., 2, :]) * scale
+    # each face's U and V axes are signed coordinate axes: d·U = ±d[k] (no (…, 3, 3) gather of the frames)
+    u = np.take_along_axis(d, _FACE_AXIS[1][face][..., None], axis=-1)[..., 0] * _FACE_SIGN[1][face] * scale
+    v = np.take_along_axis(d, _FACE_AXIS[2][face][..., None], axis=-1)[..., 0] * _FACE_SIGN[2][face] * scale
     return face, np.clip(u, -1.0, 1.0), np.clip(v, -1.0, 1.0)
 
 

@@ -100,3 +100,39 @@ def test_reported_errors_equal_the_brute_force_ones(path):
         old, new = relative_rmse_per_probe(values, slow)[0], relative_rmse_per_probe(values, fast)[0]
         assert abs(new - old) <= rho * (1 + old) / (1 - rho) + 1e-6, name
         assert new == pytest.approx(old, rel=1e-3), name
+
+
+@pytest.mark.parametrize("face_size", [1, 5, 48])
+def test_row_runs_classify_every_texel_as_its_four_corner_signs_do(face_size):
+    """The binned reference's O(D·N) row runs (``_row_intervals``) against the D × 6N² classification by the signs
+    of n at every texel's four corners (``_texel_sides``, float32): the same positive and straddling texels, for
+    Fibonacci normals and for the axes and face diagonals, where corners lie exactly on the terminator."""
+    special = np.array([(1, 0, 0), (0, -1, 0), (0, 0, 1), (1, 1, 0), (1, -1, 1), (0.3, 0, -1)], dtype=np.float64)
+    normals = np.concatenate([NORMALS, special / np.linalg.norm(special, axis=1, keepdims=True)])
+    p0, p1, s0, s1 = ref._row_intervals(normals, face_size)
+    columns = np.arange(face_size)
+    positive = ((columns >= p0[..., None]) & (columns < p1[..., None])).reshape(len(normals), -1)
+    straddle = ((columns >= s0[..., None]) & (columns < s1[..., None])).reshape(len(normals), -1)
+    want_positive, want_straddle = ref._texel_sides(normals, face_size)
+    # a corner on the terminator (within rounding) may go either way (module doc: it errs by ≤ 1e-7 Φ_t)
+    corners = ref._corner_grid(face_size)
+    dots = np.abs(normals @ corners.reshape(-1, 3).T).reshape(-1, 6, face_size + 1, face_size + 1)
+    near = np.minimum.reduce([dots[..., :-1, :-1], dots[..., 1:, :-1], dots[..., :-1, 1:], dots[..., 1:, 1:]])
+    decided = near.reshape(len(normals), -1) > 1e-6
+    np.testing.assert_array_equal(positive[decided], want_positive[decided])
+    np.testing.assert_array_equal(straddle[decided], want_straddle[decided])
+    assert not (positive & straddle).any() and decided.mean() > 0.97
+
+
+def test_the_binned_operators_give_the_dense_formulation(tmp_path):
+    """E from the sparse prefix-sum and straddle operators against the same sums with dense corner-sign masks
+    (P · m · n + S · Φ, written out here), on a 1k-like quadrature with a sun: to float32 rounding."""
+    samples = environment_samples(read_environment(ENVIRONMENTS[0])[0])
+    normals = NORMALS
+    fast = ref.reference_irradiance_binned([samples], normals, exact=0)[0]
+    phi, moment = ref.bin_samples(samples, ref.REFERENCE_FACE_SIZE)
+    positive, straddle = ref._texel_sides(normals, ref.REFERENCE_FACE_SIZE)
+    centres = cube_texel_directions(ref.REFERENCE_FACE_SIZE).reshape(-1, 3)
+    s = np.maximum(normals @ centres.T, 0.0) * straddle
+    dense = np.einsum("dcj,dj->dc", np.einsum("dt,tcj->dcj", positive.astype(np.float64), moment), normals) + s @ phi
+    np.testing.assert_allclose(fast, dense, rtol=2e-5, atol=2e-6 * np.abs(dense).max())
