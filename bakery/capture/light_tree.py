@@ -148,10 +148,11 @@ class LightBVH:
         self.half_diagonal2 = 0.25 * np.sum((self.upper - self.lower) ** 2, axis=1)
         self.sin_normal = np.sqrt(np.maximum(0.0, 1.0 - self.cos_normal**2))
         self._omni = self.cos_normal <= -1.0  # emits in every direction: no orientation term
-        # per node, the importance's constants in one float32 row (one gather per evaluation)
-        self._packed = np.ascontiguousarray(np.column_stack([
-            self.centre, self.power, self.half_diagonal2, self.axis, self.sin_normal, self.cos_normal,
-            self.cos_emission]), dtype=np.float32)
+        # per node, the importance's constants in float32 rows: the distance term's, and the emission cone's
+        self._packed = np.ascontiguousarray(np.column_stack([self.centre, self.power, self.half_diagonal2]),
+                                            dtype=np.float32)
+        self._packed_cone = np.ascontiguousarray(np.column_stack([
+            self.axis, self.sin_normal, self.cos_normal, self.cos_emission]), dtype=np.float32)
         parents: dict[int, tuple[int, int]] = {}
         for index, (left, right) in enumerate(self.children):
             if left >= 0:
@@ -181,7 +182,7 @@ class LightBVH:
         against them (float32 arithmetic; nodes that emit in every direction, θ_o = π, reduce to
         Φ / max(d², (|diag|/2)²))."""
         p = np.asarray(points, dtype=np.float32)
-        node = np.moveaxis(self._packed[nodes], -1, 0)  # (11, ...): one gather of every node constant
+        node = np.moveaxis(self._packed[nodes], -1, 0)  # (5, ...): one gather of the distance term's constants
         cx, cy, cz, power, half_diagonal2 = node[0], node[1], node[2], node[3], node[4]
         tx, ty, tz = p[0] - cx, p[1] - cy, p[2] - cz  # box centre → point
         d2 = tx * tx + ty * ty + tz * tz
@@ -189,7 +190,21 @@ class LightBVH:
         omni = self._omni.take(nodes)
         if omni.all():
             return value
-        ax, ay, az, sin_o, cos_o, cos_e = node[5], node[6], node[7], node[8], node[9], node[10]
+        # the orientation term only where a node has an emission cone (a node holding an omni light has none)
+        shape = omni.shape
+        cone = np.flatnonzero(~omni.reshape(-1))
+        pick = lambda x: np.broadcast_to(x, shape).reshape(-1)[cone]  # noqa: E731
+        axis = self._packed_cone[np.broadcast_to(nodes, shape).reshape(-1)[cone]].T  # (6, C)
+        flat = np.broadcast_to(value, shape).reshape(-1).copy()
+        flat[cone] = self._oriented(flat[cone], pick(tx), pick(ty), pick(tz), pick(d2), pick(half_diagonal2), *axis)
+        return flat.reshape(shape)
+
+    @staticmethod
+    def _oriented(value: np.ndarray, tx: np.ndarray, ty: np.ndarray, tz: np.ndarray, d2: np.ndarray,
+                  half_diagonal2: np.ndarray, ax: np.ndarray, ay: np.ndarray, az: np.ndarray, sin_o: np.ndarray,
+                  cos_o: np.ndarray, cos_e: np.ndarray) -> np.ndarray:
+        """:meth:`importance` of nodes with an emission cone (θ_o < π): ``value`` times the cosine of the angle the
+        cone misses the point by, 0 outside the emission spread (float32, elementwise)."""
         inv_d = 1.0 / np.sqrt(np.maximum(d2, np.float32(1e-30)))
         cos_w = np.clip((tx * ax + ty * ay + tz * az) * inv_d, -1, 1)
         sin_w = np.sqrt(np.maximum(0, 1 - cos_w * cos_w))
@@ -201,8 +216,7 @@ class LightBVH:
         cos_x = _cos_sub_clamped(sin_w, cos_w, sin_o, cos_o)
         sin_x = np.sqrt(np.maximum(0, 1 - cos_x * cos_x))
         cos_p = np.where(inside, 1, _cos_sub_clamped(sin_x, cos_x, sin_b, cos_b))
-        keep = (cos_p > cos_e) | omni
-        return np.where(keep, value * np.where(omni, 1, np.maximum(cos_p, 0)), 0).astype(np.float32, copy=False)
+        return np.where(cos_p > cos_e, value * np.maximum(cos_p, 0), 0).astype(np.float32, copy=False)
 
     def _child_probabilities(self, points: np.ndarray, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The probabilities (float64, (K,) each) of descending from interior ``nodes`` (K,) to their left and right
