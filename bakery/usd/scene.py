@@ -219,7 +219,11 @@ class SceneReader:
         for binding in cache.ComputeSkelBindings(root, predicate):
             skeleton = binding.GetSkeleton().GetPrim()
             query = cache.GetSkelQuery(binding.GetSkeleton())
-            transforms = query.ComputeSkinningTransforms(self.time) if query else None
+            if not query or not query.HasBindPose():  # pxr would skin with identity bind transforms
+                self.issue("warning", skeleton, "its bindTransforms are missing or do not match its joints; the prims "
+                           "it skins are baked in their bind pose")
+                continue
+            transforms = query.ComputeSkinningTransforms(self.time)
             if transforms is None:
                 self.issue("warning", skeleton, "its skinning transforms cannot be computed; the prims it skins are "
                            "baked in their bind pose")

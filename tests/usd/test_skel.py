@@ -119,3 +119,16 @@ def test_the_bake_agrees_with_pxr_bake_skinning(tmp_path):
         ours, theirs = read_scene(path, time=t), read_scene(baked, time=t)
         for name in ("/Model/Quad", "/Model/Block"):
             np.testing.assert_allclose(_mesh(ours, name), _mesh(theirs, name), atol=1e-5)
+
+
+def test_a_skeleton_without_a_bind_pose_is_reported_and_its_prims_stay_in_their_bind_pose(tmp_path):
+    """bindTransforms that do not match the joints: pxr would skin with identity bind transforms (the quad would
+    jump by the joints' whole rest offsets); the prims stay where their points are, placed by their own transform."""
+    broken = SCENE.replace("""        uniform matrix4d[] bindTransforms = [((1,0,0,0),(0,1,0,0),(0,0,1,0),(0,0,0,1)),
+            ((1,0,0,0),(0,1,0,0),(0,0,1,0),(0,1,0,1)), ((1,0,0,0),(0,1,0,0),(0,0,1,0),(0,0,0,1))]""",
+                           "        uniform matrix4d[] bindTransforms = [((1,0,0,0),(0,1,0,0),(0,0,1,0),(0,0,0,1))]")
+    assert broken != SCENE
+    reading = read_scene(write(tmp_path / "broken.usda", broken), time=10)
+    assert [i for i in reading.issues if "bindTransforms are missing or do not match" in i.message]
+    rest = np.array([(-1, 1, 1), (1, 1, 1), (1, 1, -1), (-1, 1, -1)], dtype=np.float64) + np.array([10.0, 0.0, 5.0])
+    np.testing.assert_allclose(_mesh(reading, "/Model/Quad"), rest[[[0, 1, 2], [0, 2, 3]]], atol=1e-6)
