@@ -194,3 +194,39 @@ def test_acescg_texture_is_converted_to_linear_rec709(tmp_path):
     texture = reading.scene.textures[0]
     np.testing.assert_allclose(texture.pixels[0, :, :3], ap1[0] @ AP1_TO_REC709.T, atol=2e-4)
     assert texture.color_space == "ACEScg" and reading.scene.working_space == "lin_rec709"
+
+
+def test_collection_bindings_and_binding_strength_follow_usdshade(tmp_path):
+    """A collection-based binding on an ancestor binds the collection's member A (which has no binding of its own;
+    B, not a member, keeps its own), and ``bindMaterialAs = strongerThanDescendants`` on an ancestor's direct
+    binding wins over C's own (UsdShade's binding resolution, which the reader asks through ComputeBoundMaterial)."""
+    from usd_scenes import box_mesh, header, material, probe, write
+
+    from bakery.usd.scene import read_scene
+
+    text = header() + material("Red", diffuse=(0.8, 0.1, 0.1)) + material("Blue", diffuse=(0.1, 0.1, 0.8)) + \
+        material("Green", diffuse=(0.1, 0.8, 0.1)) + """
+def Xform "World" (
+    prepend apiSchemas = ["MaterialBindingAPI", "CollectionAPI:redThings"]
+)
+{
+    uniform token collection:redThings:expansionRule = "expandPrims"
+    rel collection:redThings:includes = </World/A>
+    rel material:binding:collection:red = [</World.collection:redThings>, </Red>]
+    def Xform "Strong" (
+        prepend apiSchemas = ["MaterialBindingAPI"]
+    )
+    {
+        rel material:binding = </Green> (
+            bindMaterialAs = "strongerThanDescendants"
+        )
+""" + box_mesh("C", 0.5, "/Blue", (0, 0, 4)).replace("\n", "\n        ") + """
+    }
+""" + box_mesh("A", 0.5, "/Blue", (-2, 0, 0)).replace("rel material:binding = </Blue>", "").replace(
+        "\n", "\n    ") + box_mesh("B", 0.5, "/Blue", (2, 0, 0)).replace("\n", "\n    ") + """
+}
+""" + probe("P", (0, 3, 0))
+    reading = read_scene(write(tmp_path / "bindings.usda", text))
+    assert not reading.errors, reading.errors
+    by_name = {m.name: m.material.name for m in reading.scene.meshes}
+    assert by_name == {"/World/A": "/Red", "/World/B": "/Blue", "/World/Strong/C": "/Green"}, by_name
