@@ -739,7 +739,8 @@ def _put_flattened(reader, name: str, prim: str, node, output: str, access: Grap
     except GraphError as error:
         notes.append(f"input {name} is computed by {error}; its default is used")
         return
-    fallback = np.broadcast_to(flat.fallback, 3) if flat.fallback.size == 1 else flat.fallback
+    values_of = np.asarray(flat.fallback, dtype=np.float64).reshape(-1)
+    fallback = values_of[:3] if values_of.size >= 3 else np.repeat(values_of[:1], 3)  # a float (or vector2's x): RGB
     if flat.pixels is None and flat.tint_primvar:  # a constant times the primvar: the colour read per hit, scaled
         maps[name] = dict(vertex_color_entry(flat.tint_primvar), scale=(*map(float, fallback[:3]), 1.0))
         return
@@ -747,7 +748,7 @@ def _put_flattened(reader, name: str, prim: str, node, output: str, access: Grap
         values[name] = float(flat.fallback[0]) if flat.fallback.size == 1 else tuple(float(x) for x in fallback[:3])
         return
     index = reader.computed_texture(flat.pixels, f"{prim}: {name} (MaterialX graph)", _is_colour(name))
-    rgba = np.r_[fallback[:3], fallback[3] if fallback.size > 3 else 1.0]
+    rgba = np.r_[fallback, values_of[3] if values_of.size > 3 else 1.0]
     entry = {"texture": index, "channels": "rgb" if flat.pixels.shape[-1] >= 3 else "r",
              "scale": (1.0, 1.0, 1.0, 1.0), "bias": (0.0, 0.0, 0.0, 0.0), "fallback": tuple(float(x) for x in rgba),
              "wrap": flat.wrap, "_mean": tuple(float(x) for x in reader.texture_mean(index)[:3])}
