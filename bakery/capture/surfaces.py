@@ -513,8 +513,7 @@ class Surfaces:
                 continue
             if "primvar" in entry:  # a colour read per vertex: the corners' colours at the hit's barycentrics
                 index = (0, 1, 2)
-                texels = [w0 * np.take(self._colors_soa[c], prim) + bu * np.take(self._colors_soa[3 + c], prim)
-                          + bv * np.take(self._colors_soa[6 + c], prim) for c in index]
+                texels = [self._vertex_colour_soa(c, prim, w0, bu, bv) for c in index]
             else:
                 texture = self.entry_texture(entry)
                 s_, t_, stretch = transformed_st(entry, s, tt)
@@ -523,8 +522,7 @@ class Surfaces:
                 index = {"r": (0,), "g": (1,), "b": (2,), "a": (3,)}.get(channels, (0, 1, 2))
                 texels = texture.lookup_soa(s_, t_, lod, tuple(entry.get("wrap", ("repeat", "repeat"))), index)
                 if "tint_primvar" in entry:  # times a colour read per vertex (a MaterialX multiply by a primvar)
-                    texels = [x * (w0 * np.take(self._colors_soa[c], prim) + bu * np.take(self._colors_soa[3 + c], prim)
-                                   + bv * np.take(self._colors_soa[6 + c], prim)) for x, c in zip(texels, index)]
+                    texels = [x * self._vertex_colour_soa(c, prim, w0, bu, bv) for x, c in zip(texels, index)]
             scale = entry.get("scale", (1.0, 1.0, 1.0, 1.0))
             bias = entry.get("bias", (0.0, 0.0, 0.0, 0.0))
             texels = [x * float(scale[c]) + float(bias[c]) for x, c in zip(texels, index)]
@@ -626,6 +624,19 @@ class Surfaces:
             result[sel] = np.where(threshold > 0, (opacity >= threshold).astype(np.float64), opacity)
         return result
 
+    def _vertex_colour_soa(self, c: int, prim: np.ndarray, w0: np.ndarray, bu: np.ndarray, bv: np.ndarray
+                           ) -> np.ndarray:
+        """Channel ``c`` (M,) float32 of the per-vertex colour at hits on triangles ``prim`` with barycentrics
+        (w0, bu, bv): the corners' colours interpolated."""
+        rows = self._colors_soa
+        return w0 * np.take(rows[c], prim) + bu * np.take(rows[3 + c], prim) + bv * np.take(rows[6 + c], prim)
+
+    def _vertex_colour_rgba(self, prim: np.ndarray, bu: np.ndarray, bv: np.ndarray) -> np.ndarray:
+        """The per-vertex colour (M, 4) float64 at hits (alpha 1): the corners' colours interpolated."""
+        corners = self.colors[prim]
+        rgb = (1.0 - bu - bv)[:, None] * corners[:, 0] + bu[:, None] * corners[:, 1] + bv[:, None] * corners[:, 2]
+        return np.concatenate([rgb, np.ones((rgb.shape[0], 1))], axis=1)
+
     def _apply_maps(self, k: int, sel: np.ndarray, prim: np.ndarray, bu: np.ndarray, bv: np.ndarray,
                     t: np.ndarray | None, spread, values: dict[str, np.ndarray]) -> None:  # noqa: ANN001
         uv = self.uvs[prim]
@@ -635,10 +646,7 @@ class Surfaces:
             if name not in values:
                 continue
             if "primvar" in entry:  # a colour read per vertex (RGB, alpha 1)
-                corners = self.colors[prim]
-                rgb = ((1.0 - bu - bv)[:, None] * corners[:, 0] + bu[:, None] * corners[:, 1]
-                       + bv[:, None] * corners[:, 2])
-                rgba = np.concatenate([rgb, np.ones((rgb.shape[0], 1))], axis=1)
+                rgba = self._vertex_colour_rgba(prim, bu, bv)
             else:
                 texture = self.entry_texture(entry)
                 s_, t_, stretch = transformed_st(entry, st[:, 0], st[:, 1])
@@ -650,9 +658,7 @@ class Surfaces:
                     lod = np.log2(np.maximum(footprint, 1.0))
                 rgba = texture.lookup(np.stack([s_, t_], axis=-1), lod, tuple(entry.get("wrap", ("repeat", "repeat"))))
                 if "tint_primvar" in entry:  # times a colour read per vertex (RGB; alpha unchanged)
-                    corners = self.colors[prim]
-                    rgba = rgba * np.concatenate([(1.0 - bu - bv)[:, None] * corners[:, 0] + bu[:, None] * corners[:, 1]
-                                                  + bv[:, None] * corners[:, 2], np.ones((prim.size, 1))], axis=1)
+                    rgba = rgba * self._vertex_colour_rgba(prim, bu, bv)
             rgba = rgba * np.asarray(entry.get("scale", (1.0, 1.0, 1.0, 1.0))) + np.asarray(
                 entry.get("bias", (0.0, 0.0, 0.0, 0.0)))
             value = _channels(rgba, entry.get("channels", "rgb"))

@@ -18,13 +18,16 @@ Full-resolution quadratures (:func:`reference_irradiance_binned`; distant probes
     2. every other sample is binned into the texel t of a reference cube of face ``REFERENCE_FACE_SIZE`` = 48 that
        contains it, keeping per texel its flux Φ_t = Σ Ω_s L_s and first moment m_t = Σ Ω_s L_s ω_s (per channel);
        48 is the measured compromise: the error falls as ~1/N² (ρ on city 1.6e-4, 7e-5, 4e-5 at N = 32, 48, 64)
-       while the two cached operators grow as N² (2 × 57 MB at 48 and D = 1024);
+       while the straddling texels, the only ones evaluated per texel, grow as N;
     3. texels entirely on the positive side of n (all four corners n·corner ≥ 0: a texel is a convex spherical
        quadrilateral) contribute n·m_t — *exactly*, the cosine being linear there; texels entirely on the negative
        side contribute 0, exactly; only the texels straddling the terminator of n are approximated, by
-       max(0, n·c_t) Φ_t at the texel centre c_t. With the fixed operators P[d, t] = [t positive for n_d] and
-       S[d, t] = [t straddles n_d] max(0, n_d·c_t) (D × 6·48², cached) the batch is two GEMMs:
-           E_c(n_d) = Σ_j n_dj (P · m_{·cj})_d + (S · Φ_{·c})_d + E_c^bright(n_d).
+       max(0, n·c_t) Φ_t at the texel centre c_t. On a face, n·direction has the sign of a linear function of
+       (u, v), so in each texel row the positive texels are one run of columns and the straddling ones another
+       (:func:`_row_intervals`): Σ_{t positive} m_t is a difference of the rows' prefix sums M, and with the fixed
+       sparse operators Q (±1 at each row's run ends, D × 6N(N+1)) and S[d, t] = [t straddles n_d] max(0, n_d·c_t)
+       (D × 6N², about 12N entries per row; both O(D·N) to build, cached) the batch is two sparse products:
+           E_c(n_d) = Σ_j n_dj (Q · M_{·cj})_d + (S · Φ_{·c})_d + E_c^bright(n_d).
     Error bound (a straddling texel has |n·ω| ≤ δ over it, δ = the largest texel chord, ``texel_chord(48)`` =
     0.059, and both the truth and the approximation lie in [0, δ Φ_t]):
         |E_c(n) − E_c^ref(n)| ≤ δ · Σ_{t straddles n} Φ_{t,c}     (Φ without the brightest samples),
@@ -47,6 +50,7 @@ import numpy as np
 
 from bakery.conventions import LUMINANCE_WEIGHTS
 from bakery.sphere.cubemap import (
+    _FACE_FRAMES,
     cube_face_uv_to_direction,
     cube_texel_directions,
     cube_texel_solid_angles,
@@ -58,7 +62,8 @@ from bakery.sphere.grid import SphericalSamples
 REFERENCE_FACE_SIZE = 48
 #: Samples of largest luminance flux integrated by brute force before binning (module doc).
 EXACT_BRIGHTEST = 1024
-#: Cube face sizes whose operators are cached (D × 6N² float32 each; 57 MB at N = 48, D = 1024).
+#: Cube face sizes whose operators are cached (the capture operator D × 6N² float32, 57 MB at N = 48, D = 1024;
+#: the binned reference's sparse ones, about 12N entries per direction).
 _CACHE_FACES = 4
 #: Largest capture operator cached (elements; 128 MB float32: 64² faces at D = 1024); larger ones are streamed.
 _MAX_CACHED_ELEMENTS = 1 << 25
@@ -148,8 +153,6 @@ def _row_intervals(normals: np.ndarray, face_size: int) -> tuple[np.ndarray, ...
     least of it over the corners is ≥ 0, negative when the largest is ≤ 0; in a row both are monotone in c, so the
     positive texels are one run of columns, the negative ones another at the other end, and the straddling ones the
     run between: thresholds, not D × 6N² corner signs."""
-    from bakery.sphere.cubemap import _FACE_FRAMES
-
     n = face_size
     g, a, b = (normals @ _FACE_FRAMES[:, k, :].T for k in range(3))  # (D, 6) each: γ, α, β
     v = np.linspace(-1.0, 1.0, n + 1)

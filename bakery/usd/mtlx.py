@@ -737,7 +737,8 @@ def _put_flattened(reader, name: str, prim: str, node, output: str, access: Grap
     try:
         flat = flatten_graph(node, output, access)
     except GraphError as error:
-        notes.append(f"input {name} is computed by {error}; its default is used")
+        notes.append(f"input {name} is computed by {error}; its default is used (bake the input to an image "
+                     "to capture it)")
         return
     values_of = np.asarray(flat.fallback, dtype=np.float64).reshape(-1)
     fallback = values_of[:3] if values_of.size >= 3 else np.repeat(values_of[:1], 3)  # a float (or vector2's x): RGB

@@ -226,10 +226,7 @@ class _Evaluator:
                 raise GraphError(f"{category} output {output!r}")
             return source[..., index:index + 1]
         if category.startswith("combine"):
-            count = int(category[len("combine"):] or 0)
-            parts = [self._input(node, f"in{i + 1}", depth) for i in range(count)]
-            if count not in (2, 3, 4):
-                raise GraphError(f"a {category} node")
+            parts = [self._input(node, name, depth) for name in _input_names(category)]
             shape = np.broadcast_shapes(*(p.shape[:-1] for p in parts))
             return np.concatenate([np.broadcast_to(p, shape + (p.shape[-1],)) for p in parts], axis=-1)
         if category == "luminance":
@@ -275,20 +272,19 @@ def _collect_images(node: Any, access: GraphAccess, found: dict[str, tuple[dict 
             _collect_images(operand[1], access, found, seen, depth + 1)
 
 
+#: Inputs of the nodes :class:`_Evaluator` handles by structure rather than by a formula of :data:`NODES`.
+_STRUCTURAL_INPUTS = {"constant": ("value",), "convert": ("in",), "extract": ("in", "index"),
+                      "luminance": ("in", "lumacoeffs"), "separate2": ("in",), "separate3": ("in",),
+                      "separate4": ("in",), "combine2": ("in1", "in2"), "combine3": ("in1", "in2", "in3"),
+                      "combine4": ("in1", "in2", "in3", "in4")}
+
+
 def _input_names(category: str) -> tuple[str, ...]:
-    if category in NODES:
-        return NODES[category][0]
-    if category.startswith("combine"):
-        return tuple(f"in{i + 1}" for i in range(int(category[len("combine"):] or 0)))
-    if category == "constant":
-        return ("value",)
-    if category == "extract":
-        return ("in", "index")
-    if category == "luminance":
-        return ("in", "lumacoeffs")
-    if category in ("convert",) or category.startswith("separate"):
-        return ("in",)
-    raise GraphError(f"a {category or 'untyped'} node, which the capture does not evaluate")
+    """The inputs a node of ``category`` reads (GraphError for a node the capture does not evaluate)."""
+    names = NODES[category][0] if category in NODES else _STRUCTURAL_INPUTS.get(category)
+    if names is None:
+        raise GraphError(f"a {category or 'untyped'} node, which the capture does not evaluate")
+    return names
 
 
 def _primvar_tint(node: Any, output: str, access: GraphAccess) -> tuple[Any, str, str | None]:
