@@ -342,7 +342,7 @@ def inspect(store: Path, as_json: bool, pattern: str | None, region: str | None)
         sampling = json.loads(a.get("capture_light_sampling", "null") or "null")
         if sampling and sampling.get("drawn"):
             out.print(f"lights: {sampling['lights']}; {sampling['draws_per_vertex']} of the {sampling['non_distant']} "
-                      f"non-distant ones drawn per path vertex from the light BVH (all sampled up to "
+                      f"non-distant ones drawn per path vertex from the light grid (all sampled up to "
                       f"{sampling['enumerated_up_to']})")
     if "capture/backface_fraction" in s.diagnostics:  # probe validity
         from bakery.conventions import INSIDE_BACKFACE_FRACTION

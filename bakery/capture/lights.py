@@ -41,8 +41,13 @@ from bakery.capture import vec
 from bakery.capture.ies import evaluate_ies
 from bakery.capture.light_tree import CULLED_SHAPES, LightBound, LightBVH
 from bakery.capture.scene import FAR, Light
+from bakery.capture.tracer import SphereCuller
 from bakery.capture.vec import TINY, dot, dotc
 from bakery.conventions import LUMINANCE_WEIGHTS
+
+#: From this many light shapes up to CULLED_SHAPES, the segments that may meet a shape are found by one Embree query
+#: (:class:`bakery.capture.tracer.SphereCuller`) before each shape's own test; below, every shape tests every segment.
+PROXY_CULLED_SHAPES = 4
 
 #: Relative shortening of shadow segments so the sampled light point itself does not occlude.
 SHADOW_EPSILON = 1e-4
@@ -708,6 +713,20 @@ class LightSet:
         #: above CULLED_SHAPES light shapes, a BVH over their culling spheres finds the (ray, light) pairs to test
         #: (:mod:`bakery.capture.light_tree`); the same pairs pass the spheres, so the results are the same
         self._shape_bvh = None
+        #: up to CULLED_SHAPES light shapes, an Embree query against icosahedra around their culling spheres finds
+        #: the segments that may meet any (:class:`bakery.capture.tracer.SphereCuller`): each shape's own test then
+        #: runs on those alone, and finds the same pairs as on every segment
+        self._culler = None
+        if PROXY_CULLED_SHAPES <= len(self.surfaces) <= CULLED_SHAPES:
+            centres = np.array([m.centre for m in self.surfaces])
+            radii = np.array([self._cull_radius(m) for m in self.surfaces])
+            self._culler = SphereCuller(centres, radii)
+            #: a shadow segment that ends on shape k is queried up to 2·R_k before its end: the rest lies within
+            #: 3·R_k of k's centre, where only the shapes whose culling spheres reach that ball can be met
+            self._end_margin = 2.0 * radii * (1.0 + 1e-3) + 1e-5
+            gap = np.linalg.norm(centres[:, None] - centres[None], axis=-1) - 3.0 * radii[:, None] - radii[None]
+            np.fill_diagonal(gap, np.inf)
+            self._near_end = np.r_[np.any(gap <= 1e-4 * (1.0 + np.abs(centres).max()), axis=1), False]  # [-1]: none
         if len(self.surfaces) > CULLED_SHAPES:
             boxes = []
             for model in self.surfaces:
@@ -734,17 +753,50 @@ class LightSet:
         return model.bounding_radius * 1.01 + 1e-4
 
     def _pairs(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray | float,
-               skip: np.ndarray | int | None = None
+               skip: np.ndarray | int | None = None, where: np.ndarray | None = None
                ) -> tuple[list[tuple[int, np.ndarray]], tuple[np.ndarray, np.ndarray] | None]:
         """Per light shape k (ascending), the segments (ascending flat indices of ``directions`` (3, ..., M)) that
         pass its culling sphere — every shape's test over all segments, or the BVH's pairs (above CULLED_SHAPES
         shapes; the same segments up to the looser boxes, which the exact tests then reject) — without those whose
         ``skip`` is k; with the BVH, the sphere shapes' pairs apart as (segment, shape) arrays, by segment then
-        shape (None without it)."""
+        shape (None without it). With ``where`` (bool, shape of the segments) the Embree culler looks at those
+        segments alone (the other paths may still list others)."""
         shape = directions.shape[1:]
         m = directions.shape[-1]
         skip_flat = None if skip is None or np.ndim(skip) == 0 else np.broadcast_to(skip, shape).reshape(-1)
         out = []
+        if self._shape_bvh is None and self._culler is not None:  # the segments near any shape, then as below
+            d_flat = directions.reshape(3, -1)
+            broadcast = origins.ndim != directions.ndim
+            o_flat = origins if broadcast else origins.reshape(3, -1)
+            origin_of = np.arange(d_flat.shape[1]) % m if broadcast else None
+            dist_flat = np.broadcast_to(np.asarray(distances, dtype=np.float64), shape).reshape(-1)
+            sel = np.arange(d_flat.shape[1]) if where is None else np.flatnonzero(np.broadcast_to(where, shape))
+            query = dist_flat[sel]
+            if skip is not None:  # segments ending on a shape: up to its culling ball, and its neighbours apart
+                ends = skip_flat[sel] if skip_flat is not None else np.full(sel.size, int(skip))
+                on = ends >= 0
+                query = np.where(on, np.maximum(0.0, query - self._end_margin[np.where(on, ends, 0)]), query)
+            if where is None:
+                near = self._culler.flag(o_flat, d_flat, query, origin_of)
+            else:
+                near = self._culler.flag(o_flat, np.take(d_flat, sel, axis=1), query,
+                                         sel if origin_of is None else origin_of[sel])
+            if skip is not None:
+                near |= self._near_end[ends]
+            sel = sel[near]
+            if sel.size == 0:
+                return out, None
+            o_sel = np.take(o_flat, sel if origin_of is None else origin_of[sel], axis=1)
+            d_sel, dist_sel = np.take(d_flat, sel, axis=1), dist_flat[sel]
+            for k, model in enumerate(self.surfaces):
+                cand = self._candidates(model, o_sel, d_sel, dist_sel)
+                if skip is not None:
+                    cand &= (skip_flat[sel] if skip_flat is not None else int(skip)) != k
+                idx = sel[cand]
+                if idx.size:
+                    out.append((k, idx))
+            return out, None
         if self._shape_bvh is None:
             for k, model in enumerate(self.surfaces):
                 cand = self._candidates(model, origins, directions, distances)
@@ -842,19 +894,20 @@ class LightSet:
         return np.ones(directions.shape[1], dtype=bool)
 
     def occluded_soa(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray,
-                     skip: np.ndarray | int | None = None) -> np.ndarray:
+                     skip: np.ndarray | int | None = None, where: np.ndarray | None = None) -> np.ndarray:
         """Whether any light surface blocks the segments (3, ..., M) (shadow rays; ``origins`` may be (3, M) against
         directions (3, J, M), J segments per origin); ``skip`` (shape of the segments, or one int): index into
         :attr:`surfaces` of a light each segment ends on (−1: none), which is not tested against it (a convex
         shape cannot occlude a point of it that faces the segment's origin). Only segments passing a light's
-        bounding sphere are intersected with it."""
+        bounding sphere are intersected with it; with ``where`` (bool, shape of the segments), only those segments
+        need an answer (the others may be reported unblocked)."""
         shape = directions.shape[1:]
         blocked = np.zeros(shape, dtype=bool)
         flat = blocked.reshape(-1)
         m = directions.shape[-1]
         d_flat = directions.reshape(3, -1)
         dist_flat = np.broadcast_to(distances, shape).reshape(-1)
-        groups, spheres = self._pairs(origins, directions, distances, skip)
+        groups, spheres = self._pairs(origins, directions, distances, skip, where)
         if spheres is not None and spheres[0].size:
             seg, light = spheres
             broadcast = origins.ndim != directions.ndim

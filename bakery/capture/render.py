@@ -38,8 +38,9 @@ Small lights
 
 Many lights (:mod:`bakery.capture.light_tree`)
     Above ``ENUMERATED_LIGHTS`` non-distant lights, next-event estimation draws ``LIGHT_SAMPLES`` lights per
-    vertex from a light BVH instead of sampling every light (:meth:`ProbeRenderer._sample_tree`): sample j of light
-    ℓ has pdf K·P(ℓ | x)·pdf_ℓ(ω), which the power heuristic also uses for BSDF rays that reach ℓ's shape
+    vertex instead of sampling every light (:meth:`ProbeRenderer._sample_tree`), from the light grid's
+    distribution of the vertex's cell (the light BVH's off the grid's surfaces): sample j of light ℓ has pdf
+    K·P(ℓ | x)·pdf_ℓ(ω), which the power heuristic also uses for BSDF rays that reach ℓ's shape
     (:meth:`ProbeRenderer._tree_pdf`). Distant lights, the dome and the emissive triangles keep their strategies.
     Every per-strategy property (linking, shadows, multipliers) is a row of one table
     (:meth:`ProbeRenderer._strategy_tables`), indexed per slot — or per point for the drawn lights.
@@ -90,7 +91,7 @@ from bakery.capture.lights import (
     RectLightModel,
     LightSampler,
 )
-from bakery.capture.light_tree import ENUMERATED_LIGHTS, LIGHT_SAMPLES, LightBVH
+from bakery.capture.light_tree import ENUMERATED_LIGHTS, LIGHT_SAMPLES, LightBVH, LightGrid
 from bakery.capture.scene import CaptureScene, Dome, Light
 from bakery.capture.surfaces import BOUNCE_SPREAD, Surfaces
 from bakery.capture.tracer import FAR, SceneTracer
@@ -377,8 +378,11 @@ class ProbeRenderer:
         self._tree = None
         self._tree_models = np.zeros(0, dtype=np.int64)  # BVH leaf → index into lights.models
         self._tree_leaf: dict[int, int] = {}  # index into lights.models → BVH leaf
-        if len(drawn) > ENUMERATED_LIGHTS:
-            self._tree = LightBVH([self.lights.models[j].tree_bound() for j in drawn])
+        if len(drawn) > ENUMERATED_LIGHTS:  # drawn per region (O(1)), from the BVH outside the grid
+            boxes = [(m.triangles.min(axis=1), m.triangles.max(axis=1)) for m in scene.meshes]
+            self._tree = LightGrid(LightBVH([self.lights.models[j].tree_bound() for j in drawn]),
+                                   np.concatenate([b[0] for b in boxes]) if boxes else np.zeros((0, 3)),
+                                   np.concatenate([b[1] for b in boxes]) if boxes else np.zeros((0, 3)))
             self._tree_models = np.array(drawn, dtype=np.int64)
             self._tree_leaf = {j: leaf for leaf, j in enumerate(drawn)}
         self._tree_sampler = LightSampler([self.lights.models[j] for j in self._tree_models])  # by BVH leaf
@@ -843,9 +847,9 @@ class ProbeRenderer:
             u = owners.random(2)
             wi, dist, radiance, pdf = self.lights.models[j].sample_soa(points, u[0], u[1])
             wis.append(wi), dists.append(dist), radiances.append(radiance), pdfs.append(pdf), rows.append(j)
-        for _ in range(LIGHT_SAMPLES if self._tree is not None else 0):
-            wi, dist, radiance, pdf, row = self._sample_tree(points, owners)
-            wis.append(wi), dists.append(dist), radiances.append(radiance), pdfs.append(pdf), rows.append(row)
+        if self._tree is not None:
+            for wi, dist, radiance, pdf, row in self._sample_tree(points, owners):
+                wis.append(wi), dists.append(dist), radiances.append(radiance), pdfs.append(pdf), rows.append(row)
         n_lights = len(self.lights.models)
         if not self.dome.black:
             far = np.full(m, FAR, dtype=REAL)
@@ -915,7 +919,7 @@ class ProbeRenderer:
         short = np.where(dist < FAR, dist * (1.0 - SHADOW_EPSILON), FAR).astype(REAL, copy=False)
         unblocked = valid & ~shadowless  # the segments whose occlusion counts
         if self.lights.surfaces:  # light shapes first, on all (J, M) segments at once (no gathers)
-            unblocked &= ~self.lights.occluded_soa(points, wi, short, tables.shape[row])
+            unblocked &= ~self.lights.occluded_soa(points, wi, short, tables.shape[row], where=unblocked)
         idx = np.flatnonzero(unblocked)
         scale = np.zeros(count * m, dtype=REAL)
         tint = None
@@ -959,16 +963,25 @@ class ProbeRenderer:
         return total
 
     def _sample_tree(self, points: np.ndarray, owners: _Owners
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """One light per point (3, M) drawn from the light BVH and a next-event sample of it: direction (3, M),
-        shadow distance (M,), radiance (3, M), the pdf K·P(light | point)·pdf(ω) of the K draws (M,) (0 where no
-        light can reach the point) and the light's index (M,) (the strategy-table row)."""
-        leaf, pmf = self._tree.sample(points, owners.random(dtype=np.float64))
-        u = owners.random(2)
+                     ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+        """:data:`LIGHT_SAMPLES` lights per point (3, M) drawn from the light grid (BVH outside it) and a next-event
+        sample of each, all K·M at once: per draw, direction (3, M), shadow distance (M,), radiance (3, M), the pdf
+        K·P(light | point)·pdf(ω) of the K draws (M,) (0 where no light can reach the point) and the light's index
+        (M,) (the strategy-table row). The random numbers are drawn draw by draw (choice, then ω), as K calls
+        would."""
+        m, k = points.shape[1], LIGHT_SAMPLES
+        choices, omegas = [], []
+        for _ in range(k):
+            choices.append(owners.random(dtype=np.float64))
+            omegas.append(owners.random(2))
+        leaf, pmf = self._tree.sample(points, np.concatenate(choices), draws=k)  # (K·M,)
+        u = np.concatenate(omegas, axis=1)  # (2, K·M)
         light = np.where(leaf >= 0, self._tree_models[np.maximum(leaf, 0)], 0)
-        wi, dist, radiance, pdf = self._tree_sampler.sample(points, leaf, u[0], u[1])
-        pdf = (pdf * (LIGHT_SAMPLES * pmf)).astype(REAL)  # delta lights: ∞ stays ∞ (their weight is 1 / (K·P))
-        return wi, dist, radiance, pdf, light
+        tiled = np.tile(points, (1, k))
+        wi, dist, radiance, pdf = self._tree_sampler.sample(tiled, leaf, u[0], u[1])
+        pdf = (pdf * (k * pmf)).astype(REAL)  # delta lights: ∞ stays ∞ (their weight is 1 / (K·P))
+        return [(wi[:, j * m:(j + 1) * m], dist[j * m:(j + 1) * m], radiance[:, j * m:(j + 1) * m],
+                 pdf[j * m:(j + 1) * m], light[j * m:(j + 1) * m]) for j in range(k)]
 
     def _tree_pdf(self, points: np.ndarray, model_index: int) -> np.ndarray:
         """K·P(light | point) (M,) float32 of the light BVH's draws for the analytic light ``model_index`` (1 when

@@ -157,3 +157,58 @@ class SceneTracer:
             out = self._scene.run(o[start:stop], d[start:stop], dists=dist[start:stop], query="OCCLUDED")
             result[start:stop] = np.asarray(out) >= 0
         return result
+
+
+def _icosahedron() -> tuple[np.ndarray, np.ndarray]:
+    """Unit-circumradius icosahedron: vertices (12, 3) and triangles (20, 3) (outward winding)."""
+    g = (1.0 + 5.0**0.5) / 2.0
+    v = np.array([[-1, g, 0], [1, g, 0], [-1, -g, 0], [1, -g, 0], [0, -1, g], [0, 1, g], [0, -1, -g], [0, 1, -g],
+                  [g, 0, -1], [g, 0, 1], [-g, 0, -1], [-g, 0, 1]], dtype=np.float64)
+    f = np.array([[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4], [11, 10, 2],
+                  [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5],
+                  [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]])
+    return v / np.linalg.norm(v, axis=1, keepdims=True), f
+
+
+#: Circumradius over inradius of the icosahedron (1.2584).
+_ICOSAHEDRON_RATIO = 1.0 / float(np.linalg.norm(np.mean(_icosahedron()[0][_icosahedron()[1][0]], axis=0)))
+
+
+class SphereCuller:
+    """Which segments may pass within any of K spheres, by one Embree occlusion query against icosahedra that
+    enclose them (a conservative cull before the light shapes' exact tests, :class:`bakery.capture.lights.LightSet`).
+
+    Each segment is queried from ``back`` before its origin, more than any icosahedron's diameter: a segment that
+    meets a sphere then crosses the surface of the icosahedron around it (even one that starts inside it), which
+    Embree's watertight test finds. So the flagged segments hold every segment that meets a sphere (and a few that
+    pass near one, or near one just behind their origin). The icosahedra's inradius is the sphere's plus a float32
+    margin. The queries are culling, not rendering rays: they are not counted in :attr:`SceneTracer.rays_cast`.
+    """
+
+    def __init__(self, centres: np.ndarray, radii: np.ndarray) -> None:
+        centres = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
+        radii = np.asarray(radii, dtype=np.float64).reshape(-1)
+        vertices, faces = _icosahedron()
+        scale = 1.0 + np.abs(centres).max(initial=0.0)
+        inradius = radii * (1.0 + 1e-3) + 1e-6 * scale  # float32 rounding of vertices and ray arithmetic
+        circumradius = inradius * _ICOSAHEDRON_RATIO
+        corners = centres[:, None, None, :] + circumradius[:, None, None, None] * vertices[faces][None]  # (K,20,3,3)
+        self.back = float(2.0 * circumradius.max(initial=0.0) * (1.0 + 1e-3) + 1e-5 * scale)
+        self._scene = rtcs.EmbreeScene(robust=True)
+        self._mesh = TriangleMesh(self._scene, corners.reshape(-1, 3, 3).astype(np.float32))
+
+    def flag(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray,
+             origin_of: np.ndarray | None = None) -> np.ndarray:
+        """Segments origin + t·direction, 0 < t < distance (directions (3, S) unit, distances (S,); origins (3, S),
+        or (3, M) indexed by ``origin_of`` (S,)) that may meet a sphere: bool (S,)."""
+        d = np.ascontiguousarray(directions.T, dtype=np.float32)
+        o = np.asarray(origins, dtype=np.float32).T
+        o = np.ascontiguousarray((o if origin_of is None else o[origin_of]) - np.float32(self.back) * d)  # new array
+        dist = np.ascontiguousarray(np.minimum(np.asarray(distances, dtype=np.float64) + self.back, FAR),
+                                    dtype=np.float32)
+        result = np.zeros(d.shape[0], dtype=bool)
+        for start in range(0, d.shape[0], CHUNK):
+            stop = min(d.shape[0], start + CHUNK)
+            out = self._scene.run(o[start:stop], d[start:stop], dists=dist[start:stop], query="OCCLUDED")
+            result[start:stop] = np.asarray(out) >= 0
+        return result

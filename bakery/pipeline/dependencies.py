@@ -36,8 +36,8 @@ cube texels, and a capture's estimate of its irradiance was measured up to 2× t
 written before ``geometry`` was recorded fall back to the old + new bound. Probes with no stored irradiance SH
 (reflection-only) are re-baked whenever a light changes, unless (a) holds.
 
-Many lights: above ``ENUMERATED_LIGHTS`` non-distant lights the capture draws its next-event lights from a BVH
-whose probabilities follow the lights' power and places (:mod:`bakery.capture.light_tree`); the sampling enters
+Many lights: above ``ENUMERATED_LIGHTS`` non-distant lights the capture draws its next-event lights from per-region
+distributions (a light grid, the BVH outside it) whose probabilities follow the lights' power and places (:mod:`bakery.capture.light_tree`); the sampling enters
 the global part (its version, the threshold and the draws per vertex), so crossing the threshold re-bakes every
 probe. Between such scenes, an edit changes the draws of every probe, so a reused probe and a fresh bake of it are
 two estimates that differ by their noise (``/diagnostics/capture/sh_noise``) as well as by the bounds above: the
@@ -78,9 +78,10 @@ EMITTER_SAMPLING_VERSION = 1
 #: ProbeRenderer._add_small_lights`; hashed only for scenes with visible light shapes)
 SMALL_LIGHT_SPLAT_VERSION = 1
 
-#: Version of the capture's many-lights sampling (the light BVH's draws, :mod:`bakery.capture.light_tree`; hashed
-#: only for scenes with more than ENUMERATED_LIGHTS non-distant lights: any other scene keeps its hash)
-LIGHT_SAMPLING_VERSION = 1
+#: Version of the capture's many-lights sampling (the light grid's draws, the BVH's outside it,
+#: :mod:`bakery.capture.light_tree`; hashed only for scenes with more than ENUMERATED_LIGHTS non-distant lights: any
+#: other scene keeps its hash). 2: per-cell distributions (:class:`~bakery.capture.light_tree.LightGrid`).
+LIGHT_SAMPLING_VERSION = 2
 
 
 def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN001 - bakery.capture.scene.CaptureScene
@@ -119,7 +120,7 @@ def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN00
     if any(mesh.material.emits for mesh in scene.meshes):  # emissive triangles as lights (bakery.capture.emitters)
         parts.append(("emitter_sampling", EMITTER_SAMPLING_VERSION))
     sampling = light_sampling([light.kind for light in scene.lights])
-    if sampling["drawn"]:  # next-event lights drawn from the BVH
+    if sampling["drawn"]:  # next-event lights drawn from the light grid
         parts.append(("light_sampling", LIGHT_SAMPLING_VERSION, sampling["enumerated_up_to"],
                       sampling["draws_per_vertex"]))
     if any(light.visible and light.kind != "distant" for light in scene.lights):  # small shapes are splatted

@@ -13,7 +13,8 @@ from usd_scenes import header, material, plane_mesh, probe, write
 
 from bakery.capture import capture_probes
 from bakery.capture import lights as lights_module
-from bakery.capture.light_tree import CULLED_SHAPES, ENUMERATED_LIGHTS, LightBound, LightBVH
+from bakery.capture.light_tree import CULLED_SHAPES, ENUMERATED_LIGHTS, LightBound, LightBVH, LightGrid
+from bakery.capture.tracer import SphereCuller
 from bakery.capture.scene import Light
 from bakery.sphere.cubemap import cube_texel_directions
 from bakery.usd.scene import read_scene
@@ -84,6 +85,196 @@ def test_bvh_draws_each_light_with_the_probability_it_reports():
             in_front = np.dot(point - centre, b.axis) > half  # surely in front of a one-sided light
             if b.cos_normal <= -1 or in_front:
                 assert every[j] > 0, j
+
+
+def _floor_and_boxes(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Triangles (T, 3, 3) of a 30 m floor at y = −11 and 40 random small boxes' worth of triangles, and their
+    boxes (the surfaces a light grid is built over)."""
+    floor = np.array([[[-15, -11, -15], [15, -11, -15], [15, -11, 15]], [[-15, -11, -15], [15, -11, 15],
+                                                                       [-15, -11, 15]]], dtype=np.float64)
+    centres = rng.uniform(-10, 10, (40, 1, 3))
+    small = centres + rng.uniform(-0.6, 0.6, (40, 3, 3))
+    triangles = np.concatenate([floor, small])
+    return triangles, triangles.min(axis=1), triangles.max(axis=1)
+
+
+def _points_on(triangles: np.ndarray, rng: np.random.Generator, count: int) -> np.ndarray:
+    """Uniform barycentric points (3, count) float32 on random triangles of (T, 3, 3)."""
+    which = rng.integers(0, len(triangles), count)
+    b = rng.dirichlet([1.0, 1.0, 1.0], count)
+    return np.einsum("tk,tkc->ct", b, triangles[which]).astype(np.float32)
+
+
+def test_grid_draws_each_light_with_the_probability_it_reports():
+    """The light grid: at points on its surfaces (one distribution per cell) and off them (the BVH's), draw
+    frequencies match pmf() (binomial 4σ), the draws' own pmf equals pmf(), and each point's pmfs sum to 1."""
+    rng = np.random.default_rng(17)
+    bounds = _random_bounds(rng, 150)
+    triangles, lower, upper = _floor_and_boxes(rng)
+    grid = LightGrid(LightBVH(bounds), lower, upper)
+    assert grid.rows > 100
+    draws = 60_000
+    on_surfaces = _points_on(triangles, rng, 3).T
+    for point in [*on_surfaces, np.array([0.0, 14.0, 0.0], dtype=np.float32)]:  # the last: off every surface
+        points = np.repeat(point[:, None], draws, axis=1)
+        assert (grid._rows_of(points[:, :1])[0] >= 0) == (point[1] < 14)
+        light, pmf = grid.sample(points, rng.random(draws))
+        reached = light >= 0
+        np.testing.assert_array_equal(grid.pmf(points[:, reached], light[reached]), pmf[reached])
+        every = grid.pmf(np.repeat(point[:, None], len(bounds), axis=1), np.arange(len(bounds)))
+        np.testing.assert_allclose(every.sum(), 1.0, rtol=1e-12)
+        frequency = np.bincount(light[reached], minlength=len(bounds)) / draws
+        sigma = np.sqrt(every * (1 - every) / draws)
+        assert np.all(np.abs(frequency - every) <= 4 * sigma + 1e-4)
+
+
+def test_grid_draws_several_per_point_as_single_draws_would():
+    """sample(points, u, draws=K) with draw-major u gives the lights and pmfs of K single draws."""
+    rng = np.random.default_rng(4)
+    bounds = _random_bounds(rng, 60)
+    triangles, lower, upper = _floor_and_boxes(rng)
+    grid = LightGrid(LightBVH(bounds), lower, upper)
+    points = np.concatenate([_points_on(triangles, rng, 500), rng.uniform(-30, 30, (3, 100)).astype(np.float32)],
+                            axis=1)
+    u = rng.random((4, points.shape[1]))
+    light, pmf = grid.sample(points, u.reshape(-1), draws=4)
+    for k in range(4):
+        one_light, one_pmf = grid.sample(points, u[k])
+        np.testing.assert_array_equal(light.reshape(4, -1)[k], one_light)
+        np.testing.assert_array_equal(pmf.reshape(4, -1)[k], one_pmf)
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), count=st.integers(2, 60))
+def test_grid_never_gives_zero_to_a_light_that_can_reach_a_point(seed, count):
+    """Unbiasedness: wherever a light's own importance (its BVH leaf's, pbrt-v4's cone and distance terms) is
+    positive at a point on the grid's surfaces, the grid's probability of it is positive there too (one-sided
+    and ShapingAPI-like cones included)."""
+    rng = np.random.default_rng(seed)
+    bounds = _random_bounds(rng, count)
+    for i in range(0, count, 4):  # narrow emission cones, as ShapingAPI spots
+        axis = rng.normal(size=3)
+        bounds[i] = LightBound(bounds[i].lower, bounds[i].upper, bounds[i].power, tuple(axis / np.linalg.norm(axis)),
+                               1.0, float(np.cos(np.radians(rng.uniform(5, 40)))))
+    tree = LightBVH(bounds)
+    triangles, lower, upper = _floor_and_boxes(rng)
+    grid = LightGrid(tree, lower, upper)
+    points = _points_on(triangles, rng, 400)
+    leaves = np.array([int(np.flatnonzero(tree.light == j)[0]) for j in range(count)])
+    m = points.shape[1]
+    reach = tree.importance(points[:, :, None], np.broadcast_to(leaves, (m, count))) > 0  # (M, L)
+    pmf = grid.pmf(np.repeat(points, count, axis=1), np.tile(np.arange(count), m)).reshape(m, count)
+    assert not np.any(reach & (pmf <= 0))
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), count=st.integers(1, 40))
+def test_sphere_culler_flags_every_segment_that_meets_a_sphere(seed, count):
+    """SphereCuller (Embree query against enclosing icosahedra) against the closed-form segment–sphere test in
+    float64: every segment that meets a sphere is flagged, also segments starting or lying inside one, grazing
+    ones and broadcast origins."""
+    rng = np.random.default_rng(seed)
+    centres = rng.uniform(-20, 20, (count, 3))
+    radii = rng.uniform(0.01, 2.0, count)
+    culler = SphereCuller(centres, radii)
+    m = 4000
+    k = rng.integers(0, count, m)
+    origins = centres[k] + rng.normal(0, 1, (m, 3)) * radii[k, None] * rng.choice([0.5, 2.0, 8.0], (m, 1))
+    directions = rng.normal(size=(m, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    # a third of the segments aimed to graze a sphere: closest approach at radius·(1 ± 1e-4)
+    graze = np.flatnonzero(rng.random(m) < 0.3)
+    side = np.cross(directions[graze], rng.normal(size=(graze.size, 3)))
+    side /= np.linalg.norm(side, axis=1, keepdims=True)
+    scale = radii[k[graze], None] * (1 + rng.choice([-1e-4, 1e-4], (graze.size, 1)))
+    origins[graze] = centres[k[graze]] + side * scale - directions[graze] * rng.uniform(0.5, 5, (graze.size, 1))
+    lengths = rng.uniform(0, 10, m)
+    o32, d32 = origins.astype(np.float32), directions.astype(np.float32)
+    o64, d64 = o32.astype(np.float64), d32.astype(np.float64)
+    oc = o64[:, None, :] - centres[None]  # (M, K, 3)
+    b = np.einsum("mkc,mc->mk", oc, d64)
+    c = np.einsum("mkc,mkc->mk", oc, oc) - radii[None] ** 2
+    disc = b * b - c
+    root = np.sqrt(np.maximum(disc, 0))
+    meets = (disc >= 0) & (-b + root >= 0) & (-b - root <= lengths[:, None])  # [t0, t1] overlaps [0, length]
+    flagged = culler.flag(o32.T, d32.T, lengths)
+    assert not np.any(meets.any(axis=1) & ~flagged)
+    origin_of = rng.integers(0, m, m)  # (3, M) origins indexed per segment, as the renderer's shadow rays
+    flagged = culler.flag(o32.T, d32.T, lengths, origin_of)
+    oc = o64[origin_of][:, None, :] - centres[None]
+    b = np.einsum("mkc,mc->mk", oc, d64)
+    disc = b * b - (np.einsum("mkc,mkc->mk", oc, oc) - radii[None] ** 2)
+    root = np.sqrt(np.maximum(disc, 0))
+    meets = (disc >= 0) & (-b + root >= 0) & (-b - root <= lengths[:, None])
+    assert not np.any(meets.any(axis=1) & ~flagged)
+
+
+def _shadow_segments(light_set, origins: np.ndarray, rng: np.random.Generator, j: int
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(3, J, M) shadow segments from (3, M) origins as the renderer makes them: to a sampled point of a random
+    light shape, shortened by SHADOW_EPSILON, skipping that shape — or (a quarter) in a random direction with a
+    random length, skipping none. Directions, lengths (J, M) and skips (J, M)."""
+    m = origins.shape[1]
+    directions = rng.normal(size=(3, j, m)).astype(np.float32)
+    directions /= np.linalg.norm(directions, axis=0)
+    lengths = rng.uniform(0.5, 12, (j, m)).astype(np.float32)
+    skip = np.where(rng.random((j, m)) < 0.25, -1, rng.integers(0, len(light_set.surfaces), (j, m)))
+    for row in range(j):
+        for k, model in enumerate(light_set.surfaces):
+            sel = np.flatnonzero(skip[row] == k)
+            wi, dist, _radiance, pdf = model.sample_soa(origins[:, sel], rng.random(sel.size).astype(np.float32),
+                                                        rng.random(sel.size).astype(np.float32))
+            good = pdf > 0
+            directions[:, row, sel[good]] = wi[:, good]
+            lengths[row, sel[good]] = dist[good] * (1 - lights_module.SHADOW_EPSILON)
+            skip[row, sel[~good]] = -1
+    return directions, lengths, skip
+
+
+def test_light_shape_culling_by_embree_matches_testing_every_shape():
+    """nearest_soa / occluded_soa with the Embree culler (PROXY_CULLED_SHAPES … CULLED_SHAPES shapes) give the
+    same bits as every shape's test over every segment, with and without ``where``; shadow segments end on the
+    shape they skip, as the renderer's do (the culler queries them only up to that shape's culling ball), among
+    shapes close enough to one another that some neighbour the end of another's segments."""
+    rng = np.random.default_rng(13)
+    lights = _lights(rng, 30)
+    light_set = lights_module.LightSet(lights)
+    assert light_set._culler is not None and light_set._shape_bvh is None
+    every = lights_module.LightSet(lights)
+    every._culler = None
+    m = 20_000
+    origins = rng.uniform(-6, 6, (3, m)).astype(np.float32)
+    directions = rng.normal(size=(3, m)).astype(np.float32)
+    directions /= np.linalg.norm(directions, axis=0)
+    for a, b in zip(light_set.nearest_soa(origins, directions), every.nearest_soa(origins, directions)):
+        np.testing.assert_array_equal(a, b)
+    assert (every.nearest_soa(origins, directions)[1] >= 0).sum() > 500
+    assert light_set._near_end.any() and not light_set._near_end.all()
+    segments, lengths, skip = _shadow_segments(every, origins, rng, 3)
+    blocked = every.occluded_soa(origins, segments, lengths, skip)
+    assert blocked.sum() > 500
+    np.testing.assert_array_equal(light_set.occluded_soa(origins, segments, lengths, skip), blocked)
+    where = rng.random((3, m)) < 0.5
+    asked = light_set.occluded_soa(origins, segments, lengths, skip, where=where)
+    np.testing.assert_array_equal(asked[where], blocked[where])
+
+
+def test_many_lights_capture_is_the_same_with_and_without_the_embree_culler(monkeypatch):
+    """examples/plaza (32 light shapes): the Embree culler changes the capture's speed, not one bit of it."""
+    from pathlib import Path
+
+    from bakery.capture.render import ProbeRenderer
+
+    scene = read_scene(Path(__file__).resolve().parents[2] / "examples" / "plaza" / "plaza.usda").scene
+    probes = [p for p in scene.probes if not p.image][:6]
+    positions, names = [np.asarray(p.position) for p in probes], [p.name for p in probes]
+    culled = ProbeRenderer(scene, samples=2).render_many(positions, 8, names)
+    monkeypatch.setattr(lights_module, "PROXY_CULLED_SHAPES", 10**9)
+    plain = ProbeRenderer(scene, samples=2)
+    assert plain.lights._culler is None
+    for (a, sa), (b, sb) in zip(culled, plain.render_many(positions, 8, names)):
+        np.testing.assert_array_equal(a, b)
+        assert sa.rays == sb.rays
 
 
 def _lights(rng: np.random.Generator, count: int) -> tuple[Light, ...]:
@@ -315,7 +506,8 @@ def test_a_scene_bake_records_and_inspect_prints_how_its_lights_were_sampled(tmp
     bakery.bake(plaza, tmp_path / "plaza.h5", face_size=8, encodings=["sh3"], samples=2)
     sampling = json.loads(bakery.open_store(tmp_path / "plaza.h5").attributes["capture_light_sampling"])
     assert sampling == {"lights": 272, "non_distant": 272, "drawn": True, "draws_per_vertex": 4,
-                        "enumerated_up_to": ENUMERATED_LIGHTS, "next_event_samples_per_vertex": 4}
+                        "enumerated_up_to": ENUMERATED_LIGHTS, "next_event_samples_per_vertex": 4,
+                        "selection": "grid"}
     shown = subprocess.run([sys.executable, "-m", "bakery.cli", "inspect", str(tmp_path / "plaza.h5")],
                            capture_output=True, text=True, check=True).stdout
-    assert "lights: 272; 4 of the 272 non-distant ones drawn per path vertex from the light BVH" in shown
+    assert "lights: 272; 4 of the 272 non-distant ones drawn per path vertex from the light grid" in shown
