@@ -403,8 +403,14 @@ class LightGrid:
         reached = cdf[:, -1] > 0
         cdf[reached] /= cdf[reached, -1:]
         cdf[reached, -1] = 1.0
-        self._cdf = (cdf + np.arange(self.rows)[:, None]).reshape(-1)  # row + CDF: increasing over all rows
-        self._last = np.where(reached, lights - 1 - np.argmax(self._pmf[:, ::-1] > 0, axis=1), 0)
+        # guide table (Chen & Asau 1974; Devroye 1986 §III.2.4): per row and bucket i of [0, 1) in L buckets, the
+        # first light with CDF > i/L; a draw starts there and steps forward while CDF ≤ u (≤ 2 steps expected)
+        buckets = np.arange(lights) / lights
+        self._guide = np.stack([np.searchsorted(row, buckets, side="right") for row in cdf]).astype(np.int32)
+        np.minimum(self._guide, lights - 1, out=self._guide)  # rows no light reaches: CDF 0 everywhere
+        self._guide = self._guide.reshape(-1)
+        cdf[~reached] = 2.0  # no step beyond a row no light reaches: its draws get pmf 0 (light −1)
+        self._cdf = cdf.reshape(-1)
         self._pmf = self._pmf.reshape(-1)
 
     @staticmethod
@@ -459,15 +465,15 @@ class LightGrid:
         pmf = np.zeros(rows.size)
         inside = np.flatnonzero(rows >= 0)
         if inside.size:
-            r = rows[inside]
             lights = self.tree.size
-            target = r + np.asarray(u, dtype=np.float64)[inside]
-            order = np.argsort(target)  # sorted keys: each search starts where the last ended (5× fewer misses)
-            found = np.empty(target.size, dtype=np.int64)
-            found[order] = np.searchsorted(self._cdf, target[order], side="right")
-            j = found - r * lights
-            j = np.minimum(j, self._last[r])  # u + row rounded up to the row's end
-            p = self._pmf[r * lights + j]
+            base = rows[inside] * lights
+            ui = np.asarray(u, dtype=np.float64)[inside]
+            j = self._guide[base + (ui * lights).astype(np.int64)].astype(np.int64)  # u < 1: bucket < L
+            step = np.flatnonzero(self._cdf[base + j] <= ui)  # the first light with CDF > u (the row's last: 1)
+            while step.size:
+                j[step] += 1
+                step = step[self._cdf[base[step] + j[step]] <= ui[step]]
+            p = self._pmf[base + j]
             light[inside], pmf[inside] = np.where(p > 0, j, -1), p
         outside = np.flatnonzero(rows < 0)
         if outside.size:
