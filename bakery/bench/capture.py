@@ -1,7 +1,7 @@
 """Capture benchmark (issues 11, 14): rays/s and probes/s of the capture alone (no encoding, no store).
 
 Scenes: the repository's examples (``examples/indoor``: a closed lit room, ``examples/outdoor``: a sphere row under the
-sunny StinsonBeach dome, ``examples/plaza``: 272 lights, drawn from the light BVH) at the default capture settings,
+sunny StinsonBeach dome, ``examples/plaza``: 272 lights, drawn from the light grid) at the default capture settings,
 or the scenes given. Per scene it records the probes
 rendered, rays traced, capture seconds (rendering only; reading and renderer setup — the Embree scene, the
 once-per-process caches of :meth:`~bakery.capture.render.ProbeRenderer.prepare` and one warm-up render of the first

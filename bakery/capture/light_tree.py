@@ -25,8 +25,8 @@ deterministic, O(L log L), depth ≤ ⌈log₂ L⌉ + 1.
 Light selection by region (:class:`LightGrid`, what the renderer draws from)
     Descending the BVH costs two importance evaluations per level and draw, in numpy for every path vertex. The
     grid evaluates the same leaf importance once per (surface cell, light) when it is built and draws with one
-    binary search: O(1) levels per draw, and a lower variance than the BVH's clustered upper levels (measured on
-    ``examples/plaza`` and on 100–10 000 random lamps, ``docs/capture.md`` "Many lights").
+    table lookup (a guide table and ~2 steps): O(1) per draw, and a lower variance than the BVH's clustered upper
+    levels (measured on ``examples/plaza`` and on 100–10 000 random lamps, ``docs/capture.md`` "Many lights").
 """
 
 from __future__ import annotations
@@ -319,8 +319,8 @@ class LightBVH:
 
 
 # -- light selection by region --------------------------------------------------------------------------------------
-#: Largest number of (cell, light) entries of a :class:`LightGrid`'s tables (float64 pmf and CDF: 16 bytes each,
-#: 32 MB per process at the limit). The cell size is the smallest that keeps the occupied cells within it.
+#: Largest number of (cell, light) entries of a :class:`LightGrid`'s tables (float64 pmf and CDF, int32 guide: 20
+#: bytes each, 42 MB per process at the limit). The cell size is the smallest that keeps the occupied cells within it.
 GRID_ENTRIES = 1 << 21
 
 #: Largest number of cells of a :class:`LightGrid`'s dense cell → row map (int32: 8 MB at the limit).
@@ -340,13 +340,15 @@ class LightGrid:
     cell's centre, with the light's sphere grown by the cell's bounding radius h: the cone θ_b it subtends is the one
     every direction between a point of the light and a point of the cell lies in, so I(c, ℓ) > 0 wherever ℓ can
     light a point of c (next-event estimation stays unbiased), and the distance term is flattened within a cell's
-    reach of the light. A draw is one binary search of u + row in the rows' concatenated CDFs (``searchsorted``);
-    the probability of a light is a table entry. Points in no occupied cell (outside the grid, or a hit rounded
-    across a cell's face) draw from the BVH, so every point has one well-defined distribution.
+    reach of the light. A draw inverts the cell's CDF with a guide table (Chen & Asau 1974; Devroye 1986
+    §III.2.4: per bucket i of [0, 1) in L buckets, the first light whose CDF exceeds i/L, then steps forward
+    while CDF ≤ u — fewer than two on average); the probability of a light is a table entry. Points in no
+    occupied cell (outside the grid, or a hit rounded across a cell's face) draw from the BVH, so every point has
+    one well-defined distribution.
 
-    The grid spans the scene's triangles within the lights' boxes grown by half their extent (beyond it every
-    light is far from every point and the BVH's clustering is accurate); its cubic cells are the smallest whose
-    occupied count times the lights stays within :data:`GRID_ENTRIES`.
+    The grid spans the scene's triangles within the lights' box grown by half its largest extent on every side
+    (beyond it every light is far from every point and the BVH's clustering is accurate); its cubic cells are the
+    smallest whose occupied count times the lights stays within :data:`GRID_ENTRIES`.
     """
 
     def __init__(self, tree: LightBVH, lower: np.ndarray, upper: np.ndarray) -> None:

@@ -229,7 +229,7 @@ class LightModel:
 
     # -- many lights ----------------------------------------------------------------------------------------------
     def tree_bound(self) -> LightBound:
-        """The light for the light BVH (:mod:`bakery.capture.light_tree`): its bounding sphere's box, its power
+        """The light for the light BVH and grid (:mod:`bakery.capture.light_tree`): its bounding sphere's box, its power
         (luminance of the radiance × area; shaping, IES and textures only ever lower it) and its emission cone:
         every direction, or the directions within its ShapingAPI cone angle of −Z."""
         r, c = self.bounding_radius, self.centre
@@ -396,7 +396,7 @@ class LightSampler:
     """Next-event samples of many lights at once, point i sampling light ``which[i]`` of ``models``: the plain sphere
     lights (:attr:`SphereLightModel.plain`) in one call with per-point centres, radii and radiances — the arithmetic
     of :meth:`SphereLightModel.sample_soa` — and every other light with its own :meth:`LightModel.sample_soa` on its
-    points. Used for the lights drawn from the light BVH and for the splatted small lights
+    points. Used for the lights drawn from the light grid and for the splatted small lights
     (:mod:`bakery.capture.render`)."""
 
     def __init__(self, models: list[LightModel] | tuple[LightModel, ...]) -> None:

@@ -38,10 +38,10 @@ Small lights
 
 Many lights (:mod:`bakery.capture.light_tree`)
     Above ``ENUMERATED_LIGHTS`` non-distant lights, next-event estimation draws ``LIGHT_SAMPLES`` lights per
-    vertex instead of sampling every light (:meth:`ProbeRenderer._sample_tree`), from the light grid's
+    vertex instead of sampling every light (:meth:`ProbeRenderer._sample_drawn`), from the light grid's
     distribution of the vertex's cell (the light BVH's off the grid's surfaces): sample j of light ℓ has pdf
     K·P(ℓ | x)·pdf_ℓ(ω), which the power heuristic also uses for BSDF rays that reach ℓ's shape
-    (:meth:`ProbeRenderer._tree_pdf`). Distant lights, the dome and the emissive triangles keep their strategies.
+    (:meth:`ProbeRenderer._drawn_pdf`). Distant lights, the dome and the emissive triangles keep their strategies.
     Every per-strategy property (linking, shadows, multipliers) is a row of one table
     (:meth:`ProbeRenderer._strategy_tables`), indexed per slot — or per point for the drawn lights.
 
@@ -373,20 +373,20 @@ class ProbeRenderer:
         self._shadow_color = [tuple(map(float, m.light.shadow_color)) if m.light.shadow else (0.0, 0.0, 0.0)
                               for m in self.lights.models]
         self._tables: _StrategyTables | None = None
-        # many lights (module docstring): above ENUMERATED_LIGHTS non-distant lights they are drawn from a BVH
+        # many lights (module docstring): above ENUMERATED_LIGHTS non-distant lights they are drawn from the light grid
         drawn = [j for j, m in enumerate(self.lights.models) if not isinstance(m, DistantLightModel)]
-        self._tree = None
-        self._tree_models = np.zeros(0, dtype=np.int64)  # BVH leaf → index into lights.models
-        self._tree_leaf: dict[int, int] = {}  # index into lights.models → BVH leaf
+        self._light_grid = None
+        self._drawn_models = np.zeros(0, dtype=np.int64)  # drawn light (grid/BVH index) → index into lights.models
+        self._drawn_index: dict[int, int] = {}  # index into lights.models → drawn light
         if len(drawn) > ENUMERATED_LIGHTS:  # drawn per region (O(1)), from the BVH outside the grid
             boxes = [(m.triangles.min(axis=1), m.triangles.max(axis=1)) for m in scene.meshes]
-            self._tree = LightGrid(LightBVH([self.lights.models[j].tree_bound() for j in drawn]),
+            self._light_grid = LightGrid(LightBVH([self.lights.models[j].tree_bound() for j in drawn]),
                                    np.concatenate([b[0] for b in boxes]) if boxes else np.zeros((0, 3)),
                                    np.concatenate([b[1] for b in boxes]) if boxes else np.zeros((0, 3)))
-            self._tree_models = np.array(drawn, dtype=np.int64)
-            self._tree_leaf = {j: leaf for leaf, j in enumerate(drawn)}
-        self._tree_sampler = LightSampler([self.lights.models[j] for j in self._tree_models])  # by BVH leaf
-        self._enumerated = [j for j in range(len(self.lights.models)) if j not in self._tree_leaf]
+            self._drawn_models = np.array(drawn, dtype=np.int64)
+            self._drawn_index = {j: leaf for leaf, j in enumerate(drawn)}
+        self._drawn_sampler = LightSampler([self.lights.models[j] for j in self._drawn_models])  # by drawn light
+        self._enumerated = [j for j in range(len(self.lights.models)) if j not in self._drawn_index]
         # the light surfaces' culling spheres and their sampler (the small-light splat)
         surfaces = self.lights.surfaces
         self._surface_spheres = (np.array([m.centre for m in surfaces]).reshape(-1, 3),
@@ -790,8 +790,8 @@ class ProbeRenderer:
                     sel = sel[self._light_links[j][mesh[sel]]]
                 if sel.size and not self._nee_only[j]:
                     pdf_l = model.pdf_soa(_take(points, sel), _take(wi, sel), t_l[sel])
-                    if j in self._tree_leaf:  # drawn from the BVH: the density of the K draws
-                        pdf_l = pdf_l * self._tree_pdf(_take(points, sel), j)
+                    if j in self._drawn_index:  # drawn from the grid: the density of the K draws
+                        pdf_l = pdf_l * self._drawn_pdf(_take(points, sel), j)
                     add(sel, _take(l_l, sel) * power(pdf_b[sel], pdf_l), self._light_lobes[j])
             escaped = escaped & ~on_light
         distant = [(light, self._model_strategy[id(light)]) for light in self.distant if not light.delta]
@@ -836,7 +836,7 @@ class ProbeRenderer:
         not linked to it delivers nothing.
 
         Strategies (J slots per point): every analytic light, or — above :data:`ENUMERATED_LIGHTS` lights — the
-        distant ones and :data:`LIGHT_SAMPLES` lights drawn from the light BVH per point (module docstring "Many
+        distant ones and :data:`LIGHT_SAMPLES` lights drawn from the light grid per point (module docstring "Many
         lights"); then the dome's rest, its sun and the emissive triangles. Each slot's rows into the strategy tables
         (:meth:`_strategy_tables`) are one per slot, or one per point for the drawn lights. All slots' samples are
         evaluated as one (3, J, M) batch and their shadow rays traced in one occlusion query."""
@@ -847,8 +847,8 @@ class ProbeRenderer:
             u = owners.random(2)
             wi, dist, radiance, pdf = self.lights.models[j].sample_soa(points, u[0], u[1])
             wis.append(wi), dists.append(dist), radiances.append(radiance), pdfs.append(pdf), rows.append(j)
-        if self._tree is not None:
-            for wi, dist, radiance, pdf, row in self._sample_tree(points, owners):
+        if self._light_grid is not None:
+            for wi, dist, radiance, pdf, row in self._sample_drawn(points, owners):
                 wis.append(wi), dists.append(dist), radiances.append(radiance), pdfs.append(pdf), rows.append(row)
         n_lights = len(self.lights.models)
         if not self.dome.black:
@@ -962,7 +962,7 @@ class ProbeRenderer:
             total = total + terms[:, j]
         return total
 
-    def _sample_tree(self, points: np.ndarray, owners: _Owners
+    def _sample_drawn(self, points: np.ndarray, owners: _Owners
                      ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
         """:data:`LIGHT_SAMPLES` lights per point (3, M) drawn from the light grid (BVH outside it) and a next-event
         sample of each, all K·M at once: per draw, direction (3, M), shadow distance (M,), radiance (3, M), the pdf
@@ -974,22 +974,22 @@ class ProbeRenderer:
         for _ in range(k):
             choices.append(owners.random(dtype=np.float64))
             omegas.append(owners.random(2))
-        leaf, pmf = self._tree.sample(points, np.concatenate(choices), draws=k)  # (K·M,)
+        leaf, pmf = self._light_grid.sample(points, np.concatenate(choices), draws=k)  # (K·M,)
         u = np.concatenate(omegas, axis=1)  # (2, K·M)
-        light = np.where(leaf >= 0, self._tree_models[np.maximum(leaf, 0)], 0)
+        light = np.where(leaf >= 0, self._drawn_models[np.maximum(leaf, 0)], 0)
         tiled = np.tile(points, (1, k))
-        wi, dist, radiance, pdf = self._tree_sampler.sample(tiled, leaf, u[0], u[1])
+        wi, dist, radiance, pdf = self._drawn_sampler.sample(tiled, leaf, u[0], u[1])
         pdf = (pdf * (k * pmf)).astype(REAL)  # delta lights: ∞ stays ∞ (their weight is 1 / (K·P))
         return [(wi[:, j * m:(j + 1) * m], dist[j * m:(j + 1) * m], radiance[:, j * m:(j + 1) * m],
                  pdf[j * m:(j + 1) * m], light[j * m:(j + 1) * m]) for j in range(k)]
 
-    def _tree_pdf(self, points: np.ndarray, model_index: int) -> np.ndarray:
-        """K·P(light | point) (M,) float32 of the light BVH's draws for the analytic light ``model_index`` (1 when
+    def _drawn_pdf(self, points: np.ndarray, model_index: int) -> np.ndarray:
+        """K·P(light | point) (M,) float32 of the light grid's draws for the analytic light ``model_index`` (1 when
         it is not drawn from the BVH): the factor of its next-event pdf against which BSDF hits are weighted."""
-        leaf = self._tree_leaf.get(model_index)
+        leaf = self._drawn_index.get(model_index)
         if leaf is None:
             return np.ones(points.shape[1], dtype=REAL)
-        return (LIGHT_SAMPLES * self._tree.pmf(points, np.full(points.shape[1], leaf))).astype(REAL)
+        return (LIGHT_SAMPLES * self._light_grid.pmf(points, np.full(points.shape[1], leaf))).astype(REAL)
 
     def _strategy_tables(self) -> _StrategyTables:
         """The next-event strategies' properties, one row per analytic light, then the dome's rest, its sun and the

@@ -62,7 +62,7 @@ def test_a_probe_renders_the_same_alone_batched_and_reordered(name, adaptive, us
     monkeypatch.setattr(render_module, "CALL_RAYS", 400)
     probes = [p for p in usd_scenes[name].probes if not p.image][:5]
     renderer = ProbeRenderer(usd_scenes[name], samples=2, max_samples=12)
-    assert (renderer._tree is not None) == (name == "many_lights")  # lights drawn from the BVH
+    assert (renderer._light_grid is not None) == (name == "many_lights")  # lights drawn from the light grid
     if adaptive:
         first = sorted(stats.sh_noise for _cube, stats in _render_many(renderer, probes))
         renderer.target_noise = 0.5 * (first[1] + first[2])
