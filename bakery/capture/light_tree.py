@@ -47,7 +47,8 @@ LIGHT_SAMPLES = 4
 
 #: Above this many light shapes the renderer finds the (ray, shape) pairs to test with the BVH; at or below, it
 #: culls every ray against every shape's bounding sphere (cheaper for few shapes; capture seconds, one process:
-#: 32 shapes (examples/plaza) 23 s enumerated, 31 s by the BVH; 100 shapes 6.3 s enumerated, 5.6 s by the BVH).
+#: 32 shapes (examples/plaza) 23 s enumerated, 31 s by the BVH; 100 shapes 6.3 s enumerated, 5.6 s by the BVH —
+#: measured before the Embree culler, :data:`bakery.capture.lights.PROXY_CULLED_SHAPES`, ran in front of both).
 CULLED_SHAPES = 64
 
 
@@ -313,6 +314,8 @@ class LightBVH:
             inner = ~leaf
             seg = np.repeat(seg[inner], 2)
             node = self.children[node[inner]].reshape(-1)
+        if not found_seg:  # no segments
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
         seg_all, light_all = np.concatenate(found_seg), np.concatenate(found_light)
         order = np.lexsort((light_all, seg_all))
         return seg_all[order], light_all[order]

@@ -45,8 +45,9 @@ from bakery.capture.tracer import SphereCuller
 from bakery.capture.vec import TINY, dot, dotc
 from bakery.conventions import LUMINANCE_WEIGHTS
 
-#: From this many light shapes up to CULLED_SHAPES, the segments that may meet a shape are found by one Embree query
-#: (:class:`bakery.capture.tracer.SphereCuller`) before each shape's own test; below, every shape tests every segment.
+#: From this many light shapes, the segments that may meet a shape are found by one Embree query
+#: (:class:`bakery.capture.tracer.SphereCuller`) before the shapes' tests (or the shape BVH's pairs, above
+#: CULLED_SHAPES); below, every shape tests every segment.
 PROXY_CULLED_SHAPES = 4
 
 #: Relative shortening of shadow segments so the sampled light point itself does not occlude.
@@ -710,29 +711,25 @@ class LightSet:
         self.models = tuple(light_model(light, textures) for light in lights)
         self.surfaces = tuple(m for m in self.models if m.visible and not m.is_global)
         self.distant = tuple(m for m in self.models if isinstance(m, DistantLightModel))
-        #: above CULLED_SHAPES light shapes, a BVH over their culling spheres finds the (ray, light) pairs to test
-        #: (:mod:`bakery.capture.light_tree`); the same pairs pass the spheres, so the results are the same
-        self._shape_bvh = None
-        #: up to CULLED_SHAPES light shapes, an Embree query against icosahedra around their culling spheres finds
-        #: the segments that may meet any (:class:`bakery.capture.tracer.SphereCuller`): each shape's own test then
-        #: runs on those alone, and finds the same pairs as on every segment
+        #: from PROXY_CULLED_SHAPES light shapes, an Embree query against icosahedra around their culling spheres
+        #: finds the segments that may meet any (:class:`bakery.capture.tracer.SphereCuller`); only those run the
+        #: shapes' tests — every shape's, or above CULLED_SHAPES the pairs a BVH over the culling spheres finds
+        #: (:mod:`bakery.capture.light_tree`) — so the same pairs are tested as on every segment
         self._culler = None
-        if PROXY_CULLED_SHAPES <= len(self.surfaces) <= CULLED_SHAPES:
-            centres = np.array([m.centre for m in self.surfaces])
+        self._shape_bvh = None
+        if len(self.surfaces) >= PROXY_CULLED_SHAPES:
+            centres = np.array([m.centre for m in self.surfaces], dtype=np.float64)
             radii = np.array([self._cull_radius(m) for m in self.surfaces])
             self._culler = SphereCuller(centres, radii)
             #: a shadow segment that ends on shape k is queried up to 2·R_k before its end: the rest lies within
             #: 3·R_k of k's centre, where only the shapes whose culling spheres reach that ball can be met
             self._end_margin = 2.0 * radii * (1.0 + 1e-3) + 1e-5
-            gap = np.linalg.norm(centres[:, None] - centres[None], axis=-1) - 3.0 * radii[:, None] - radii[None]
-            np.fill_diagonal(gap, np.inf)
-            self._near_end = np.r_[np.any(gap <= 1e-4 * (1.0 + np.abs(centres).max()), axis=1), False]  # [-1]: none
+            #: per shape k, those shapes (CSR: offsets (K + 1,), indices) whose culling spheres reach that ball
+            self._end_neighbours = _balls_reached(centres, 3.0 * radii, radii)
+            self._near_end = np.r_[np.diff(self._end_neighbours[0]) > 0, False]  # index −1: no shape
         if len(self.surfaces) > CULLED_SHAPES:
-            boxes = []
-            for model in self.surfaces:
-                r, c = self._cull_radius(model), model.centre
-                boxes.append(LightBound(tuple(c - r), tuple(c + r), 1.0))
-            self._shape_bvh = LightBVH(boxes)
+            self._shape_bvh = LightBVH([LightBound(tuple(c - r), tuple(c + r), 1.0)
+                                        for c, r in zip(centres, radii, strict=True)])
         #: with the BVH, the sphere shapes' (segment, shape) pairs are intersected together (:func:`_sphere_hits`)
         self._sphere = np.array([isinstance(m, SphereLightModel) for m in self.surfaces], dtype=bool)
         self._sphere_centres = np.array([m.centre for m in self.surfaces], dtype=np.float64).reshape(-1, 3).T
@@ -765,39 +762,7 @@ class LightSet:
         m = directions.shape[-1]
         skip_flat = None if skip is None or np.ndim(skip) == 0 else np.broadcast_to(skip, shape).reshape(-1)
         out = []
-        if self._shape_bvh is None and self._culler is not None:  # the segments near any shape, then as below
-            d_flat = directions.reshape(3, -1)
-            broadcast = origins.ndim != directions.ndim
-            o_flat = origins if broadcast else origins.reshape(3, -1)
-            origin_of = np.arange(d_flat.shape[1]) % m if broadcast else None
-            dist_flat = np.broadcast_to(np.asarray(distances, dtype=np.float64), shape).reshape(-1)
-            sel = np.arange(d_flat.shape[1]) if where is None else np.flatnonzero(np.broadcast_to(where, shape))
-            query = dist_flat[sel]
-            if skip is not None:  # segments ending on a shape: up to its culling ball, and its neighbours apart
-                ends = skip_flat[sel] if skip_flat is not None else np.full(sel.size, int(skip))
-                on = ends >= 0
-                query = np.where(on, np.maximum(0.0, query - self._end_margin[np.where(on, ends, 0)]), query)
-            if where is None:
-                near = self._culler.flag(o_flat, d_flat, query, origin_of)
-            else:
-                near = self._culler.flag(o_flat, np.take(d_flat, sel, axis=1), query,
-                                         sel if origin_of is None else origin_of[sel])
-            if skip is not None:
-                near |= self._near_end[ends]
-            sel = sel[near]
-            if sel.size == 0:
-                return out, None
-            o_sel = np.take(o_flat, sel if origin_of is None else origin_of[sel], axis=1)
-            d_sel, dist_sel = np.take(d_flat, sel, axis=1), dist_flat[sel]
-            for k, model in enumerate(self.surfaces):
-                cand = self._candidates(model, o_sel, d_sel, dist_sel)
-                if skip is not None:
-                    cand &= (skip_flat[sel] if skip_flat is not None else int(skip)) != k
-                idx = sel[cand]
-                if idx.size:
-                    out.append((k, idx))
-            return out, None
-        if self._shape_bvh is None:
+        if self._culler is None:  # a few shapes: each tests every segment
             for k, model in enumerate(self.surfaces):
                 cand = self._candidates(model, origins, directions, distances)
                 if skip is not None:
@@ -807,11 +772,34 @@ class LightSet:
                     out.append((k, idx))
             return out, None
         d_flat = directions.reshape(3, -1)
-        dist_flat = np.broadcast_to(np.asarray(distances, dtype=np.float64), shape).reshape(-1)
         broadcast = origins.ndim != directions.ndim
-        seg, light = self._shape_bvh.candidates(
-            origins if broadcast else origins.reshape(3, -1), d_flat, dist_flat,
-            np.arange(d_flat.shape[1]) % m if broadcast else None)
+        o_flat = origins if broadcast else origins.reshape(3, -1)
+        origin_of = np.arange(d_flat.shape[1]) % m if broadcast else None
+        dist_flat = np.broadcast_to(np.asarray(distances, dtype=np.float64), shape).reshape(-1)
+        tails = self._shape_bvh is not None  # with the BVH, a segment's end near other shapes lists them as pairs
+        sel, tail = self._near_segments(o_flat, d_flat, dist_flat, origin_of,
+                                        skip_flat if skip_flat is not None else skip,
+                                        None if where is None else np.broadcast_to(where, shape).reshape(-1), tails)
+        if sel.size == 0 and tail[0].size == 0:
+            return out, None
+        rows = sel if origin_of is None else origin_of[sel]  # the selected segments' origins
+        d_sel, dist_sel = np.take(d_flat, sel, axis=1), dist_flat[sel]
+        if self._shape_bvh is None:
+            o_sel = np.take(o_flat, rows, axis=1)
+            for k, model in enumerate(self.surfaces):
+                cand = self._candidates(model, o_sel, d_sel, dist_sel)
+                if skip is not None:
+                    cand &= (skip_flat[sel] if skip_flat is not None else int(skip)) != k
+                idx = sel[cand]
+                if idx.size:
+                    out.append((k, idx))
+            return out, None
+        seg, light = self._shape_bvh.candidates(o_flat, d_sel, dist_sel, rows)
+        seg = sel[seg]  # ascending like the selection: still by segment, then light
+        if tail[0].size:  # segments whose head met no shape, tested against the shapes near their end
+            seg, light = np.r_[seg, tail[0]], np.r_[light, tail[1]]
+            order = np.lexsort((light, seg))
+            seg, light = seg[order], light[order]
         if skip is not None:
             keep = light != (skip_flat[seg] if skip_flat is not None else int(skip))
             seg, light = seg[keep], light[keep]
@@ -824,6 +812,40 @@ class LightSet:
         for a, b in zip(starts, np.r_[starts[1:], light.size]):
             out.append((int(light[a]), seg[a:b]))
         return out, spheres
+
+    def _near_segments(self, o_flat: np.ndarray, d_flat: np.ndarray, dist_flat: np.ndarray,
+                       origin_of: np.ndarray | None, skip: np.ndarray | int | None, where: np.ndarray | None,
+                       tails: bool = False) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+        """Flat indices (ascending) of the segments (directions (3, S), distances (S,); origins (3, S), or (3, M)
+        by ``origin_of``) that may meet a light shape, by the Embree culler: those in ``where`` (S,) (all
+        without); a segment that ends on shape k (``skip``: (S,) or one int, −1 none) is queried up to k's culling
+        ball only (the rest lies within 3·R_k of k's centre), and kept whenever another shape's culling sphere
+        reaches that ball — or, with ``tails``, not kept but listed with those shapes as (segment, shape) pairs
+        (by segment, then shape; the second item)."""
+        sel = np.arange(d_flat.shape[1]) if where is None else np.flatnonzero(where)
+        query = dist_flat[sel]
+        ends = None
+        if skip is not None:
+            ends = np.asarray(skip)[sel] if np.ndim(skip) else np.full(sel.size, int(skip))
+            on = ends >= 0
+            query = np.where(on, np.maximum(0.0, query - self._end_margin[np.where(on, ends, 0)]), query)
+        if where is None:
+            near = self._culler.flag(o_flat, d_flat, query, origin_of)
+        else:
+            near = self._culler.flag(o_flat, np.take(d_flat, sel, axis=1), query,
+                                     sel if origin_of is None else origin_of[sel])
+        empty = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+        if ends is None:
+            return sel[near], empty
+        if not tails:
+            return sel[near | self._near_end[ends]], empty
+        rest = np.flatnonzero(~near & self._near_end[ends])
+        offsets, indices = self._end_neighbours
+        k = ends[rest]
+        counts = offsets[k + 1] - offsets[k]
+        first = np.repeat(offsets[k] - (np.cumsum(counts) - counts), counts)
+        pairs = (np.repeat(sel[rest], counts), indices[first + np.arange(int(counts.sum()))])
+        return sel[near], pairs
 
     def _candidates(self, model: LightModel, origins: np.ndarray, directions: np.ndarray,
                     distances: np.ndarray | float) -> np.ndarray:
@@ -927,6 +949,23 @@ class LightSet:
     def occluded(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray) -> np.ndarray:
         """Whether any light surface blocks the segments (M, 3) (shadow rays)."""
         return self.occluded_soa(_soa(origins), _soa(directions), np.asarray(distances, dtype=np.float64))
+
+
+def _balls_reached(centres: np.ndarray, reach: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per sphere k (centres (K, 3), radii (K,)), the other spheres j that meet the ball of radius ``reach[k]``
+    about k's centre (|c_j − c_k| ≤ reach_k + r_j, with a relative float margin), by a k-d tree: CSR offsets
+    (K + 1,) and ascending indices."""
+    from scipy.spatial import cKDTree
+
+    margin = 1e-4 * (1.0 + float(np.abs(centres).max(initial=0.0)))
+    found = cKDTree(centres).query_ball_point(centres, reach + radii.max(initial=0.0) + margin)
+    lists = []
+    for k, others in enumerate(found):
+        others = np.sort(np.asarray([j for j in others if j != k], dtype=np.int64))
+        gap = np.linalg.norm(centres[others] - centres[k], axis=1) - reach[k] - radii[others]
+        lists.append(others[gap <= margin])
+    offsets = np.r_[0, np.cumsum([len(x) for x in lists])].astype(np.int64)
+    return offsets, np.concatenate(lists) if lists else np.zeros(0, dtype=np.int64)
 
 
 def intersect_light_shapes(

@@ -241,7 +241,7 @@ def test_light_shape_culling_by_embree_matches_testing_every_shape():
     light_set = lights_module.LightSet(lights)
     assert light_set._culler is not None and light_set._shape_bvh is None
     every = lights_module.LightSet(lights)
-    every._culler = None
+    every._culler = None  # every shape's culling sphere on every segment
     m = 20_000
     origins = rng.uniform(-6, 6, (3, m)).astype(np.float32)
     directions = rng.normal(size=(3, m)).astype(np.float32)
@@ -294,15 +294,16 @@ def _lights(rng: np.random.Generator, count: int) -> tuple[Light, ...]:
 
 
 def test_light_shape_culling_by_the_bvh_matches_testing_every_shape():
-    """nearest_soa / occluded_soa with the BVH (over CULLED_SHAPES shapes) give the same bits as the loop over
-    every shape's culling sphere."""
+    """nearest_soa / occluded_soa with the Embree culler and the BVH (over CULLED_SHAPES shapes) give the same bits
+    as the loop over every shape's culling sphere on every segment; shadow segments end on the shape they skip, as
+    the renderer's do."""
     rng = np.random.default_rng(3)
     count = CULLED_SHAPES + 12
     lights = _lights(rng, count)
     light_set = lights_module.LightSet(lights)
-    assert light_set._shape_bvh is not None
+    assert light_set._shape_bvh is not None and light_set._culler is not None
     every = lights_module.LightSet(lights)
-    every._shape_bvh = None  # every shape's culling sphere, as at or below CULLED_SHAPES
+    every._shape_bvh, every._culler = None, None  # every shape's culling sphere on every segment
     m = 20_000
     origins = rng.uniform(-6, 6, (3, m)).astype(np.float32)
     directions = rng.normal(size=(3, m)).astype(np.float32)
@@ -310,11 +311,8 @@ def test_light_shape_culling_by_the_bvh_matches_testing_every_shape():
     for a, b in zip(light_set.nearest_soa(origins, directions), every.nearest_soa(origins, directions)):
         np.testing.assert_array_equal(a, b)
     assert (light_set.nearest_soa(origins, directions)[1] >= 0).sum() > 500  # the rays do hit lights
-    j = 3  # (3, J, M) segments from (3, M) origins, each skipping one shape, as the renderer's shadow rays
-    segments = rng.normal(size=(3, j, m)).astype(np.float32)
-    segments /= np.linalg.norm(segments, axis=0)
-    lengths = rng.uniform(0.5, 12, (j, m)).astype(np.float32)
-    skip = rng.integers(-1, count, (j, m))
+    # (3, J, M) segments from (3, M) origins, each ending on the shape it skips, as the renderer's shadow rays
+    segments, lengths, skip = _shadow_segments(every, origins, rng, 3)
     blocked = light_set.occluded_soa(origins, segments, lengths, skip)
     np.testing.assert_array_equal(blocked, every.occluded_soa(origins, segments, lengths, skip))
     assert blocked.sum() > 500
