@@ -431,7 +431,16 @@ class LightGrid:
         return occupied
 
     def _distributions(self, centres: np.ndarray, h: float) -> np.ndarray:
-        """P(ℓ | c) (C, L) float64 of cells with centres (3, C) and bounding radius h (class docstring)."""
+        """P(ℓ | c) (C, L) float64 of cells with centres (3, C) and bounding radius h (class docstring), in row
+        chunks of at most 2¹⁸ entries (the temporaries stay small; each row is computed alone)."""
+        out = np.empty((centres.shape[1], self.tree.size))
+        step = max(1, (1 << 18) // self.tree.size)
+        for r0 in range(0, centres.shape[1], step):
+            out[r0 : r0 + step] = self._distribution_rows(centres[:, r0 : r0 + step], h)
+        return out
+
+    def _distribution_rows(self, centres: np.ndarray, h: float) -> np.ndarray:
+        """:meth:`_distributions` of the cells with centres (3, C)."""
         tree, leaf = self.tree, self._leaf
         c = centres[:, :, None]  # (3, C, 1) against the lights (L,)
         t = c - tree.centre[leaf].T[:, None, :]  # light centre → cell centre
