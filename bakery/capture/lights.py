@@ -230,8 +230,8 @@ class LightModel:
 
     # -- many lights ----------------------------------------------------------------------------------------------
     def tree_bound(self) -> LightBound:
-        """The light for the light BVH and grid (:mod:`bakery.capture.light_tree`): its bounding sphere's box, its power
-        (luminance of the radiance × area; shaping, IES and textures only ever lower it) and its emission cone:
+        """The light for the light BVH and grid (:mod:`bakery.capture.light_tree`): its bounding sphere's box, its
+        power (luminance of the radiance × area; shaping, IES and textures only ever lower it) and its emission cone:
         every direction, or the directions within its ShapingAPI cone angle of −Z."""
         r, c = self.bounding_radius, self.centre
         power = float(np.dot(LUMINANCE_WEIGHTS, np.maximum(self.colour, 0.0))) * self.light.area

@@ -37,8 +37,8 @@ written before ``geometry`` was recorded fall back to the old + new bound. Probe
 (reflection-only) are re-baked whenever a light changes, unless (a) holds.
 
 Many lights: above ``ENUMERATED_LIGHTS`` non-distant lights the capture draws its next-event lights from per-region
-distributions (a light grid, the BVH outside it) whose probabilities follow the lights' power and places (:mod:`bakery.capture.light_tree`); the sampling enters
-the global part (its version, the threshold and the draws per vertex), so crossing the threshold re-bakes every
+distributions (a light grid, the BVH outside it) whose probabilities follow the lights' power and places
+(:mod:`bakery.capture.light_tree`); the sampling enters the global part (its version, the threshold and the draws per vertex), so crossing the threshold re-bakes every
 probe. Between such scenes, an edit changes the draws of every probe, so a reused probe and a fresh bake of it are
 two estimates that differ by their noise (``/diagnostics/capture/sh_noise``) as well as by the bounds above: the
 guarantee holds for the expected capture, not bit for bit as it does with enumerated lights. Scenes with visible
