@@ -171,7 +171,7 @@ def _icosahedron() -> tuple[np.ndarray, np.ndarray]:
 
 
 #: Circumradius over inradius of the icosahedron (1.2584).
-_ICOSAHEDRON_RATIO = 1.0 / float(np.linalg.norm(np.mean(_icosahedron()[0][_icosahedron()[1][0]], axis=0)))
+_ICOSAHEDRON_RATIO = 1.0 / float(np.linalg.norm(np.mean(np.take(*_icosahedron(), axis=0)[0], axis=0)))
 
 
 class SphereCuller:

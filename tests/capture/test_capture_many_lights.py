@@ -209,6 +209,14 @@ def test_sphere_culler_flags_every_segment_that_meets_a_sphere(seed, count):
     assert not np.any(meets.any(axis=1) & ~flagged)
 
 
+def _random_rays(rng: np.random.Generator, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """m rays (3, m) float32 among the lights of :func:`_lights`: origins in a 12 m box, unit directions."""
+    origins = rng.uniform(-6, 6, (3, m)).astype(np.float32)
+    directions = rng.normal(size=(3, m)).astype(np.float32)
+    directions /= np.linalg.norm(directions, axis=0)
+    return origins, directions
+
+
 def _shadow_segments(light_set, origins: np.ndarray, rng: np.random.Generator, j: int
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(3, J, M) shadow segments from (3, M) origins as the renderer makes them: to a sampled point of a random
@@ -243,9 +251,7 @@ def test_light_shape_culling_by_embree_matches_testing_every_shape():
     every = lights_module.LightSet(lights)
     every._culler = None  # every shape's culling sphere on every segment
     m = 20_000
-    origins = rng.uniform(-6, 6, (3, m)).astype(np.float32)
-    directions = rng.normal(size=(3, m)).astype(np.float32)
-    directions /= np.linalg.norm(directions, axis=0)
+    origins, directions = _random_rays(rng, m)
     for a, b in zip(light_set.nearest_soa(origins, directions), every.nearest_soa(origins, directions)):
         np.testing.assert_array_equal(a, b)
     assert (every.nearest_soa(origins, directions)[1] >= 0).sum() > 500
@@ -305,9 +311,7 @@ def test_light_shape_culling_by_the_bvh_matches_testing_every_shape():
     every = lights_module.LightSet(lights)
     every._shape_bvh, every._culler = None, None  # every shape's culling sphere on every segment
     m = 20_000
-    origins = rng.uniform(-6, 6, (3, m)).astype(np.float32)
-    directions = rng.normal(size=(3, m)).astype(np.float32)
-    directions /= np.linalg.norm(directions, axis=0)
+    origins, directions = _random_rays(rng, m)
     for a, b in zip(light_set.nearest_soa(origins, directions), every.nearest_soa(origins, directions)):
         np.testing.assert_array_equal(a, b)
     assert (light_set.nearest_soa(origins, directions)[1] >= 0).sum() > 500  # the rays do hit lights
