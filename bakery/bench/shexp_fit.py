@@ -19,7 +19,8 @@ Protocol
     throughput as a bake sees it; and each worker's CPU time per probe (median over workers and rounds): its work
     per probe without the time it waited for a core.
     The operators are built (or loaded from the operator cache, memory-mapped as in a bake, so the workers share
-    one copy of W) before timing and reported separately.
+    one copy of W) before timing and reported separately; the workers tune the allocator as a bake's do
+    (:mod:`bakery.allocator`).
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from bakery import operator_cache
+from bakery.allocator import tune_allocator
 from bakery.reflection.shexp import (
     SHExpSettings,
     build_operators,
@@ -88,6 +90,7 @@ def _bake_worker(args: tuple[np.ndarray, SHExpSettings, int, object]) -> list[tu
     shared barrier; (start, end) monotonic seconds and the process's CPU seconds per round."""
     batch, settings, repeats, barrier = args
     operator_cache.install()  # as in a bake (bakery.encodings installs it): W from the shared on-disk cache
+    tune_allocator()  # as every bake worker does (bakery.pipeline.worker)
     fit_shexp(batch, settings)  # operators and allocator warm
     rounds = []
     for _ in range(repeats):

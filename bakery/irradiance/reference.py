@@ -274,19 +274,20 @@ def bin_samples(samples: SphericalSamples, face_size: int, mask: np.ndarray | No
     """Flux Φ (6N², C) and first moment m (6N², C, 3) of the samples (those in ``mask``) per reference-cube
     texel containing them (module doc step 2), float64."""
     directions = np.asarray(samples.directions, dtype=np.float64)
-    flux = np.asarray(samples.radiance, dtype=np.float64) * np.asarray(samples.solid_angles)[:, None]  # (S, C)
+    flux = np.asarray(samples.radiance, dtype=np.float64).T * np.asarray(samples.solid_angles)  # (C, S) rows
     if mask is not None:
-        directions, flux = directions[mask], flux[mask]
+        flux[:, ~np.asarray(mask)] = 0.0  # the same sums as dropping them (+0 is exact), without copying the rest
     face, row, col = direction_to_cube_texel(directions, face_size)
     texel = (face * face_size + row) * face_size + col
     t = 6 * face_size * face_size
-    c = flux.shape[1]
+    c = flux.shape[0]
     phi = np.empty((t, c))
     moment = np.empty((t, c, 3))
+    weighted = np.empty(flux.shape[1])
     for ch in range(c):
-        phi[:, ch] = np.bincount(texel, flux[:, ch], minlength=t)
+        phi[:, ch] = np.bincount(texel, flux[ch], minlength=t)
         for j in range(3):
-            moment[:, ch, j] = np.bincount(texel, flux[:, ch] * directions[:, j], minlength=t)
+            moment[:, ch, j] = np.bincount(texel, np.multiply(flux[ch], directions[:, j], out=weighted), minlength=t)
     return phi, moment
 
 
