@@ -714,7 +714,8 @@ class LightSet:
         #: from PROXY_CULLED_SHAPES light shapes, an Embree query against icosahedra around their culling spheres
         #: finds the segments that may meet any (:class:`bakery.capture.tracer.SphereCuller`); only those run the
         #: shapes' tests — every shape's, or above CULLED_SHAPES the pairs a BVH over the culling spheres finds
-        #: (:mod:`bakery.capture.light_tree`) — so the same pairs are tested as on every segment
+        #: (:mod:`bakery.capture.light_tree`) — so the same pairs are tested as on every segment. Above CULLED_SHAPES
+        #: the shape a flagged shadow segment meets first is tested alone before the BVH (:meth:`occluded_soa`)
         self._culler = None
         self._shape_bvh = None
         if len(self.surfaces) >= PROXY_CULLED_SHAPES:
@@ -750,14 +751,15 @@ class LightSet:
         return model.bounding_radius * 1.01 + 1e-4
 
     def _pairs(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray | float,
-               skip: np.ndarray | int | None = None, where: np.ndarray | None = None
+               skip: np.ndarray | int | None = None, where: np.ndarray | None = None, near: np.ndarray | None = None
                ) -> tuple[list[tuple[int, np.ndarray]], tuple[np.ndarray, np.ndarray] | None]:
         """Per light shape k (ascending), the segments (ascending flat indices of ``directions`` (3, ..., M)) that
         pass its culling sphere — every shape's test over all segments, or the BVH's pairs (above CULLED_SHAPES
         shapes; the same segments up to the looser boxes, which the exact tests then reject) — without those whose
         ``skip`` is k; with the BVH, the sphere shapes' pairs apart as (segment, shape) arrays, by segment then
         shape (None without it). With ``where`` (bool, shape of the segments) the Embree culler looks at those
-        segments alone (the other paths may still list others)."""
+        segments alone (the other paths may still list others); ``near`` (one bool per ``where`` segment, in
+        order) is the culler's answer for them if already known."""
         shape = directions.shape[1:]
         m = directions.shape[-1]
         skip_flat = None if skip is None or np.ndim(skip) == 0 else np.broadcast_to(skip, shape).reshape(-1)
@@ -779,7 +781,8 @@ class LightSet:
         tails = self._shape_bvh is not None  # with the BVH, a segment's end near other shapes lists them as pairs
         sel, tail = self._near_segments(o_flat, d_flat, dist_flat, origin_of,
                                         skip_flat if skip_flat is not None else skip,
-                                        None if where is None else np.broadcast_to(where, shape).reshape(-1), tails)
+                                        None if where is None else np.broadcast_to(where, shape).reshape(-1), tails,
+                                        near)
         if sel.size == 0 and tail[0].size == 0:
             return out, None
         rows = sel if origin_of is None else origin_of[sel]  # the selected segments' origins
@@ -815,25 +818,26 @@ class LightSet:
 
     def _near_segments(self, o_flat: np.ndarray, d_flat: np.ndarray, dist_flat: np.ndarray,
                        origin_of: np.ndarray | None, skip: np.ndarray | int | None, where: np.ndarray | None,
-                       tails: bool = False) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+                       tails: bool = False, near: np.ndarray | None = None
+                       ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
         """Flat indices (ascending) of the segments (directions (3, S), distances (S,); origins (3, S), or (3, M)
         by ``origin_of``) that may meet a light shape, by the Embree culler: those in ``where`` (S,) (all
         without); a segment that ends on shape k (``skip``: (S,) or one int, −1 none) is queried up to k's culling
         ball only (the rest lies within 3·R_k of k's centre), and kept whenever another shape's culling sphere
         reaches that ball — or, with ``tails``, not kept but listed with those shapes as (segment, shape) pairs
-        (by segment, then shape; the second item)."""
+        (by segment, then shape; the second item). ``near`` (one bool per selected segment): the culler's answer,
+        if already known."""
         sel = np.arange(d_flat.shape[1]) if where is None else np.flatnonzero(where)
-        query = dist_flat[sel]
         ends = None
         if skip is not None:
             ends = np.asarray(skip)[sel] if np.ndim(skip) else np.full(sel.size, int(skip))
-            on = ends >= 0
-            query = np.where(on, np.maximum(0.0, query - self._end_margin[np.where(on, ends, 0)]), query)
-        if where is None:
-            near = self._culler.flag(o_flat, d_flat, query, origin_of)
-        else:
-            near = self._culler.flag(o_flat, np.take(d_flat, sel, axis=1), query,
-                                     sel if origin_of is None else origin_of[sel])
+        if near is None:
+            query = self._query_lengths(dist_flat[sel], ends)
+            if where is None:
+                near = self._culler.flag(o_flat, d_flat, query, origin_of)
+            else:
+                near = self._culler.flag(o_flat, np.take(d_flat, sel, axis=1), query,
+                                         sel if origin_of is None else origin_of[sel])
         empty = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
         if ends is None:
             return sel[near], empty
@@ -846,6 +850,14 @@ class LightSet:
         first = np.repeat(offsets[k] - (np.cumsum(counts) - counts), counts)
         pairs = (np.repeat(sel[rest], counts), indices[first + np.arange(int(counts.sum()))])
         return sel[near], pairs
+
+    def _query_lengths(self, distances: np.ndarray, ends: np.ndarray | None) -> np.ndarray:
+        """How far the culler queries segments of lengths (S,) that end on shapes ``ends`` (S,) (−1: none): up to
+        2·R_k before the end on shape k (:meth:`_near_segments`)."""
+        if ends is None:
+            return distances
+        on = ends >= 0
+        return np.where(on, np.maximum(0.0, distances - self._end_margin[np.where(on, ends, 0)]), distances)
 
     def _candidates(self, model: LightModel, origins: np.ndarray, directions: np.ndarray,
                     distances: np.ndarray | float) -> np.ndarray:
@@ -929,22 +941,77 @@ class LightSet:
         m = directions.shape[-1]
         d_flat = directions.reshape(3, -1)
         dist_flat = np.broadcast_to(distances, shape).reshape(-1)
-        groups, spheres = self._pairs(origins, directions, distances, skip, where)
+        near = None
+        if self._shape_bvh is not None:  # the shape a segment meets first blocks most blocked segments: test it alone
+            # before descending the shape BVH (with a few shapes, testing every one on the flagged segments is cheap)
+            sel = np.arange(d_flat.shape[1]) if where is None else np.flatnonzero(np.broadcast_to(where, shape))
+            ends = None if skip is None else np.broadcast_to(skip, shape).reshape(-1)[sel]
+            near, first = self._first_shapes(origins, directions, dist_flat, ends, sel)
+            test = np.flatnonzero(first >= 0)
+            if ends is not None:
+                test = test[first[test] != ends[test]]  # not the shape the segment ends on
+            early = np.zeros(sel.size, dtype=bool)
+            early[test] = self._pairs_block(origins, directions, dist_flat, sel[test], first[test])
+            if early.any():  # the others as before, with the culler's answer for them known
+                flat[sel[early]] = True
+                rest = np.ones(flat.size, dtype=bool)
+                rest[sel[early]] = False
+                where = (rest if where is None else rest & np.broadcast_to(where, shape).reshape(-1)).reshape(shape)
+                near = near[~early]
+        groups, spheres = self._pairs(origins, directions, distances, skip, where, near)
         if spheres is not None and spheres[0].size:
             seg, light = spheres
-            broadcast = origins.ndim != directions.ndim
-            t = self._sphere_pairs_hits(origins if broadcast else origins.reshape(3, -1), d_flat, seg, light,
-                                        np.arange(d_flat.shape[1]) % m if broadcast else None)
-            flat[seg[t < dist_flat[seg]]] = True
+            flat[seg[self._pairs_block(origins, directions, dist_flat, seg, light)]] = True
         for k, idx in groups:
-            model = self.surfaces[k]
-            if not model.visible:
-                continue
             o = np.take(origins.reshape(3, -1) if origins.ndim == directions.ndim else origins,
                         idx if origins.ndim == directions.ndim else idx % m, axis=1)
-            hit = model.occludes_soa(o, np.take(d_flat, idx, axis=1), dist_flat[idx])
+            hit = self.surfaces[k].occludes_soa(o, np.take(d_flat, idx, axis=1), dist_flat[idx])
             flat[idx[hit]] = True
         return blocked
+
+    def _first_shapes(self, origins: np.ndarray, directions: np.ndarray, dist_flat: np.ndarray,
+                      ends: np.ndarray | None, sel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For the segments ``sel`` (flat indices) ending on shapes ``ends`` (len(sel),) (−1: none; None: no
+        ends), over the culler's query (:meth:`_query_lengths`): whether each meets a culling icosahedron (the
+        culler's occlusion query, bool) and, for those, the shape whose icosahedron it enters first (a
+        closest-hit query on them alone; −1 elsewhere): both (len(sel),)."""
+        broadcast = origins.ndim != directions.ndim
+        o, d = (origins if broadcast else origins.reshape(3, -1)), directions.reshape(3, -1)
+        every = sel.size == d.shape[1]  # sel is every segment: no gathers
+        rows = sel % directions.shape[-1] if broadcast else (None if every else sel)
+        if not every:
+            d = np.take(d, sel, axis=1)
+        query = self._query_lengths(dist_flat if every else dist_flat[sel], ends)
+        near = self._culler.flag(o, d, query, rows)
+        first = np.full(sel.size, -1, dtype=np.int64)
+        met = np.flatnonzero(near)
+        if met.size:
+            first[met] = self._culler.first(o, np.take(d, met, axis=1), query[met],
+                                            met if rows is None else rows[met])
+        return near, first
+
+    def _pairs_block(self, origins: np.ndarray, directions: np.ndarray, dist_flat: np.ndarray,
+                     seg: np.ndarray, light: np.ndarray) -> np.ndarray:
+        """Whether shape ``light`` blocks segment ``seg`` (pairs (K,), flat segment indices): bool (K,). With the
+        shape BVH the sphere shapes' pairs are intersected together (:meth:`_sphere_pairs_hits`); the others, and
+        every pair without the BVH, by their shape's own test — the tests :meth:`occluded_soa` runs on its pairs."""
+        broadcast, m, d_flat = origins.ndim != directions.ndim, directions.shape[-1], directions.reshape(3, -1)
+        o_flat = origins if broadcast else origins.reshape(3, -1)
+        out = np.zeros(seg.size, dtype=bool)
+        together = self._sphere[light] if self._shape_bvh is not None else np.zeros(seg.size, dtype=bool)
+        if together.any():
+            idx = np.flatnonzero(together)
+            t = self._sphere_pairs_hits(o_flat, d_flat, seg[idx], light[idx],
+                                        np.arange(d_flat.shape[1]) % m if broadcast else None)
+            out[idx] = t < dist_flat[seg[idx]]
+        rest = np.flatnonzero(~together)
+        rest = rest[np.argsort(light[rest], kind="stable")]  # by shape
+        starts = np.flatnonzero(np.r_[True, light[rest][1:] != light[rest][:-1]]) if rest.size else rest
+        for a, b in zip(starts, np.r_[starts[1:], rest.size]):
+            idx, k = rest[a:b], int(light[rest[a]])
+            o = np.take(o_flat, seg[idx] % m if broadcast else seg[idx], axis=1)
+            out[idx] = self.surfaces[k].occludes_soa(o, np.take(d_flat, seg[idx], axis=1), dist_flat[seg[idx]])
+        return out
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray) -> np.ndarray:
         """Whether any light surface blocks the segments (M, 3) (shadow rays)."""

@@ -194,21 +194,41 @@ class SphereCuller:
         circumradius = inradius * _ICOSAHEDRON_RATIO
         corners = centres[:, None, None, :] + circumradius[:, None, None, None] * vertices[faces][None]  # (K,20,3,3)
         self.back = float(2.0 * circumradius.max(initial=0.0) * (1.0 + 1e-3) + 1e-5 * scale)
+        self._faces = faces.shape[0]  # triangles per icosahedron, sphere by sphere in the mesh
         self._scene = rtcs.EmbreeScene(robust=True)
         self._mesh = TriangleMesh(self._scene, corners.reshape(-1, 3, 3).astype(np.float32))
 
-    def flag(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray,
-             origin_of: np.ndarray | None = None) -> np.ndarray:
-        """Segments origin + t·direction, 0 < t < distance (directions (3, S) unit, distances (S,); origins (3, S),
-        or (3, M) indexed by ``origin_of`` (S,)) that may meet a sphere: bool (S,)."""
+    def _queries(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray,
+                 origin_of: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Embree's rays for the segments (arguments as :meth:`flag`): origins ``back`` before theirs (S, 3),
+        directions (S, 3) and lengths (S,), float32."""
         d = np.ascontiguousarray(directions.T, dtype=np.float32)
         o = np.asarray(origins, dtype=np.float32).T
         o = np.ascontiguousarray((o if origin_of is None else o[origin_of]) - np.float32(self.back) * d)  # new array
         dist = np.ascontiguousarray(np.minimum(np.asarray(distances, dtype=np.float64) + self.back, FAR),
                                     dtype=np.float32)
+        return o, d, dist
+
+    def flag(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray,
+             origin_of: np.ndarray | None = None) -> np.ndarray:
+        """Segments origin + t·direction, 0 < t < distance (directions (3, S) unit, distances (S,); origins (3, S),
+        or (3, M) indexed by ``origin_of`` (S,)) that may meet a sphere: bool (S,)."""
+        o, d, dist = self._queries(origins, directions, distances, origin_of)
         result = np.zeros(d.shape[0], dtype=bool)
         for start in range(0, d.shape[0], CHUNK):
             stop = min(d.shape[0], start + CHUNK)
             out = self._scene.run(o[start:stop], d[start:stop], dists=dist[start:stop], query="OCCLUDED")
             result[start:stop] = np.asarray(out) >= 0
+        return result
+
+    def first(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray,
+              origin_of: np.ndarray | None = None) -> np.ndarray:
+        """The sphere whose icosahedron each segment (arguments as :meth:`flag`, queried from ``back`` before its
+        origin too) enters first, by one closest-hit query: index (S,) int64, −1 where :meth:`flag` is False."""
+        o, d, dist = self._queries(origins, directions, distances, origin_of)
+        result = np.full(d.shape[0], -1, dtype=np.int64)
+        for start in range(0, d.shape[0], CHUNK):
+            stop = min(d.shape[0], start + CHUNK)
+            prim = np.asarray(self._scene.run(o[start:stop], d[start:stop], dists=dist[start:stop], output=1)["primID"])
+            result[start:stop] = np.where(prim >= 0, prim // self._faces, -1)
         return result

@@ -320,6 +320,19 @@ def test_light_shape_culling_by_the_bvh_matches_testing_every_shape():
     blocked = light_set.occluded_soa(origins, segments, lengths, skip)
     np.testing.assert_array_equal(blocked, every.occluded_soa(origins, segments, lengths, skip))
     assert blocked.sum() > 500
+    where = rng.random(blocked.shape) < 0.5
+    np.testing.assert_array_equal(light_set.occluded_soa(origins, segments, lengths, skip, where=where)[where],
+                                  blocked[where])
+    # the first shape met decides most blocked segments before the BVH (occluded_soa's early test), by its own
+    # exact test; and never one that is not blocked
+    sel = np.arange(blocked.size)
+    ends = skip.reshape(-1)
+    first = light_set._first_shapes(origins, segments, np.broadcast_to(lengths, blocked.shape).reshape(-1), ends,
+                                    sel)[1]
+    test = np.flatnonzero((first >= 0) & (first != ends))
+    early = light_set._pairs_block(origins, segments, np.broadcast_to(lengths, blocked.shape).reshape(-1),
+                                   test, first[test])
+    assert early.sum() > 0.5 * blocked.sum() and blocked.reshape(-1)[test[early]].all()
 
 
 def _lamps(count: int, height: float, rng: np.random.Generator) -> tuple[str, list[tuple]]:
