@@ -199,6 +199,15 @@ def test_sphere_culler_flags_every_segment_that_meets_a_sphere(seed, count):
     meets = (disc >= 0) & (-b + root >= 0) & (-b - root <= lengths[:, None])  # [t0, t1] overlaps [0, length]
     flagged = culler.flag(o32.T, d32.T, lengths)
     assert not np.any(meets.any(axis=1) & ~flagged)
+    # the closest-hit query names a sphere for exactly the flagged segments, one whose icosahedron the queried
+    # segment (from ``back`` before its origin) can reach: its centre within the circumscribed radius of it
+    first = culler.first(o32.T, d32.T, lengths)
+    np.testing.assert_array_equal(first >= 0, flagged)
+    hit = np.flatnonzero(first >= 0)
+    oc = o64[hit] - centres[first[hit]]
+    t = np.clip(-np.einsum("mc,mc->m", oc, d64[hit]), -culler.back, lengths[hit])
+    gap = np.linalg.norm(oc + t[:, None] * d64[hit], axis=1)
+    assert np.all(gap <= 1.3 * radii[first[hit]] + 1e-3)
     origin_of = rng.integers(0, m, m)  # (3, M) origins indexed per segment, as the renderer's shadow rays
     flagged = culler.flag(o32.T, d32.T, lengths, origin_of)
     oc = o64[origin_of][:, None, :] - centres[None]
