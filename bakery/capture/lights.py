@@ -809,11 +809,7 @@ class LightSet:
         sphere = self._sphere[light]
         spheres = (seg[sphere], light[sphere])
         seg, light = seg[~sphere], light[~sphere]
-        order = np.argsort(light, kind="stable")  # by light, each light's segments ascending
-        seg, light = seg[order], light[order]
-        starts = np.flatnonzero(np.r_[True, light[1:] != light[:-1]]) if light.size else np.zeros(0, np.int64)
-        for a, b in zip(starts, np.r_[starts[1:], light.size]):
-            out.append((int(light[a]), seg[a:b]))
+        out.extend((k, seg[positions]) for k, positions in _runs_by_shape(light))  # each shape's segments ascending
         return out, spheres
 
     def _near_segments(self, o_flat: np.ndarray, d_flat: np.ndarray, dist_flat: np.ndarray,
@@ -1005,10 +1001,8 @@ class LightSet:
                                         np.arange(d_flat.shape[1]) % m if broadcast else None)
             out[idx] = t < dist_flat[seg[idx]]
         rest = np.flatnonzero(~together)
-        rest = rest[np.argsort(light[rest], kind="stable")]  # by shape
-        starts = np.flatnonzero(np.r_[True, light[rest][1:] != light[rest][:-1]]) if rest.size else rest
-        for a, b in zip(starts, np.r_[starts[1:], rest.size]):
-            idx, k = rest[a:b], int(light[rest[a]])
+        for k, positions in _runs_by_shape(light[rest]):
+            idx = rest[positions]
             o = np.take(o_flat, seg[idx] % m if broadcast else seg[idx], axis=1)
             out[idx] = self.surfaces[k].occludes_soa(o, np.take(d_flat, seg[idx], axis=1), dist_flat[seg[idx]])
         return out
@@ -1016,6 +1010,17 @@ class LightSet:
     def occluded(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray) -> np.ndarray:
         """Whether any light surface blocks the segments (M, 3) (shadow rays)."""
         return self.occluded_soa(_soa(origins), _soa(directions), np.asarray(distances, dtype=np.float64))
+
+
+def _runs_by_shape(light: np.ndarray) -> list[tuple[int, np.ndarray]]:
+    """The positions of each shape's pairs (``light`` (K,) shape per pair): (shape, positions ascending) per shape
+    that occurs, shapes ascending (one stable sort, not a scan per shape)."""
+    if light.size == 0:
+        return []
+    order = np.argsort(light, kind="stable")
+    ordered = light[order]
+    starts = np.flatnonzero(np.r_[True, ordered[1:] != ordered[:-1]])
+    return [(int(ordered[a]), order[a:b]) for a, b in zip(starts, np.r_[starts[1:], ordered.size], strict=True)]
 
 
 def _balls_reached(centres: np.ndarray, reach: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

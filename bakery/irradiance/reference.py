@@ -271,8 +271,8 @@ def _split_brightest(samples: SphericalSamples, count: int) -> tuple[np.ndarray,
 
 def bin_samples(samples: SphericalSamples, face_size: int, mask: np.ndarray | None = None
                 ) -> tuple[np.ndarray, np.ndarray]:
-    """Flux Φ (6N², C) and first moment m (6N², C, 3) of the samples (those in ``mask``) per reference-cube
-    texel containing them (module doc step 2), float64."""
+    """Flux Φ (6N², C) and first moment m (6N², C, 3) of the samples (those where ``mask`` (S,) bool is True) per
+    reference-cube texel containing them (module doc step 2), float64."""
     directions = np.asarray(samples.directions, dtype=np.float64)
     flux = np.asarray(samples.radiance, dtype=np.float64).T * np.asarray(samples.solid_angles)  # (C, S) rows
     if mask is not None:
