@@ -8,9 +8,9 @@ Protocol
     :func:`fit_shexp_stepwise` (the previous formulation, same least squares), interleaved in one process so that
     both see the same machine load; ms per probe = seconds / batch_size, and the CPU time of the process per probe
     (all BLAS threads; ``time.process_time``). The fused path's pieces are timed alone: the splat, W·F over the
-    normal-cluster tiles (what the fit multiplies) and W·F as the dense blocks (before the tiles). Agreement: the
-    largest coefficient difference and the relative RMS of E0 over the design rows between the two paths — the
-    error against the plain fit is unchanged when they agree to float32 rounding.
+    normal-cluster tiles and the low-rank slabs (what the fit multiplies) and W·F as the dense blocks (before
+    either). Agreement: the largest coefficient difference and the relative RMS of E0 over the design rows between
+    the two paths — the error against the plain fit is unchanged when they agree to float32 rounding.
 
     Bake configuration (``processes`` ≥ 2): a bake runs one single-threaded worker per core, each fitting its own
     batches. That many spawned processes (one BLAS thread each, as :mod:`bakery.pipeline.executors` starts them)
@@ -169,8 +169,10 @@ def run_shexp_fit_bench(env_dir: Path | None = None, batch_size: int = 64, face_
     grids = tuple(b.face_size for b in ops.blocks)
     flux = splat_flux(batch, grids)
     pieces = _timings({"splat": lambda: splat_flux(batch, grids),
-                       "W_times_F_tiles": lambda: [t.weights @ np.take(flux[t.face_size], t.nodes, axis=0)
-                                                   for t in ops.tiles],
+                       "W_times_F_tiles": lambda: ([t.weights @ np.take(flux[t.face_size], t.nodes, axis=0)
+                                                    for t in ops.tiles],
+                                                   [np.matmul(s.left, (s.right @ flux[s.face_size]).reshape(
+                                                       s.left.shape[0], s.rank, -1)) for s in ops.low_rank]),
                        "W_times_F_dense": lambda: [b.weights @ flux[b.face_size] for b in ops.blocks]}, repeats)
     breakdown = {k: per_probe * float(np.median(v)) for k, v in pieces.items()}
     total = result["variants"]["weighted (default)"]["fused_ms_per_probe"]
@@ -200,7 +202,8 @@ def format_shexp_fit_table(result: dict) -> str:
     b = result["fused_breakdown_ms_per_probe"]
     # the rest is a difference of medians: below the pieces' own noise it is not a measurement
     rest = f"rest {b['rest']:.3f}" if b["rest"] > 0 else "rest below the timing noise (pieces timed alone)"
-    lines += ["", f"fused, by piece: splat {b['splat']:.3f}, W·F {b['W_times_F_tiles']:.3f} (dense blocks "
+    lines += ["", f"fused, by piece: splat {b['splat']:.3f}, W·F {b['W_times_F_tiles']:.3f} (tiles and low-rank "
+                  f"slabs; dense blocks "
                   f"{b['W_times_F_dense']:.3f}), {rest} ms/probe"]
     bake = result.get("bake_configuration")
     if bake:

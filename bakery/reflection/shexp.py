@@ -45,8 +45,9 @@ Fit grid (multi-resolution splat; method notes §4 "lower mip levels for rough �
     F is the capture's flux *splatted* bilinearly onto the coarse nodes: exact total flux, and a sun between
     nodes keeps its centroid (a box filter would move it to a texel centre: measured 4–9 % fit error vs the
     plain fit on ``park``/``sunrise`` at 32², 1 % with the splat). The splat is separable per face once Ω is
-    applied (Ω·L for a few faces at a time, in cache; a GEMM along rows per face, then one along columns; coarser
-    grids are splatted from the finest grid's flux). The node grid follows the lobe width (∝ α):
+    applied (Ω·L for a few faces at a time, in cache; along rows by windows — N = S·g: every node takes the same
+    taps of its ≤ 2S nearest rows, :func:`_row_window`; a dense GEMM per face otherwise — then one GEMM along
+    columns; coarser grids are splatted from the finest grid's flux). The node grid follows the lobe width (∝ α):
     ``fit_face_size`` for α < 2·0.2, halved per doubling of α beyond 0.2, never below ``min_fit_face_size`` (default design: 16, 8, 8, 8 for α = 0.2, 0.47,
     0.73, 1) — rows of one α slab use one grid, so W is a few dense blocks (4096 × 1536, 12288 × 384):
     11 M multiply-adds per channel instead of 100 M for a dense 32² grid. Measured in docs/reflection.md against
@@ -78,10 +79,15 @@ Fused fit (:func:`fit_shexp`; :func:`fit_shexp_stepwise` is the same solve one f
     of the largest; at 1e-3 still 1498 / 384, the hemisphere edge is sharp), so W·F runs over *tiles*
     (:func:`weight_tiles`): the rows of two neighbouring normals (32 Fibonacci clusters) times the nodes where any
     of them is non-zero, F gathered to those nodes: 0.58× the multiply-adds of the dense blocks, same products
-    (single normals: 0.5×, but GEMMs too small to gain). What remains is that GEMM (1.2 G multiply-adds per 64
-    probes) and the splat: Ω varies per texel and is not separable (rank 5 to float32), so Ω·L is formed once —
-    a pass over the capture, memory-bound — before the row splat's GEMM (16 multiply-adds per texel and channel;
-    a 3-tap periodic form saves little: the GEMM runs at the BLAS peak on data in cache).
+    (single normals: 0.5×, but GEMMs too small to gain).
+    Per normal, though, a slab can be low-rank: at α = 1, D = 1/π and V = ½/(n·l + n·v), so the kernel is
+    n·l / (2π (n·l + n·v)) — one function of n·l per view, a Cauchy-like family of numerical rank 9–10 over
+    the 64 views at 1e-7 (α ≤ 0.73: full, 64). Such a slab runs as U·(Vᵀ·F) (:func:`low_rank_slabs`: truncated
+    SVD per normal, ‖ΔW_k‖_F ≤ 1e-7 ‖W_k‖_F), one GEMM over Vᵀ stacked for all normals and a batch of
+    (n_views × r) products: 0.3× the slab's tile multiply-adds (default design: the α = 1 slab; W·F 19.3 → 17.4 M
+    per probe). What remains is that GEMM (1.1 G multiply-adds per 64 probes) and the splat: Ω varies per texel
+    and is not separable (rank 5 to float32), so Ω·L is formed once — a pass over the capture, memory-bound —
+    before the windowed row splat (2S multiply-adds per texel and channel instead of the dense GEMM's g).
 
 Notation
     M design rows, T fit-grid texels, P probes, C = 3 channels, K_p = (p_band+1)², K_q = (q_band+1)² − 1.
@@ -97,6 +103,7 @@ from functools import lru_cache
 from typing import Literal
 
 import numpy as np
+from numpy.lib.stride_tricks import as_strided
 
 from bakery.brdf.ggx import reflect
 from bakery.brdf.sampling import to_world
@@ -296,14 +303,31 @@ def _splat_flux(cubes: np.ndarray, grids: tuple[int, ...], removed: tuple[np.nda
     grids = tuple(sorted(set(grids), reverse=True))
     finest = grids[0]
     faces = cubes.reshape(p * 6, n, 3 * n)  # (6P, N rows, 3N) view
-    omega, rows_splat = _solid_angle_rows(n), splat_matrix(n, finest)
+    omega = _solid_angle_rows(n)
     by_rows = np.empty((p * 6, finest, 3 * n), dtype=np.float32)  # Σ_i B_ai Ω_ij L_ij per face
     chunk = max(1, _SPLAT_CHUNK_FLOATS // (3 * n * n))
-    flux = np.empty((min(chunk, p * 6), n, 3 * n), dtype=np.float32)
-    for q0 in range(0, p * 6, chunk):  # Ω·L stays in cache for the row GEMM
-        q1 = min(q0 + chunk, p * 6)
-        np.multiply(faces[q0:q1], omega, out=flux[: q1 - q0])
-        np.matmul(rows_splat, flux[: q1 - q0], out=by_rows[q0:q1])
+    window = _row_window(n, finest)
+    if window is None:  # N not a multiple of g: the dense row splat (g, N) as a GEMM per face
+        rows_splat = splat_matrix(n, finest)
+        flux = np.empty((min(chunk, p * 6), n, 3 * n), dtype=np.float32)
+        for q0 in range(0, p * 6, chunk):  # Ω·L stays in cache for the row GEMM
+            q1 = min(q0 + chunk, p * 6)
+            np.multiply(faces[q0:q1], omega, out=flux[: q1 - q0])
+            np.matmul(rows_splat, flux[: q1 - q0], out=by_rows[q0:q1])
+    else:  # N = S·g: node a's rows are the window of padded rows [S·a, S·a + len(taps)) (:func:`_row_window`)
+        taps, before, after = window
+        padded = np.empty((min(chunk, p * 6), before + n + after, 3 * n), dtype=np.float32)
+        rows_stride = padded.strides[1]
+        for q0 in range(0, p * 6, chunk):  # Ω·L stays in cache for the windowed row splat
+            q1 = min(q0 + chunk, p * 6)
+            q = q1 - q0
+            np.multiply(faces[q0:q1], omega, out=padded[:q, before : before + n])
+            padded[:q, :before] = padded[:q, before : 2 * before][:, ::-1]  # mirrored rows: the clamped edge taps
+            padded[:q, before + n :] = padded[:q, before + n - after : before + n][:, ::-1]
+            windows = as_strided(padded, shape=(q, finest, taps.size, 3 * n),
+                                 strides=(padded.strides[0], n // finest * rows_stride, rows_stride, padded.strides[2]),
+                                 writeable=False)
+            np.matmul(taps, windows, out=by_rows[q0:q1])  # (q, g, 3N): one tap vector · window per node
     nodes = (by_rows.reshape(-1, 3 * n) @ _node_splat(n, finest)).reshape(p * 6, finest, 3 * finest)  # Σ_j B_bj (…)
     if removed is not None and len(removed[0]):
         nodes -= _removed_flux(cubes, removed, finest)
@@ -317,6 +341,27 @@ def _splat_flux(cubes: np.ndarray, grids: tuple[int, ...], removed: tuple[np.nda
         order = (1, 2, 3, 4, 0) if channel_major else (1, 2, 3, 0, 4)  # → (face, row, column, …)
         out[g] = np.ascontiguousarray(grid.reshape(p, 6, g, g, 3).transpose(order)).reshape(6 * g * g, 3 * p)
     return out
+
+
+@lru_cache(maxsize=8)
+def _row_window(face_size: int, grid_size: int) -> tuple[np.ndarray, int, int] | None:
+    """The row splat of N = S·g texels onto g nodes as one window of taps per node: node a takes the padded rows
+    [S·a, S·a + W) with the same taps (W,) float32 for every a — the bilinear tap 1 − |x − a| of
+    :func:`splat_taps` at x = (i + ½)/S − ½ — and the face's rows mirrored ``before`` rows below row 0 and
+    ``after`` above row N − 1:
+    a mirrored row sits at x' = −1 − x (or 2g − 1 − x), so it gives node 0 (or g − 1) the tap the clamp of
+    :func:`splat_taps` adds. 2S multiply-adds per texel and channel instead of the dense (g, N) GEMM's g.
+    Returns (taps, before, after), or None when N is not a multiple of g (no common window)."""
+    if face_size % grid_size:
+        return None
+    s = face_size // grid_size
+    offsets = np.arange(-s, 2 * s)  # rows S·a + offset around node a, a superset of its support
+    taps = np.maximum(0.0, 1.0 - np.abs((offsets + 0.5) / s - 0.5))
+    support = np.flatnonzero(taps)
+    first, last = offsets[support[0]], offsets[support[-1]]
+    window = taps[support[0] : support[-1] + 1].astype(np.float32)
+    window.setflags(write=False)
+    return window, int(-first), int(s * (grid_size - 1) + last + 1 - face_size)
 
 
 #: Floats of Ω·L per chunk of faces in :func:`splat_flux` (128 k: 512 kB, two faces at 128², in L2 with the
@@ -373,6 +418,25 @@ class WeightTile:
 
 
 @dataclass(frozen=True)
+class LowRankSlab:
+    """One α slab of a W block whose rows are low-rank per design normal, W·F = U·(Vᵀ·F) (module doc "Fused fit").
+    ``rows`` (R,) = the slab's design rows (normal-major: R = n_normals·n_views); per normal k, W[rows of k] ≈
+    ``left[k]`` (n_views, r) · ``right[k·r : (k+1)·r]`` (r, 6g²), float32, r the largest rank of the slab's
+    normals (padded with zero columns); ``design_t`` (K, R) = Aᵀ[:, rows] and ``pinv`` (K, R) = A⁺[:, rows]."""
+
+    face_size: int
+    rows: np.ndarray
+    left: np.ndarray
+    right: np.ndarray
+    design_t: np.ndarray
+    pinv: np.ndarray
+
+    @property
+    def rank(self) -> int:
+        return int(self.left.shape[2])
+
+
+@dataclass(frozen=True)
 class SHExpOperators:
     """Cached fixed operators of one settings: the W blocks, A (M, K), A⁺ (K, M) float32, the products
     A_mi A_mj (i ≤ j) transposed (K(K+1)/2, M) float32 for the weighted normal equations, the per-row log-albedo
@@ -395,6 +459,8 @@ class SHExpOperators:
     albedo_flux_operators: tuple[np.ndarray, ...] = ()
     #: the W blocks cut into normal-cluster tiles without their zero columns (:func:`weight_tiles`; fused fit)
     tiles: tuple[WeightTile, ...] = ()
+    #: the α slabs whose W·F runs as U·(Vᵀ·F) instead of tiles (:func:`low_rank_slabs`; fused fit)
+    low_rank: tuple[LowRankSlab, ...] = ()
 
 
 #: Shared table resolution used by the albedo normalisation (same table as the encodings store).
@@ -452,26 +518,30 @@ NORMALS_PER_TILE = 2
 
 
 def weight_tiles(settings: SHExpSettings, blocks: tuple[WeightBlock, ...], design_t: np.ndarray,
-                 pinv: np.ndarray) -> tuple[WeightTile, ...]:
+                 pinv: np.ndarray, skip_slabs: tuple[int, ...] = ()) -> tuple[WeightTile, ...]:
     """Cut every W block into tiles of the rows whose normals lie nearest the same of ⌈n_normals / 2⌉ Fibonacci
     directions, each keeping only the nodes where one of its rows is non-zero. W is zero on the lower hemisphere
     of a row's normal (⟨l, n⟩₊), so a tile of nearby normals drops about 40 % of the block (the union of their
-    hemispheres): W·F costs 0.58× the dense multiply-adds on the default design, with the same products."""
+    hemispheres): W·F costs 0.58× the dense multiply-adds on the default design, with the same products.
+    ``skip_slabs``: α slabs (design order) left out of the tiles (their W·F runs through :func:`low_rank_slabs`)."""
     per_normal = settings.n_views
+    per_slab = settings.n_normals * per_normal
     normals = fit_design(settings)[1][::per_normal][: settings.n_normals]  # (n_normals, 3), the slab order
     centres = fibonacci_directions(max(1, -(-settings.n_normals // NORMALS_PER_TILE)))
     cluster = np.argmax(normals @ centres.T, axis=1)  # (n_normals,) nearest centre
     layout = []  # (block, design rows, nodes) per tile
     for block in blocks:
-        slabs = (block.stop - block.start) // (settings.n_normals * per_normal)
-        local = np.arange(block.stop - block.start).reshape(slabs, settings.n_normals, per_normal)
-        for k in np.unique(cluster):
+        kept = [s for s in range(block.start // per_slab, block.stop // per_slab) if s not in skip_slabs]
+        local = (np.array(kept)[:, None, None] * per_slab - block.start
+                 + np.arange(per_slab).reshape(1, settings.n_normals, per_normal))
+        for k in np.unique(cluster) if kept else ():
             rows = np.sort(local[:, cluster == k].ravel())  # rows of the block, ascending
             layout.append((block, rows, np.flatnonzero((block.weights[rows] != 0).any(axis=0))))
     # every tile's W in one cached array: the workers of a bake map the same pages (one copy in memory and cache)
     key = "shexp-W-v2-tiles-v1-" + repr((settings.n_normals, settings.n_views, settings.n_alphas, settings.alpha_min,
                                       settings.alpha_max, settings.alpha_spacing,
-                                      tuple(b.face_size for b in blocks), NORMALS_PER_TILE))
+                                      tuple(b.face_size for b in blocks), NORMALS_PER_TILE)) + (
+                                      f"-skip{skip_slabs}" if skip_slabs else "")
     sizes = [rows.size * nodes.size for _, rows, nodes in layout]
     flat = OperatorCache.load(key)
     if flat is None or flat.shape != (sum(sizes),):
@@ -490,6 +560,72 @@ def weight_tiles(settings: SHExpSettings, blocks: tuple[WeightBlock, ...], desig
     return tuple(tiles)
 
 
+#: A slab's normals are factored to ‖W_k − U_k V_kᵀ‖_F ≤ 1e-7 ‖W_k‖_F (W_k: the normal's rows): every entry then
+#: within ~1e-6 of its row's largest, the order of the float32 rounding of the products themselves.
+LOW_RANK_TOLERANCE = 1e-7
+#: ... and only when the factored product costs at most this fraction of the tiles' multiply-adds for those rows.
+LOW_RANK_MAX_COST = 0.5
+
+
+def low_rank_slabs(settings: SHExpSettings, blocks: tuple[WeightBlock, ...], design_t: np.ndarray,
+                   pinv: np.ndarray) -> tuple[LowRankSlab, ...]:
+    """The α slabs whose W is low-rank per design normal (module doc "Fused fit"), factored by a truncated SVD
+    (float64) of each normal's n_views rows over the nodes of its upper hemisphere: W_k = U_k Σ_k V_kᵀ, keeping
+    the smallest rank r_k with Σ_{i>r_k} σ_i² ≤ (``LOW_RANK_TOLERANCE``·‖W_k‖_F)². A slab is factored when
+    n_normals·r·(n_views + 6g²) multiply-adds (r = max_k r_k; Vᵀ stacked over every node, zero off the
+    hemisphere: one GEMM) are at most ``LOW_RANK_MAX_COST`` of the tiles' (its rows × their hemisphere nodes).
+    Cached like the tiles (one entry per slab: [r, U…, V…], [0] when the slab stays in the tiles)."""
+    n_normals, n_views = settings.n_normals, settings.n_views
+    per_slab = n_normals * n_views
+    out = []
+    for block in blocks:
+        nodes = block.weights.shape[1]
+        for slab in range(block.start // per_slab, block.stop // per_slab):
+            key = "shexp-W-v2-lowrank-v1-" + repr((settings.n_normals, settings.n_views, settings.n_alphas,
+                                                   settings.alpha_min, settings.alpha_max, settings.alpha_spacing,
+                                                   slab, block.face_size, LOW_RANK_TOLERANCE, LOW_RANK_MAX_COST))
+            flat = OperatorCache.load(key)
+            if flat is None:
+                flat = OperatorCache.save(key, _factor_slab(block, slab * per_slab - block.start, n_normals,
+                                                            n_views))
+            flat = np.asarray(flat)
+            rank = int(flat[0])
+            if rank == 0:
+                continue
+            split = 1 + n_normals * n_views * rank
+            rows = np.arange(slab * per_slab, (slab + 1) * per_slab)
+            factored = LowRankSlab(block.face_size, rows, flat[1:split].reshape(n_normals, n_views, rank),
+                                   flat[split:].reshape(n_normals * rank, nodes),
+                                   np.ascontiguousarray(design_t[:, rows]), np.ascontiguousarray(pinv[:, rows]))
+            for array in (factored.rows, factored.design_t, factored.pinv):
+                array.setflags(write=False)
+            out.append(factored)
+    return tuple(out)
+
+
+def _factor_slab(block: WeightBlock, start: int, n_normals: int, n_views: int) -> np.ndarray:
+    """[r, U (n_normals, n_views, r), Vᵀ (n_normals·r, 6g²)] flat float32 for the slab at block row ``start``, or
+    [0] when factoring does not pay (:func:`low_rank_slabs`)."""
+    weights = block.weights[start : start + n_normals * n_views].reshape(n_normals, n_views, -1)
+    factors, tile_macs = [], 0
+    for w in weights.astype(np.float64):
+        support = np.flatnonzero(w.any(axis=0))  # the nodes of the normal's upper hemisphere
+        u, sigma, vt = np.linalg.svd(w[:, support], full_matrices=False)
+        tail = np.sqrt(np.cumsum((sigma**2)[::-1])[::-1])  # tail[i] = ‖σ_i, σ_i+1, …‖
+        rank = int(np.count_nonzero(tail > LOW_RANK_TOLERANCE * tail[0]))
+        factors.append((u[:, :rank] * sigma[:rank], vt[:rank], support))
+        tile_macs += n_views * support.size
+    rank = max(f[0].shape[1] for f in factors)
+    if n_normals * rank * (n_views + weights.shape[2]) > LOW_RANK_MAX_COST * tile_macs:
+        return np.zeros(1, dtype=np.float32)
+    left = np.zeros((n_normals, n_views, rank))
+    right = np.zeros((n_normals, rank, weights.shape[2]))
+    for k, (u, vt, support) in enumerate(factors):
+        left[k, :, : u.shape[1]] = u
+        right[k, : vt.shape[0], support] = vt.T
+    return np.concatenate([[rank], left.ravel(), right.ravel()]).astype(np.float32)
+
+
 @lru_cache(maxsize=8)
 def build_operators(settings: SHExpSettings, capture_face_size: int | None = None) -> SHExpOperators:
     """Build the W blocks, A, A⁺ and the pair products once per settings and capture face size (cached in memory,
@@ -506,11 +642,14 @@ def build_operators(settings: SHExpSettings, capture_face_size: int | None = Non
     for array in derived.values():
         array.setflags(write=False)
     per_block = {kind: tuple(derived[f"{kind}{b}"] for b in range(len(blocks))) for kind in _PER_BLOCK_OPERATORS}
-    tiles = weight_tiles(settings, blocks, derived["design_t"], derived["pinv"])
+    low_rank = low_rank_slabs(settings, blocks, derived["design_t"], derived["pinv"])
+    per_slab = settings.n_normals * settings.n_views
+    tiles = weight_tiles(settings, blocks, derived["design_t"], derived["pinv"],
+                         tuple(int(s.rows[0]) // per_slab for s in low_rank))
     return SHExpOperators(blocks, derived["design"], derived["pinv"], derived["pair_products_t"],
                           derived["log_albedo"], derived["pinv_log_albedo"], derived["design_t"],
                           derived["albedo_design_t"], per_block["gram"], derived["design_gram_upper"],
-                          per_block["column_sums"], per_block["albedo_flux"], tiles)
+                          per_block["column_sums"], per_block["albedo_flux"], tiles, low_rank)
 
 
 #: The environment-independent arrays :func:`_derived_operators` builds once per settings (besides W), and those it
@@ -665,29 +804,44 @@ def fit_shexp(cubes: np.ndarray, settings: SHExpSettings,
         lum_mean = np.maximum(LUMINANCE.astype(np.float64) @ total.reshape(3, p) / m, EPS_ABS)  # (P,)
         inv_mean = (1.0 / lum_mean).astype(np.float32)
     rows = int(np.clip(_CHUNK_FLOATS // (3 * p), 64, 4096))
-    e0 = np.empty((rows, 3 * p), dtype=np.float32)
-    w = np.empty((rows, p), dtype=np.float32)
+    e0 = np.empty((max(rows, settings.n_views), 3 * p), dtype=np.float32)  # a chunk holds one normal's views
+    w = np.empty((e0.shape[0], p), dtype=np.float32)
     part = np.empty((k, 3 * p), dtype=np.float32)
     rhs = np.zeros((k, 3 * p))  # float64 accumulator over the chunks
-    gathered = np.empty((max(t.nodes.size for t in ops.tiles), 3 * p), dtype=np.float32)
+
+    def accumulate(e: np.ndarray, right: np.ndarray) -> None:
+        """rhs += Aᵀ_rows · (w ⊙ log max(E0, floor)) (or A⁺_rows · log …) for one chunk E0 (rows, 3P)."""
+        if weighted:  # w = Y(E0)/mean + w_min of the unfloored samples
+            ww = w[: e.shape[0]]
+            np.matmul(LUMINANCE, e.reshape(-1, 3, p), out=ww)
+            ww *= inv_mean
+            ww += np.float32(WEIGHT_MIN)
+        np.maximum(e, floor, out=e)  # log guard
+        np.log(e, out=e)
+        if weighted:
+            e.reshape(-1, 3, p)[...] *= ww[:, None, :]  # W log E0
+        np.matmul(right, e, out=part)
+        np.add(rhs, part, out=rhs)
+
+    gathered = np.empty((max((t.nodes.size for t in ops.tiles), default=0), 3 * p), dtype=np.float32)
     for tile in ops.tiles:
         # F at its nodes (mode 'clip': the indices are in range, and 'raise' would buffer the output)
         f = np.take(flux[tile.face_size], tile.nodes, axis=0, out=gathered[: tile.nodes.size], mode="clip")
         right = tile.design_t if weighted else tile.pinv  # Aᵀ (weighted normal equations) or A⁺ (plain log fit)
         for r0 in range(0, tile.rows.size, rows):
             r1 = min(r0 + rows, tile.rows.size)
-            e, ww = e0[: r1 - r0], w[: r1 - r0]
+            e = e0[: r1 - r0]
             np.matmul(tile.weights[r0:r1], f, out=e)  # E0 = W·F (GEMM over the tile's non-zero nodes)
-            if weighted:  # w = Y(E0)/mean + w_min of the unfloored samples
-                np.matmul(LUMINANCE, e.reshape(-1, 3, p), out=ww)
-                ww *= inv_mean
-                ww += np.float32(WEIGHT_MIN)
-            np.maximum(e, floor, out=e)  # log guard
-            np.log(e, out=e)
-            if weighted:
-                e.reshape(-1, 3, p)[...] *= ww[:, None, :]  # W log E0
-            np.matmul(right[:, r0:r1], e, out=part)
-            rhs += part
+            accumulate(e, right[:, r0:r1])
+    for slab in ops.low_rank:  # E0 = U·(Vᵀ·F) per normal: one GEMM, then a batch of (n_views, r)·(r, 3P)
+        projected = (slab.right @ flux[slab.face_size]).reshape(settings.n_normals, slab.rank, 3 * p)
+        right = slab.design_t if weighted else slab.pinv
+        normals = max(1, rows // settings.n_views)
+        for k0 in range(0, settings.n_normals, normals):
+            k1 = min(k0 + normals, settings.n_normals)
+            e = e0[: (k1 - k0) * settings.n_views]
+            np.matmul(slab.left[k0:k1], projected[k0:k1], out=e.reshape(k1 - k0, settings.n_views, 3 * p))
+            accumulate(e, right[:, k0 * settings.n_views : k1 * settings.n_views])
     rhs = rhs.reshape(k, 3, p)
     if not weighted:
         return np.ascontiguousarray((rhs - ops.pinv_log_albedo[:, None, None]).transpose(2, 0, 1), dtype=np.float32)

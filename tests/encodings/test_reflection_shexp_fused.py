@@ -105,8 +105,8 @@ def test_weight_tiles_partition_the_design_and_drop_only_zeros():
     """The normal-cluster tiles of the fused W·F cover every design row once, hold W's entries exactly, and every
     node they leave out of a row is an exact zero of W (the lower hemisphere of its normal, ⟨l, n⟩ ≤ 0)."""
     ops = sx.build_operators(sx.SHExpSettings(), 128)
-    rows = np.concatenate([t.rows for t in ops.tiles])
-    assert np.array_equal(np.sort(rows), np.arange(ops.design.shape[0]))
+    rows = np.concatenate([t.rows for t in ops.tiles] + [s.rows for s in ops.low_rank])
+    assert np.array_equal(np.sort(rows), np.arange(ops.design.shape[0]))  # with the low-rank slabs: every row once
     v, n, _ = sx.fit_design(sx.SHExpSettings())
     for tile in ops.tiles:
         block = next(b for b in ops.blocks if b.start <= tile.rows[0] < b.stop)
@@ -118,7 +118,46 @@ def test_weight_tiles_partition_the_design_and_drop_only_zeros():
         assert (n[tile.rows] @ nodes.T).max(initial=-1.0) <= 1e-6  # only below every row's horizon
         np.testing.assert_array_equal(tile.design_t, ops.design_t[:, tile.rows])
     dense_macs = sum(b.weights.size for b in ops.blocks)
+    tiled = {int(r) for t in ops.tiles for r in t.rows}
+    assert sum(t.weights.size for t in ops.tiles) < 0.65 * sum(b.weights[0].size for b in ops.blocks
+                                                             for r in range(b.start, b.stop) if r in tiled)
     assert sum(t.weights.size for t in ops.tiles) < 0.65 * dense_macs
+
+
+def test_low_rank_slab_is_the_alpha_one_kernel_to_its_tolerance():
+    """At α = 1, D = 1/π and Smith's V = ½/(n·l + n·v): W = ⟨n, l⟩₊ / (2π (n·l + n·v)) per steradian (closed
+    form).
+    The default design factors exactly that slab, per normal to ‖ΔW_k‖_F ≤ 1e-7 ‖W_k‖_F (plus the float32
+    rounding of the factors), at a fraction of its tiles' multiply-adds; the α < 1 slabs stay in the tiles."""
+    settings = sx.SHExpSettings()
+    ops = sx.build_operators(settings, 128)
+    v, n, a = sx.fit_design(settings)
+    (slab,) = ops.low_rank
+    assert np.all(a[slab.rows] == 1.0) and slab.rows.size == settings.n_normals * settings.n_views
+    nodes = cube_texel_directions(slab.face_size).reshape(-1, 3)
+    nl = np.maximum(n[slab.rows] @ nodes.T, 0.0)
+    nv = np.sum(n[slab.rows] * v[slab.rows], axis=1)[:, None]
+    closed = nl / (2.0 * np.pi * (nl + nv))  # (R, 6g²)
+    factored = np.matmul(slab.left.astype(np.float64),
+                         slab.right.astype(np.float64).reshape(settings.n_normals, slab.rank, -1)).reshape(closed.shape)
+    for k in range(settings.n_normals):
+        rows = slice(k * settings.n_views, (k + 1) * settings.n_views)
+        assert np.linalg.norm(factored[rows] - closed[rows]) <= 5e-7 * np.linalg.norm(closed[rows])
+    assert slab.rank <= 16
+    tile_macs = slab.rows.size * nodes.shape[0] / 2  # a normal's hemisphere
+    assert slab.left.size + slab.right.size < 0.5 * tile_macs
+
+
+def test_fused_fit_with_a_low_rank_slab_equals_a_straightforward_least_squares():
+    """The default design (its α = 1 slab factored) against the float64 least squares on the exact W."""
+    settings = sx.SHExpSettings()
+    assert sx.build_operators(settings, FACE).low_rank
+    cubes = captures()
+    fused, truth = sx.fit_shexp(cubes, settings), straightforward_fit(cubes, settings)
+    np.testing.assert_allclose(fused, truth, rtol=1e-3, atol=1e-3)
+    v, n, a = sx.fit_design(settings)
+    np.testing.assert_allclose(sx.evaluate_e0(fused, v, n, a, settings), sx.evaluate_e0(truth, v, n, a, settings),
+                               rtol=2e-3, atol=1e-9)
 
 
 def test_weight_tiles_are_shared_through_the_operator_cache(tmp_path, monkeypatch):
@@ -142,3 +181,24 @@ def test_weight_tiles_are_shared_through_the_operator_cache(tmp_path, monkeypatc
     monkeypatch.setattr(sx, "NORMALS_PER_TILE", 3)
     other = sx.weight_tiles(SMALL, ops.blocks, ops.design_t, ops.pinv)
     assert len(list(tmp_path.glob("*.npy"))) == 2 and len(other) != len(first)
+
+
+def test_low_rank_decisions_and_factors_are_shared_through_the_operator_cache(tmp_path, monkeypatch):
+    """One cache entry per α slab — the factors, or the decision to keep the slab in the tiles — written by the
+    first build and loaded by the next."""
+    from bakery import operator_cache
+    from bakery.reflection.tables import OperatorCache
+
+    settings = replace(SMALL, n_views=64, n_normals=16)
+    ops = sx.build_operators(settings, FACE)
+    monkeypatch.setenv("BAKERY_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(OperatorCache, "load", staticmethod(operator_cache.load))
+    monkeypatch.setattr(OperatorCache, "save", staticmethod(operator_cache.save))
+    first = sx.low_rank_slabs(settings, ops.blocks, ops.design_t, ops.pinv)
+    files = sorted(tmp_path.glob("*.npy"))
+    assert len(files) == settings.n_alphas
+    again = sx.low_rank_slabs(settings, ops.blocks, ops.design_t, ops.pinv)
+    assert sorted(tmp_path.glob("*.npy")) == files
+    assert [s.rows[0] for s in first] == [s.rows[0] for s in again] == [s.rows[0] for s in ops.low_rank]
+    for a, b in zip(first, again, strict=True):
+        assert np.array_equal(a.left, b.left) and np.array_equal(a.right, b.right)
