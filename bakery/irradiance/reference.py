@@ -168,7 +168,11 @@ def _row_intervals(normals: np.ndarray, face_size: int) -> tuple[np.ndarray, ...
         neg_edge = (neg_t + 1.0) * (0.5 * n)
     rising = alpha > 0
     flat = alpha == 0
-    clip = lambda x: np.clip(np.nan_to_num(x, nan=0.0, posinf=n, neginf=0), 0, n).astype(np.int64)  # noqa: E731
+
+    def clip(x: np.ndarray) -> np.ndarray:  # α = 0 gives ±inf or NaN here; those entries are replaced below (flat)
+        with np.errstate(invalid="ignore"):
+            return np.clip(x, 0, n, out=x).astype(np.int64)
+
     # α > 0: positive [ceil(pos_edge), N), negative [0, floor(neg_edge)); α < 0: positive [0, floor(pos_edge)),
     # negative [ceil(neg_edge), N)
     p0 = np.where(rising, clip(np.ceil(pos_edge)), 0)

@@ -129,21 +129,51 @@ def direction_to_cube_face_uv(directions: np.ndarray) -> tuple[np.ndarray, np.nd
 
     Ties on face edges go to the axis listed first (x, then y, then z).
     """
+    return _by_chunks(_face_uv, directions, (np.int64, np.float64, np.float64))
+
+
+def direction_to_cube_texel(directions: np.ndarray, face_size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Face, row and column (ints, ...) of the texel containing each direction (..., 3)."""
+    return _by_chunks(lambda d: _texel(d, face_size), directions, (np.int64, np.int64, np.int64))
+
+
+#: Directions per pass of :func:`_by_chunks`: the ~20 temporaries of a chunk (256 kB each) stay in L2 instead of
+#: streaming through memory (measured on 0.5 M directions: 35 → 20 ms per call; 16 k–64 k within 3 %).
+_DIRECTION_CHUNK = 1 << 15
+
+
+def _by_chunks(kernel, directions: np.ndarray, dtypes: tuple) -> tuple[np.ndarray, ...]:  # noqa: ANN001
+    """``kernel`` (elementwise over directions (M, 3) → arrays (M,)) applied chunk by chunk to directions (..., 3);
+    bit-identical to one call on the whole array."""
     d = np.asarray(directions, dtype=np.float64)
+    shape = d.shape[:-1]
+    flat = d.reshape(-1, 3)
+    if flat.shape[0] <= _DIRECTION_CHUNK:
+        return tuple(x.reshape(shape) for x in kernel(flat))
+    out = tuple(np.empty(flat.shape[0], dtype=t) for t in dtypes)
+    for start in range(0, flat.shape[0], _DIRECTION_CHUNK):
+        for target, part in zip(out, kernel(flat[start : start + _DIRECTION_CHUNK]), strict=True):
+            target[start : start + _DIRECTION_CHUNK] = part
+    return tuple(x.reshape(shape) for x in out)
+
+
+def _face_uv(d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`direction_to_cube_face_uv` of directions (M, 3) float64."""
     a = np.abs(d)
     axis = np.where((a[..., 0] >= a[..., 1]) & (a[..., 0] >= a[..., 2]), 0, np.where(a[..., 1] >= a[..., 2], 1, 2))
     major = np.take_along_axis(d, axis[..., None], axis=-1)[..., 0]
     face = 2 * axis + (major < 0)
-    scale = np.where(np.abs(major) > 0, 1.0 / np.abs(major), 0.0)
+    with np.errstate(divide="ignore"):
+        scale = np.where(np.abs(major) > 0, 1.0 / np.abs(major), 0.0)
     # each face's U and V axes are signed coordinate axes: d·U = ±d[k] (no (…, 3, 3) gather of the frames)
     u = np.take_along_axis(d, _FACE_AXIS[1][face][..., None], axis=-1)[..., 0] * _FACE_SIGN[1][face] * scale
     v = np.take_along_axis(d, _FACE_AXIS[2][face][..., None], axis=-1)[..., 0] * _FACE_SIGN[2][face] * scale
     return face, np.clip(u, -1.0, 1.0), np.clip(v, -1.0, 1.0)
 
 
-def direction_to_cube_texel(directions: np.ndarray, face_size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Face, row and column (ints, ...) of the texel containing each direction (..., 3)."""
-    face, u, v = direction_to_cube_face_uv(directions)
+def _texel(d: np.ndarray, face_size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`direction_to_cube_texel` of directions (M, 3) float64."""
+    face, u, v = _face_uv(d)
     col = np.clip(((u + 1.0) * 0.5 * face_size).astype(np.int64), 0, face_size - 1)
     row = np.clip(((v + 1.0) * 0.5 * face_size).astype(np.int64), 0, face_size - 1)
     return face, row, col

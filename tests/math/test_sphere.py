@@ -17,6 +17,7 @@ from bakery.sphere.cubemap import (
     cube_texel_directions,
     cube_texel_solid_angles,
     direction_to_cube_face_uv,
+    direction_to_cube_texel,
     resample_cube,
 )
 from bakery.sphere.fibonacci import fibonacci_directions
@@ -59,6 +60,28 @@ def test_cube_mapping_round_trip(v):
     d = np.array(v) / np.linalg.norm(v)
     face, u, w = direction_to_cube_face_uv(d[None])
     np.testing.assert_allclose(cube_face_uv_to_direction(face, u, w)[0], d, atol=1e-12)
+
+
+@given(st.integers(1, 40), st.integers(0, 2**32 - 1))
+def test_cube_mapping_by_chunks_is_the_whole_array_mapping(chunk, seed):
+    # Large arrays go through the mapping in chunks (cache-sized); every chunking gives the same bits as one pass,
+    # for any leading shape, including exact ties between axes and the zero vector.
+    import bakery.sphere.cubemap as cubemap
+
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(4, 25, 3))
+    d[0, :10] = np.round(d[0, :10])  # ties between |x|, |y|, |z| and zero components
+    d[1, 0] = 0.0
+    whole = (*direction_to_cube_face_uv(d), *direction_to_cube_texel(d, 7))
+    saved = cubemap._DIRECTION_CHUNK
+    cubemap._DIRECTION_CHUNK = chunk
+    try:
+        chunked = (*direction_to_cube_face_uv(d), *direction_to_cube_texel(d, 7))
+    finally:
+        cubemap._DIRECTION_CHUNK = saved
+    for a, b in zip(whole, chunked, strict=True):
+        assert a.shape == b.shape == (4, 25) and a.dtype == b.dtype
+        assert np.array_equal(a, b)
 
 
 @given(unit_vectors)
