@@ -117,6 +117,13 @@ def _run_workers(scene, probes: list, processes: int, settings: tuple) -> list[d
     return [shares[i] for i in range(processes)]
 
 
+def _scene_name(path: Path) -> str:
+    """The scene as the report names it: relative to the repository for its examples (the JSON is compared across
+    machines), otherwise as given."""
+    resolved = Path(path).resolve()
+    return str(resolved.relative_to(REPOSITORY)) if resolved.is_relative_to(REPOSITORY) else str(path)
+
+
 def bench_scene(path: Path, face_size: int = 32, samples: int = 4, bounces: int | None = None,
                 target_noise: float = 0.0, probes: int | None = None, processes: int = 1) -> dict:
     """Capture speed of one scene (the first ``probes`` rendered probes, all by default) in ``processes``
@@ -139,7 +146,7 @@ def bench_scene(path: Path, face_size: int = 32, samples: int = 4, bounces: int 
     rays = sum(s["rays"] for s in shares)
     noise = [x for s in shares for x in s["noise"]]
     return {
-        "scene": str(path), "probes": len(rendered), "processes": processes, "face_size": face_size,
+        "scene": _scene_name(path), "probes": len(rendered), "processes": processes, "face_size": face_size,
         "samples": samples, "bounces": bounces, "target_noise": target_noise,
         "triangles": reading.scene.triangle_count(), "lights": len(reading.scene.lights),
         "dome": reading.scene.dome is not None, "read_seconds": round(read_seconds, 3),

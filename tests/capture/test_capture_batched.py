@@ -156,3 +156,4 @@ def test_capture_bench_in_two_processes_traces_the_same_rays_as_in_one():
     two = bench_scene(EXAMPLES["outdoor"], face_size=4, samples=1, probes=5, processes=2)
     assert one["rays"] == two["rays"] > 0 and one["sh_noise_median"] == two["sh_noise_median"]
     assert len(two["process_rays_per_second"]) == 2 and min(two["process_rays_per_second"]) > 0
+    assert one["scene"] == two["scene"] == "examples/outdoor/outdoor.usda"  # repo-relative: reports compare across machines
