@@ -121,7 +121,7 @@ def _scene_name(path: Path) -> str:
     """The scene as the report names it: relative to the repository for its examples (the JSON is compared across
     machines), otherwise as given."""
     resolved = Path(path).resolve()
-    return str(resolved.relative_to(REPOSITORY)) if resolved.is_relative_to(REPOSITORY) else str(path)
+    return resolved.relative_to(REPOSITORY).as_posix() if resolved.is_relative_to(REPOSITORY) else str(path)
 
 
 def bench_scene(path: Path, face_size: int = 32, samples: int = 4, bounces: int | None = None,
