@@ -95,6 +95,14 @@ def hallucinated_zonal(sh: np.ndarray, curve=PAPER_CURVE) -> np.ndarray:
     return (curve[0] * p * p + curve[1] * p) * f0
 
 
+def hallucinated_solved_irradiance(fields: dict[str, np.ndarray], n: np.ndarray, curve=PAPER_CURVE) -> np.ndarray:
+    """`zh3_hallucinated_solved`: Listing 1 where the probe's flag `hallucinate` is 1, plain sh2 where it is 0
+    (version 1.1.0; 1.0.0 stores have no flag: Listing 1 everywhere)."""
+    sh = fields["radiance_sh"].astype(np.float64)
+    flag = np.asarray(fields.get("hallucinate", np.ones((len(sh), 1)))).reshape(-1, 1)
+    return zh3_irradiance(sh, hallucinated_zonal(sh, curve) * (flag != 0), n)
+
+
 def small_float(code: np.ndarray, mantissa_bits: int) -> np.ndarray:
     """Unsigned float with a 5-bit exponent: the float16 whose bits are code << (10 − mantissa_bits)."""
     return (code.astype(np.uint32) << (10 - mantissa_bits)).astype(np.uint16).view(np.float16).astype(np.float64)
@@ -129,8 +137,7 @@ EVALUATORS = {
     "zh3_deringed": lambda f, n, s: zh3_irradiance(_radiance(f, "radiance_sh"), _radiance(f, "zonal_l2"), n),
     "zh3_hallucinated": lambda f, n, s: zh3_irradiance(
         _radiance(f, "radiance_sh"), hallucinated_zonal(_radiance(f, "radiance_sh"), s.get("curve", PAPER_CURVE)), n),
-    "zh3_hallucinated_solved": lambda f, n, s: zh3_irradiance(
-        _radiance(f, "radiance_sh"), hallucinated_zonal(_radiance(f, "radiance_sh"), s.get("curve", PAPER_CURVE)), n),
+    "zh3_hallucinated_solved": lambda f, n, s: hallucinated_solved_irradiance(f, n, s.get("curve", PAPER_CURVE)),
     "zh3_quantized": lambda f, n, s: (lambda c: zh3_irradiance(c[:, :4], c[:, 4], n))(
         unpack(f["packed"], ZH3_BOUNDS, bool(s.get("sqrt_companding", True)))),
     "sh3_quantized": lambda f, n, s: sh_irradiance(

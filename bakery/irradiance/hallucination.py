@@ -37,8 +37,10 @@ Why the projected band is not always kept, and why SH2 can still win
     a better zonal term, which the solve does. But Σ_c w_c d_c = ‖u‖ > 0, so no stored band switches the zonal
     term off: where the capture's L2 band is not a positive zonal lobe about the light (interiors lit by a ring
     of lamps), *every* 48-byte input to Listing 1 is worse than plain SH2 (``docs/irradiance.md``: 2048 random
-    starts per map on ``lobby`` and ``night``, ``bakery bench irradiance``). Those probes are flagged
-    (``solved_hallucination_hurts``).
+    starts per map on ``lobby`` and ``night``, ``bakery bench irradiance``). For those probes the encoding stores
+    the projected band with its per-probe flag ``hallucinate`` = 0, which drops the zonal term at evaluation
+    (plain SH2; :func:`hallucination_beats_sh2` decides, exactly against the capture by the same Parseval
+    argument: SH2's error is the objective with z_c = 0, :func:`plain_sh2_sh_error`).
 """
 
 from __future__ import annotations
@@ -110,6 +112,31 @@ def hallucination_sh_error(
     sh = np.array(radiance_sh[:, :9], dtype=np.float64)
     error, _ = _hallucination_error(linear_band_vector(np.asarray(linear_sh, dtype=np.float64)), sh, curve)
     return error
+
+
+def plain_sh2_sh_error(linear_sh: np.ndarray, radiance_sh: np.ndarray) -> np.ndarray:
+    """‖E_sh2 − E_≤2‖² (P,): irradiance SH error of ``linear_sh`` (P, 4, C) evaluated *without* the zonal term
+    (plain ``sh2``; DC replaced by the capture's) against the capture's radiance SH3 (P, 9, C), on the scale of
+    :func:`hallucination_sh_error`: Σ_c A1²‖v_c − ρ_c‖² + A2²‖r2_c‖² (Parseval, module derivation with z_c = 0)."""
+    sh = np.array(radiance_sh[:, :9], dtype=np.float64)
+    vector = linear_band_vector(np.asarray(linear_sh, dtype=np.float64))
+    return (_A1**2 * np.sum((vector - linear_band_vector(sh)) ** 2, axis=(1, 2))
+            + _A2**2 * np.sum(sh[:, 4:9] ** 2, axis=(1, 2)))
+
+
+def hallucination_beats_sh2(
+    linear_sh: np.ndarray, radiance_sh: np.ndarray, curve: tuple[float, float] = PAPER_HALLUCINATION_CURVE,
+    min_gain: float = 0.01,
+) -> np.ndarray:
+    """(P,) bool: Listing 1 on ``linear_sh`` (P, 4, C) has a band-≤2 irradiance error against the capture at least
+    ``min_gain`` (relative) below plain ``sh2`` on the capture's projected band — the per-probe choice of
+    ``zh3_hallucinated_solved``'s ``hallucinate`` flag. Both are the L2 error against the capture's full
+    irradiance minus the same constant ‖E_>2‖² (Parseval), so the order is exact; ``min_gain`` keeps near-ties
+    (which the capture's resampling can flip against the true environment) on the plain reconstruction."""
+    sh = np.array(radiance_sh[:, :9], dtype=np.float64)
+    hallucinated = hallucination_sh_error(linear_sh, sh, curve)
+    plain = plain_sh2_sh_error(sh[:, :4], sh)
+    return np.isfinite(hallucinated) & (hallucinated < (1.0 - min_gain) * plain)
 
 
 #: Steps t of the negative guard's backtracking from the solution (t = 1) towards the projected band (t = 0).

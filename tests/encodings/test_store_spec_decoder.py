@@ -113,6 +113,8 @@ def spec_irradiance(kind, fields, settings, row, n):
         return zh3_irradiance(fields["radiance_sh"][row].astype(np.float64), fields["zonal_l2"][row].astype(np.float64), n)
     if kind in ("zh3_hallucinated", "zh3_hallucinated_solved"):
         linear = fields["radiance_sh"][row].astype(np.float64)
+        if kind == "zh3_hallucinated_solved" and int(fields["hallucinate"][row][0]) == 0:
+            return sh_irradiance(linear, n)  # the flag: plain sh2
         return zh3_irradiance(linear, hallucinated_zonal(linear, parse_curve(settings)), n)
     if kind == "zh3_quantized":
         f0, c = decode_packed(fields["packed"][row], BOUNDS[:3] + [ZONAL_BOUNDS], settings["sqrt_companding"])
@@ -163,16 +165,21 @@ def read(path):
 
 
 # ------------------------------------------------------------------------------------------------- the stores
-def _environments(folder, count=3):
+def _environments(folder, count=4):
+    """Two sun-and-lamp skies, a plain gradient and (last) a lamp over a ring of lamps on the horizon: an interior
+    whose L2 band is negative along the light, so ``zh3_hallucinated_solved`` stores its SH2 flag (0) there."""
     rng = np.random.default_rng(17)
     paths = []
     h = 16
     for i in range(count):
         rows = (np.arange(h) + 0.5) / h
         sky = np.broadcast_to((np.array([0.2, 0.3, 0.6]) * (1.5 - rows)[:, None])[:, None, :], (h, 2 * h, 3)).copy()
-        if i < count - 1:
+        if i < 2:
             sky[rng.integers(0, h // 2), rng.integers(0, 2 * h)] = rng.uniform(50, 400, size=3)  # a sun
             sky[rng.integers(h // 2, h), rng.integers(0, 2 * h)] = rng.uniform(5, 40, size=3)  # a lamp below
+        elif i == 3:
+            sky[0, :] += 20.0  # the lamp overhead (the first row spans the pole)
+            sky[h // 2 - 1:h // 2 + 1, :] += np.array([6.0, 5.0, 4.0])  # the ring: most of the power
         paths.append(folder / f"env{i}.exr")
         write_exr(paths[-1], sky.astype(np.float32), half=False)
     return paths
@@ -203,6 +210,8 @@ def test_spec_decoder_reconstructs_every_irradiance_encoding(stores, which):
     api = bakery.open_store(path)
     n = fibonacci(200)
     assert set(IRRADIANCE) <= set(store["encodings"])
+    # both readings of zh3_hallucinated_solved are exercised: Listing 1 (1) and plain sh2 (0)
+    assert set(store["encodings"]["zh3_hallucinated_solved"][1]["hallucinate"].ravel()) == {0, 1}
     for name, (attrs, fields) in store["encodings"].items():
         assert attrs["encoding_type"] == name and attrs["kind"] == "irradiance"
         settings = json.loads(attrs["settings"])
