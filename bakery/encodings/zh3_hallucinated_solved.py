@@ -50,8 +50,8 @@ import numpy as np
 from bakery.encodings.base import Encoding, EncodingParams, FieldSpec
 from bakery.encodings.registry import register
 from bakery.encodings.sh import LINEAR_SH, SH2
-from bakery.irradiance.sh_irradiance import evaluate_sh_irradiance
 from bakery.irradiance.hallucination import hallucination_beats_sh2, solve_hallucinated_linear
+from bakery.irradiance.sh_irradiance import evaluate_sh_irradiance
 from bakery.irradiance.zh3 import PAPER_HALLUCINATION_CURVE, evaluate_zh3_irradiance, hallucinate_zonal_l2
 from bakery.probe import ProbeBatch
 
@@ -95,7 +95,7 @@ class ZH3HallucinatedSolved(Encoding):
         linear, _ = solve_hallucinated_linear(radiance_sh, self.curve(), negative_guard=self.params.negative_guard)
         linear = linear.astype(np.float32)
         projected = radiance_sh[:, :4].astype(np.float32)
-        # Decided as stored (float32): Listing 1 on the solved band against plain SH2 on the projected one.
+        # Listing 1 on the solved band as stored (float32) against plain SH2 on the projected band.
         hallucinate = hallucination_beats_sh2(linear, radiance_sh, self.curve(), self.params.min_gain)
         return {"radiance_sh": np.where(hallucinate[:, None, None], linear, projected),
                 "hallucinate": hallucinate.astype(np.uint8)[:, None]}

@@ -153,8 +153,9 @@ BK_FLOAT3 bakery_zh3_hallucinate_zonal_l2(BK_FLOAT3 sh[4], BK_FLOAT3 axis, BK_FL
     return zonal;
 }
 
-// `zh3_hallucinated` (and `zh3_hallucinated_solved` where its flag is 1): radiance_sh (4 RGB) only; curve = the stored settings' `curve`
-// ((0.6, 0.08) for "paper", BAKERY_ZH3_PAPER_CURVE). With the paper's curve this is [ZH3] Listing 1 unchanged.
+// `zh3_hallucinated` (and `zh3_hallucinated_solved` where its flag is 1): radiance_sh (4 RGB) only; curve = the
+// stored settings' `curve` ((0.6, 0.08) for "paper", BAKERY_ZH3_PAPER_CURVE). With the paper's curve this is [ZH3]
+// Listing 1 unchanged.
 BK_FLOAT3 bakery_zh3_hallucinated_irradiance(BK_FLOAT3 sh[4], BK_FLOAT2 curve, BK_FLOAT3 n)
 {
     BK_FLOAT3 axis = bakery_zh3_luminance_axis(sh);
