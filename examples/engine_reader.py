@@ -96,11 +96,14 @@ def hallucinated_zonal(sh: np.ndarray, curve=PAPER_CURVE) -> np.ndarray:
 
 
 def hallucinated_solved_irradiance(fields: dict[str, np.ndarray], n: np.ndarray, curve=PAPER_CURVE) -> np.ndarray:
-    """`zh3_hallucinated_solved`: Listing 1 where the probe's flag `hallucinate` is 1, plain sh2 where it is 0
-    (version 1.1.0; 1.0.0 stores have no flag: Listing 1 everywhere)."""
+    """`zh3_hallucinated_solved`: Listing 1 with the zonal term times `zonal_scale` / 64 (version 1.2.0; 1.1.0
+    stores carry a 0/1 flag `hallucinate` instead, 1.0.0 stores neither: scale 1)."""
     sh = fields["radiance_sh"].astype(np.float64)
-    flag = np.asarray(fields.get("hallucinate", np.ones((len(sh), 1)))).reshape(-1, 1)
-    return zh3_irradiance(sh, hallucinated_zonal(sh, curve) * (flag != 0), n)
+    if "zonal_scale" in fields:
+        scale = np.asarray(fields["zonal_scale"]).reshape(-1, 1) / 64.0
+    else:
+        scale = np.asarray(fields.get("hallucinate", np.ones((len(sh), 1)))).reshape(-1, 1).astype(np.float64)
+    return zh3_irradiance(sh, hallucinated_zonal(sh, curve) * scale, n)
 
 
 def small_float(code: np.ndarray, mantissa_bits: int) -> np.ndarray:

@@ -18,9 +18,10 @@ Also measured per environment (from the stored arrays):
                           minimum of the decoded irradiance relative to its DC term
     eq11                  √(Eq. 11 / ‖t‖²) of the luminance-axis ZH3 and of the solver options (starts, the
                           reference solver's per-channel axes blended towards luminance, λ < 1)
-    hallucinate           the stored flag of ``zh3_hallucinated_solved`` (0: the probe is read as plain sh2)
-    hallucination_bound   where that flag is 0 (or the encoding is above sh2): the lowest Listing-1 SH error
-                          from 2048 random starts against sh2's (could any band have beaten SH2?)
+    zonal_scale           the stored scale s = code / 64 of ``zh3_hallucinated_solved``'s zonal term (1: Listing 1
+                          as published, 0: the probe is read as plain sh2)
+    hallucination_bound   where that scale is 0 (or the encoding is above sh2): the lowest SH error of Listing 1
+                          unchanged from 2048 random starts against sh2's (could any band have beaten SH2?)
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ from bakery.encodings import ENCODINGS, Encoding
 from bakery.encodings.quantized import ZH3Quantized
 from bakery.encodings.sh import SH2, SH3
 from bakery.encodings.zh3 import ZH3Deringed, ZH3Hallucinated
-from bakery.encodings.zh3_hallucinated_solved import ZH3HallucinatedSolved
+from bakery.encodings.zh3_hallucinated_solved import ZH3HallucinatedSolved, zonal_scale_of
 from bakery.environment.io import read_environment
 from bakery.environment.resample import environment_samples
 from bakery.errors import BakeryWarning
@@ -121,8 +122,8 @@ def run_irradiance_bench(folder: Path, face_size: int = 64, directions: int = 20
             row["quantized"] = _quantized_measures(store, normals, reference, row["errors"])
             row["eq11"] = _eq11_measures(radiance_sh3)
             solved = store.fields(ZH3HallucinatedSolved.name)
-            row["hallucinate"] = int(np.asarray(solved["hallucinate"]).reshape(-1)[0]) if "hallucinate" in solved else 1
-            if row["hallucinate"] == 0 or row["errors"][ZH3HallucinatedSolved.name] > row["errors"][SH2.name]:
+            row["zonal_scale"] = float(zonal_scale_of(solved, 1)[0])
+            if row["zonal_scale"] == 0 or row["errors"][ZH3HallucinatedSolved.name] > row["errors"][SH2.name]:
                 row["hallucination_bound"] = _hallucination_bound(radiance_sh3)
     if len(rows) >= 3:
         # Hallucination with a curve fitted to the *other* environments (leave-one-out): what a bake that fits the
@@ -252,11 +253,11 @@ def format_table(result: dict) -> str:
             + " |")
         bounds = [r for r in rows if "hallucination_bound" in r]
         if bounds:
-            lines += ["", (f"| environment | `hallucinate` | {ZH3HallucinatedSolved.name} / SH2 | Listing 1, best of "
+            lines += ["", (f"| environment | zonal scale | {ZH3HallucinatedSolved.name} / SH2 | Listing 1, best of "
                            "2048 random starts (SH error) | SH2 (SH error) |"), "|---|---|---|---|---|"]
             for r in bounds:
                 b = r["hallucination_bound"]
-                lines.append(f"| {r['environment']} | {r['hallucinate']} | "
+                lines.append(f"| {r['environment']} | {r['zonal_scale']:.3g} | "
                              f"{r['ratio_vs_sh2'][ZH3HallucinatedSolved.name]:.3f} | "
                              f"{b['best_listing1']:.5f} | {b['baseline']:.5f} |")
     return "\n".join(lines)

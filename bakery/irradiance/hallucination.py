@@ -1,5 +1,5 @@
-"""Solved hallucination: linear SH chosen so that the paper's hallucinated ZH3 ([ZH3] Eq. 21, Listing 1) best
-matches the probe's full irradiance.
+"""Solved hallucination: linear SH, and a per-probe scale of the zonal term, chosen so that the paper's hallucinated
+ZH3 ([ZH3] Eq. 21, Listing 1) best matches the probe's full irradiance.
 
 References
     [ZH3]  T. Roughton, P.-P. Sloan, A. Silvennoinen, M. Iwanicki, P. Shirley, "ZH3: Quadratic Zonal Harmonics",
@@ -9,6 +9,8 @@ References
            ``ZH3HallucinateSharedLuminanceSolver``: the same idea, four tetrahedral starts, L-BFGS. Re-derived here
            (no code taken): bakery's objective is the irradiance error of every channel with equal weight (the
            bench's metric) and keeps the reader's luminance axis (Rec.709 weights, Listing 1) and its abs().
+    [VP]   G. H. Golub, V. Pereyra, "The Differentiation of Pseudo-Inverses and Nonlinear Least Squares Problems
+           Whose Variables Separate", SIAM J. Numer. Anal. 10(2), 1973 (eliminating the linear zonal scale).
 
 The reader is unchanged: Listing 1 applied to the stored (f0, f1) (:func:`bakery.irradiance.zh3.
 hallucinate_zonal_l2`). Only the stored linear band differs from the projected one.
@@ -34,13 +36,22 @@ Objective (derivation)
 
 Why the projected band is not always kept, and why SH2 can still win
     Listing 1 always adds a zonal term z_c ≥ 0 along the luminance axis. Moving the stored L1 trades L1 error for
-    a better zonal term, which the solve does. But Σ_c w_c d_c = ‖u‖ > 0, so no stored band switches the zonal
+    a better zonal term, which the solve does. But Σ_c w_c d_c ≥ ‖u‖ > 0, so no stored band switches the zonal
     term off: where the capture's L2 band is not a positive zonal lobe about the light (interiors lit by a ring
     of lamps), *every* 48-byte input to Listing 1 is worse than plain SH2 (``docs/irradiance.md``: 2048 random
     starts per map on ``lobby`` and ``night``, ``bakery bench irradiance``). For those probes the encoding stores
-    the projected band with its per-probe flag ``hallucinate`` = 0, which drops the zonal term at evaluation
-    (plain SH2; :func:`hallucination_beats_sh2` decides, exactly against the capture by the same Parseval
-    argument: SH2's error is the objective with z_c = 0, :func:`plain_sh2_sh_error`).
+    the projected band with scale 0, which drops the zonal term at evaluation (plain SH2;
+    :func:`hallucination_beats_sh2` decides, exactly against the capture by the same Parseval argument: SH2's
+    error is the objective with z_c = 0, :func:`plain_sh2_sh_error`).
+
+The zonal scale (``zh3_hallucinated_solved`` 1.2.0)
+    Eq. 21 sizes the zonal term from the L1/L0 ratio alone, a curve fitted to production maps; on a given probe
+    the capture's zonal coefficient is often larger or smaller (``studio``: the best scale is 2.6). One stored
+    byte g multiplies Listing 1's zonal term, z_c = g h_c, with h_c the term above; the axis and each channel's
+    share stay hallucinated from the band. The objective is the one above with z_c = g h_c: quadratic in g for a
+    fixed band (:func:`optimal_zonal_scale`), so :func:`solve_scaled_hallucination` eliminates g (variable
+    projection) and runs BFGS over the band alone. ∂E/∂v at fixed g is the gradient above with ∂z_c/∂d_c scaled
+    by g.
 """
 
 from __future__ import annotations
@@ -71,46 +82,78 @@ _K2 = sqrt(4.0 * pi / 5.0)
 _IRRADIANCE_SCALE = np.array([pi] + [_A1] * 3 + [_A2] * 5)
 
 
-def _hallucination_error(
-    vector: np.ndarray, radiance_sh: np.ndarray, curve: tuple[float, float]
-) -> tuple[np.ndarray, np.ndarray]:
-    """Irradiance SH error (P,) of Listing 1 with linear band vectors ``vector`` (P, 3, C) and DC r0 against the
-    capture's radiance SH3 ``radiance_sh`` (P, 9, C), and its gradient (P, 3, C) (module derivation)."""
+#: ``zonal_scale`` codes per unit gain (``zh3_hallucinated_solved`` 1.2.0): scale = code / 64, so code 64 is
+#: Listing 1 as published, 0 is plain SH2 and 255 the largest scale, 3.98 (schemas/store-v1.md).
+ZONAL_SCALE_UNIT = 64
+MAX_ZONAL_SCALE_CODE = 255
+
+
+def _listing1_terms(vector: np.ndarray, radiance_sh: np.ndarray, curve: tuple[float, float]) -> dict:
+    """Listing 1's pieces for linear band vectors ``vector`` (P, 3, C) and the capture's radiance SH3 (P, 9, C):
+    axis a (P, 3), d_c = v_c·a, the unit-scale zonal term h_c = c2 d_c²/f0_c + c1 |d_c| and ∂h_c/∂d_c (P, C), the
+    best zonal value s_c (P, C) and the pieces of the axis gradient (module derivation)."""
     c2, c1 = curve
     f0 = radiance_sh[:, 0]
-    rho = linear_band_vector(radiance_sh)
-    r2 = radiance_sh[:, 4:9]
     u = np.einsum("pjc,c->pj", vector, LUMINANCE_WEIGHTS)
     norm_u = np.linalg.norm(u, axis=-1)
     degenerate = ~(norm_u > 1e-30)  # the reader's fallback axis; no axis gradient there
     safe_norm = np.where(degenerate, 1.0, norm_u)
     a = np.where(degenerate[:, None], FALLBACK_AXIS[None, :], u / safe_norm[:, None])
-    s = _K2 * np.einsum("pk,pkc->pc", band2_at(a), r2)
+    r2 = radiance_sh[:, 4:9]
     d = np.einsum("pj,pjc->pc", a, vector)
     positive = f0 > 0  # p = 0 where f0 <= 0 (schemas/store-v1.md)
     safe_f0 = np.where(positive, f0, 1.0)
-    z = np.where(positive, c2 * d * d / safe_f0 + c1 * np.abs(d), 0.0)
+    return {"a": a, "d": d, "r2": r2, "degenerate": degenerate, "safe_norm": safe_norm,
+            "s": _K2 * np.einsum("pk,pkc->pc", band2_at(a), r2),
+            "h": np.where(positive, c2 * d * d / safe_f0 + c1 * np.abs(d), 0.0),
+            "dh_dd": np.where(positive, 2.0 * c2 * d / safe_f0 + c1 * np.sign(d), 0.0)}
+
+
+def _hallucination_error(
+    vector: np.ndarray, radiance_sh: np.ndarray, curve: tuple[float, float], scale: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Irradiance SH error (P,) of Listing 1 with linear band vectors ``vector`` (P, 3, C), DC r0 and its zonal
+    term scaled by ``scale`` (P,) (None: 1, the paper's) against the capture's radiance SH3 ``radiance_sh``
+    (P, 9, C), and its gradient (P, 3, C) with respect to ``vector`` (module derivation, z_c = scale · h_c)."""
+    t = _listing1_terms(vector, radiance_sh, curve)
+    a, d, r2, s = t["a"], t["d"], t["r2"], t["s"]
+    g = np.ones(len(vector)) if scale is None else np.asarray(scale, dtype=np.float64)
+    rho = linear_band_vector(radiance_sh)
+    z = g[:, None] * t["h"]
     error = (_A1**2 * np.sum((vector - rho) ** 2, axis=(1, 2))
              + _A2**2 * np.sum((z - s) ** 2 + np.sum(r2**2, axis=1) - s**2, axis=1))
     de_dz = 2.0 * _A2**2 * (z - s)
-    de_dd = de_dz * np.where(positive, 2.0 * c2 * d / safe_f0 + c1 * np.sign(d), 0.0)
+    de_dd = de_dz * g[:, None] * t["dh_dd"]
     de_da = (np.einsum("pc,pjc->pj", de_dd, vector)
              - 2.0 * _A2**2 * _K2 * np.einsum("pc,pkj,pkc->pj", z, band2_jacobian(a), r2))
-    de_du = np.where(degenerate[:, None], 0.0,
+    safe_norm = t["safe_norm"]
+    de_du = np.where(t["degenerate"][:, None], 0.0,
                      (de_da - a * np.sum(a * de_da, axis=-1, keepdims=True)) / safe_norm[:, None])
     grad = (2.0 * _A1**2 * (vector - rho) + a[:, :, None] * de_dd[:, None, :]
             + de_du[:, :, None] * LUMINANCE_WEIGHTS[None, None, :])
     return error, grad
 
 
+def optimal_zonal_scale(vector: np.ndarray, radiance_sh: np.ndarray,
+                       curve: tuple[float, float] = PAPER_HALLUCINATION_CURVE) -> np.ndarray:
+    """The scale g (P,) that minimises the error of Listing 1's zonal term g·h_c for fixed linear band vectors
+    ``vector`` (P, 3, C): the error is A2² Σ_c (g h_c − s_c)² + const in g, so g = Σ_c h_c s_c / Σ_c h_c²,
+    clipped to [0, the largest stored scale] (1 where h = 0: the scale does not matter)."""
+    t = _listing1_terms(vector, radiance_sh, curve)
+    hh = np.sum(t["h"] ** 2, axis=1)
+    g = np.sum(t["h"] * t["s"], axis=1) / np.where(hh > 0, hh, 1.0)
+    return np.where(hh > 0, np.clip(g, 0.0, MAX_ZONAL_SCALE_CODE / ZONAL_SCALE_UNIT), 1.0)
+
+
 def hallucination_sh_error(
-    linear_sh: np.ndarray, radiance_sh: np.ndarray, curve: tuple[float, float] = PAPER_HALLUCINATION_CURVE
+    linear_sh: np.ndarray, radiance_sh: np.ndarray, curve: tuple[float, float] = PAPER_HALLUCINATION_CURVE,
+    scale: np.ndarray | None = None,
 ) -> np.ndarray:
     """‖E_h − E_≤2‖² (P,): irradiance SH error of Listing 1 on ``linear_sh`` (P, 4, C) (its DC replaced by the
-    capture's) against the capture's radiance SH3 (P, 9, C); equals the squared L2 error against the full
-    irradiance minus a constant per probe (module derivation)."""
+    capture's), its zonal term times ``scale`` (P,) (None: 1), against the capture's radiance SH3 (P, 9, C);
+    equals the squared L2 error against the full irradiance minus a constant per probe (module derivation)."""
     sh = np.array(radiance_sh[:, :9], dtype=np.float64)
-    error, _ = _hallucination_error(linear_band_vector(np.asarray(linear_sh, dtype=np.float64)), sh, curve)
+    error, _ = _hallucination_error(linear_band_vector(np.asarray(linear_sh, dtype=np.float64)), sh, curve, scale)
     return error
 
 
@@ -126,15 +169,15 @@ def plain_sh2_sh_error(linear_sh: np.ndarray, radiance_sh: np.ndarray) -> np.nda
 
 def hallucination_beats_sh2(
     linear_sh: np.ndarray, radiance_sh: np.ndarray, curve: tuple[float, float] = PAPER_HALLUCINATION_CURVE,
-    min_gain: float = 0.01,
+    min_gain: float = 0.01, scale: np.ndarray | None = None,
 ) -> np.ndarray:
-    """(P,) bool: Listing 1 on ``linear_sh`` (P, 4, C) has a band-≤2 irradiance error against the capture at least
-    ``min_gain`` (relative) below plain ``sh2`` on the capture's projected band — the per-probe choice of
-    ``zh3_hallucinated_solved``'s ``hallucinate`` flag. Both are the L2 error against the capture's full
+    """(P,) bool: Listing 1 on ``linear_sh`` (P, 4, C), its zonal term times ``scale`` (P,) (None: 1), has a
+    band-≤2 irradiance error against the capture at least ``min_gain`` (relative) below plain ``sh2`` on the
+    capture's projected band — where it has not, ``zh3_hallucinated_solved`` stores ``zonal_scale`` = 0. Both are the L2 error against the capture's full
     irradiance minus the same constant ‖E_>2‖² (Parseval), so the order is exact; ``min_gain`` keeps near-ties
     (which the capture's resampling can flip against the true environment) on the plain reconstruction."""
     sh = np.array(radiance_sh[:, :9], dtype=np.float64)
-    hallucinated = hallucination_sh_error(linear_sh, sh, curve)
+    hallucinated = hallucination_sh_error(linear_sh, sh, curve, scale)
     plain = plain_sh2_sh_error(sh[:, :4], sh)
     return np.isfinite(hallucinated) & (hallucinated < (1.0 - min_gain) * plain)
 
@@ -143,33 +186,45 @@ def hallucination_beats_sh2(
 GUARD_STEPS = np.linspace(1.0, 0.0, 17)
 
 
-def hallucinated_minimum(linear_sh: np.ndarray, curve: tuple[float, float] = PAPER_HALLUCINATION_CURVE) -> np.ndarray:
-    """Exact minimum over the sphere (P, C) of the Listing-1 irradiance of linear SH (P, 4, C) (the zonal term as
-    band-2 SH, :func:`~bakery.irradiance.zh3.expand_zh3_to_sh3`; trust-region minimum of
-    :func:`~bakery.irradiance.sh_irradiance.minimum_sh_irradiance`)."""
+def hallucinated_minimum(linear_sh: np.ndarray, curve: tuple[float, float] = PAPER_HALLUCINATION_CURVE,
+                         scale: np.ndarray | None = None) -> np.ndarray:
+    """Exact minimum over the sphere (P, C) of the Listing-1 irradiance of linear SH (P, 4, C), its zonal term
+    times ``scale`` (P,) (None: 1) (the zonal term as band-2 SH, :func:`~bakery.irradiance.zh3.expand_zh3_to_sh3`;
+    trust-region minimum of :func:`~bakery.irradiance.sh_irradiance.minimum_sh_irradiance`)."""
     axis = luminance_axis(linear_sh)
-    return minimum_sh_irradiance(expand_zh3_to_sh3(linear_sh, hallucinate_zonal_l2(linear_sh, curve), axis))
+    zonal = hallucinate_zonal_l2(linear_sh, curve)
+    if scale is not None:
+        zonal = np.asarray(scale, dtype=np.float64)[:, None] * zonal
+    return minimum_sh_irradiance(expand_zh3_to_sh3(linear_sh, zonal, axis))
 
 
-def _guard_negative(solved: np.ndarray, projected: np.ndarray, curve: tuple[float, float]) -> np.ndarray:
-    """Move each solved band (P, 4, C) back along the segment towards the projected band (t ∈ :data:`GUARD_STEPS`,
-    the largest t that passes) until no channel's minimum irradiance is below min(0, its minimum with the projected
-    band): the solve then never adds negative lobes the paper's hallucination does not have (t = 0 always passes)."""
+def _guard_negative(solved: np.ndarray, projected: np.ndarray, curve: tuple[float, float],
+                    code: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Move each solved band (P, 4, C) and its ``zonal_scale`` code (P,) (None: the paper's, 64) back along the
+    segment towards the projected band with the paper's code (t ∈ :data:`GUARD_STEPS`, the largest t that passes;
+    codes rounded along the way) until no channel's minimum irradiance is below min(0, its minimum under the
+    paper's hallucination): the solve then never adds negative lobes the paper's hallucination does not have
+    (t = 0, the paper's, always passes). Returns the bands and codes."""
+    unit = float(ZONAL_SCALE_UNIT)
+    code = np.full(len(solved), ZONAL_SCALE_UNIT) if code is None else np.asarray(code)
     floor = np.minimum(hallucinated_minimum(projected, curve), 0.0)  # (P, C)
     allowance = 1e-12 * np.abs(projected[:, 0]).max(axis=-1)[:, None]  # rounding, relative to the DC
-    out = solved.copy()
+    out, out_code = solved.copy(), code.copy()
     # Most solutions pass at t = 1; only the others are backtracked over the whole grid.
-    failing = np.flatnonzero(~np.all(hallucinated_minimum(solved, curve) >= floor - allowance, axis=-1))
+    failing = np.flatnonzero(~np.all(hallucinated_minimum(solved, curve, code / unit) >= floor - allowance, axis=-1))
     if failing.size:
         start, end = projected[failing], solved[failing]
         steps = GUARD_STEPS
         trial = start[:, None] + steps[None, :, None, None] * (end - start)[:, None]  # (F, T, 4, C)
-        minima = hallucinated_minimum(trial.reshape(-1, *solved.shape[1:]), curve).reshape(failing.size, len(steps), -1)
+        trial_code = np.rint(unit + steps[None, :] * (code[failing, None] - unit))  # (F, T)
+        minima = hallucinated_minimum(trial.reshape(-1, *solved.shape[1:]), curve,
+                                      trial_code.reshape(-1) / unit).reshape(failing.size, len(steps), -1)
         passes = np.all(minima >= floor[failing, None, :] - allowance[failing, None, :], axis=-1)
         passes[:, -1] = True  # t = 0 is the projected band itself
         first = np.argmax(passes, axis=1)  # steps run from t = 1 down: the first pass is the largest t
         out[failing] = trial[np.arange(failing.size), first]
-    return out
+        out_code[failing] = trial_code[np.arange(failing.size), first]
+    return out, out_code.astype(code.dtype)
 
 
 def solve_hallucinated_linear(
@@ -220,7 +275,7 @@ def solve_hallucinated_linear(
     guarded = np.zeros(p, dtype=bool)
     if negative_guard:
         as_linear = np.concatenate([sh[:, :1], _vector_to_linear(vector)], axis=1)
-        moved = _guard_negative(as_linear, sh[:, :4], curve)
+        moved, _ = _guard_negative(as_linear, sh[:, :4], curve)
         guarded = np.any(moved != as_linear, axis=(1, 2))
         vector = linear_band_vector(moved).astype(np.float32).astype(np.float64)
     error = _hallucination_error(vector, sh, curve)[0]
@@ -230,6 +285,72 @@ def solve_hallucinated_linear(
     linear = np.concatenate([sh[:, :1], _vector_to_linear(vector)], axis=1)
     return linear, {"solved": int(kept.sum()), "fallback": int((~kept).sum()), "guarded": int(guarded.sum()),
                     "iterations": iterations}
+
+
+def solve_scaled_hallucination(
+    radiance_sh: np.ndarray, curve: tuple[float, float] = PAPER_HALLUCINATION_CURVE, max_iterations: int = 60,
+    negative_guard: bool = True,
+) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Linear SH (P, 4, C) and ``zonal_scale`` codes (P,) whose Listing-1 reconstruction, its zonal term times
+    code / :data:`ZONAL_SCALE_UNIT`, best matches the capture's irradiance (module derivation with z_c = g·h_c),
+    batched over probes.
+
+    Variable projection ([VP]): for a fixed band the error is quadratic in the scale g, minimised by
+    :func:`optimal_zonal_scale`, so BFGS (:func:`~bakery.irradiance.zh3.batched_bfgs`) runs over the nine band
+    parameters of E(v, g*(v)), whose gradient is ∂E/∂v at g = g*(v) (∂E/∂g = 0 there, or g* is at a bound). Five
+    starts, as :func:`solve_hallucinated_linear`; per probe the best is kept, its scale rounded to a code and the
+    band re-solved at that scale, then (``negative_guard``) moved back towards the paper's hallucination until it
+    adds no negative lobe (:func:`_guard_negative`). Per probe the lower of {that, the paper's hallucination
+    (projected band, code 64)} is returned, so the result is never worse than ``zh3_hallucinated`` against the
+    capture; code 64 with a solved band is :func:`solve_hallucinated_linear`'s answer space.
+
+    Args:
+        radiance_sh: (P, 9, C) radiance SH3 of the capture.
+    Returns:
+        linear SH (P, 4, C) float64 (float32-representable), codes (P,) uint8, and {"solved": probes that differ
+        from the paper's, "guarded": probes the guard moved, "iterations": the most BFGS iterations used}.
+    """
+    sh = np.array(radiance_sh[:, :9], dtype=np.float64)
+    p, _, ch = sh.shape
+    everything = np.arange(p)
+    projected = linear_band_vector(sh)
+    weight = 1.0 / np.maximum(np.sum((sh * _IRRADIANCE_SCALE[None, :, None]) ** 2, axis=(1, 2)), 1e-300)
+
+    def reduced(flat: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        vector = flat.reshape(rows.size, 3, ch)
+        e, g = _hallucination_error(vector, sh[rows], curve, optimal_zonal_scale(vector, sh[rows], curve))
+        return e * weight[rows], (g * weight[rows, None, None]).reshape(rows.size, -1)
+
+    iterations, solutions, errors = 0, [], []
+    for start in [projected, *tetrahedral_starts(projected)]:
+        solved, used = batched_bfgs(reduced, start.reshape(p, -1), max_iterations)
+        iterations = max(iterations, used)
+        solutions.append(solved)
+        errors.append(np.where(np.isfinite(e := reduced(solved, everything)[0]), e, np.inf))
+    best = np.stack(solutions)[np.argmin(np.stack(errors), axis=0), everything].reshape(p, 3, ch)
+    code = np.clip(np.rint(optimal_zonal_scale(best, sh, curve) * ZONAL_SCALE_UNIT), 0, MAX_ZONAL_SCALE_CODE)
+    scale = code / ZONAL_SCALE_UNIT
+
+    def fixed_scale(flat: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        e, g = _hallucination_error(flat.reshape(rows.size, 3, ch), sh[rows], curve, scale[rows])
+        return e * weight[rows], (g * weight[rows, None, None]).reshape(rows.size, -1)
+
+    solved, used = batched_bfgs(fixed_scale, best.reshape(p, -1), max_iterations)
+    iterations = max(iterations, used)
+    vector = solved.reshape(p, 3, ch).astype(np.float32).astype(np.float64)  # compared as stored
+    guarded = np.zeros(p, dtype=bool)
+    if negative_guard:
+        as_linear = np.concatenate([sh[:, :1], _vector_to_linear(vector)], axis=1)
+        moved, moved_code = _guard_negative(as_linear, sh[:, :4], curve, code)
+        guarded = np.any(moved != as_linear, axis=(1, 2)) | (moved_code != code)
+        vector, code = linear_band_vector(moved).astype(np.float32).astype(np.float64), moved_code
+    error = _hallucination_error(vector, sh, curve, code / ZONAL_SCALE_UNIT)[0]
+    paper = _hallucination_error(projected, sh, curve)[0]
+    kept = np.where(np.isfinite(error), error, np.inf) < paper  # strictly better than the paper's, else it
+    vector = np.where(kept[:, None, None], vector, projected)
+    code = np.where(kept, code, ZONAL_SCALE_UNIT).astype(np.uint8)
+    linear = np.concatenate([sh[:, :1], _vector_to_linear(vector)], axis=1)
+    return linear, code, {"solved": int(kept.sum()), "guarded": int(guarded.sum()), "iterations": iterations}
 
 
 def random_start_bound(radiance_sh: np.ndarray, starts: int = 512, seed: int = 0,

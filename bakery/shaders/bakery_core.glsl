@@ -153,7 +153,7 @@ BK_FLOAT3 bakery_zh3_hallucinate_zonal_l2(BK_FLOAT3 sh[4], BK_FLOAT3 axis, BK_FL
     return zonal;
 }
 
-// `zh3_hallucinated` (and `zh3_hallucinated_solved` where its flag is 1): radiance_sh (4 RGB) only; curve = the
+// `zh3_hallucinated` (and `zh3_hallucinated_solved` at zonal_scale 64): radiance_sh (4 RGB) only; curve = the
 // stored settings' `curve` ((0.6, 0.08) for "paper", BAKERY_ZH3_PAPER_CURVE). With the paper's curve this is [ZH3]
 // Listing 1 unchanged.
 BK_FLOAT3 bakery_zh3_hallucinated_irradiance(BK_FLOAT3 sh[4], BK_FLOAT2 curve, BK_FLOAT3 n)
@@ -162,11 +162,14 @@ BK_FLOAT3 bakery_zh3_hallucinated_irradiance(BK_FLOAT3 sh[4], BK_FLOAT2 curve, B
     return bakery_sh2_irradiance(sh, n) + bakery_zonal_l2_irradiance(bakery_zh3_hallucinate_zonal_l2(sh, axis, curve), axis, n);
 }
 
-// `zh3_hallucinated_solved` (1.1.0): radiance_sh (4 RGB) + the per-probe flag `hallucinate` (1 byte): Listing 1
-// where it is 1, plain `sh2` where it is 0 (the probes where no linear band makes Listing 1 beat SH2).
-BK_FLOAT3 bakery_zh3_hallucinated_solved_irradiance(BK_FLOAT3 sh[4], BK_FLOAT2 curve, int hallucinate, BK_FLOAT3 n)
+// `zh3_hallucinated_solved` (1.2.0): radiance_sh (4 RGB) + the per-probe byte `zonal_scale`: Listing 1 with its
+// zonal term times zonal_scale / 64 (64: Listing 1 as published; 0: plain `sh2`, the probes where nothing beats it).
+// A 1.1.0 store's 0/1 flag `hallucinate` is passed as zonal_scale = 64 × flag.
+BK_FLOAT3 bakery_zh3_hallucinated_solved_irradiance(BK_FLOAT3 sh[4], BK_FLOAT2 curve, int zonal_scale, BK_FLOAT3 n)
 {
-    return hallucinate != 0 ? bakery_zh3_hallucinated_irradiance(sh, curve, n) : bakery_sh2_irradiance(sh, n);
+    BK_FLOAT3 axis = bakery_zh3_luminance_axis(sh);
+    BK_FLOAT3 zonal = (float(zonal_scale) / 64.0) * bakery_zh3_hallucinate_zonal_l2(sh, axis, curve);
+    return bakery_sh2_irradiance(sh, n) + bakery_zonal_l2_irradiance(zonal, axis, n);
 }
 
 // ============================================================================================ quantized layouts

@@ -113,9 +113,8 @@ def spec_irradiance(kind, fields, settings, row, n):
         return zh3_irradiance(fields["radiance_sh"][row].astype(np.float64), fields["zonal_l2"][row].astype(np.float64), n)
     if kind in ("zh3_hallucinated", "zh3_hallucinated_solved"):
         linear = fields["radiance_sh"][row].astype(np.float64)
-        if kind == "zh3_hallucinated_solved" and int(fields["hallucinate"][row][0]) == 0:
-            return sh_irradiance(linear, n)  # the flag: plain sh2
-        return zh3_irradiance(linear, hallucinated_zonal(linear, parse_curve(settings)), n)
+        scale = int(fields["zonal_scale"][row][0]) / 64 if kind == "zh3_hallucinated_solved" else 1.0
+        return zh3_irradiance(linear, scale * hallucinated_zonal(linear, parse_curve(settings)), n)
     if kind == "zh3_quantized":
         f0, c = decode_packed(fields["packed"][row], BOUNDS[:3] + [ZONAL_BOUNDS], settings["sqrt_companding"])
         return zh3_irradiance(np.concatenate([f0[None], c[:3]]), c[3], n)
@@ -167,7 +166,7 @@ def read(path):
 # ------------------------------------------------------------------------------------------------- the stores
 def _environments(folder, count=4):
     """Two sun-and-lamp skies, a plain gradient and (last) a lamp over a ring of lamps on the horizon: an interior
-    whose L2 band is negative along the light, so ``zh3_hallucinated_solved`` stores its SH2 flag (0) there."""
+    whose L2 band is negative along the light, so ``zh3_hallucinated_solved`` stores scale 0 (plain SH2) there."""
     rng = np.random.default_rng(17)
     paths = []
     h = 16
@@ -210,8 +209,9 @@ def test_spec_decoder_reconstructs_every_irradiance_encoding(stores, which):
     api = bakery.open_store(path)
     n = fibonacci(200)
     assert set(IRRADIANCE) <= set(store["encodings"])
-    # both readings of zh3_hallucinated_solved are exercised: Listing 1 (1) and plain sh2 (0)
-    assert set(store["encodings"]["zh3_hallucinated_solved"][1]["hallucinate"].ravel()) == {0, 1}
+    # zh3_hallucinated_solved is exercised at scale 0 (plain sh2) and at solved scales other than Listing 1's 64
+    codes = set(store["encodings"]["zh3_hallucinated_solved"][1]["zonal_scale"].ravel())
+    assert 0 in codes and codes - {0, 64}
     for name, (attrs, fields) in store["encodings"].items():
         assert attrs["encoding_type"] == name and attrs["kind"] == "irradiance"
         settings = json.loads(attrs["settings"])

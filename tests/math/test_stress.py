@@ -220,8 +220,8 @@ def test_huge_radiance_keeps_every_stored_field_finite(name):
 
 
 def _narrow_storage(name: str) -> bool:
-    """Radiance stored in ≤ 16 bits: float16 fields or packed byte layouts (one uint8 per probe is a flag, e.g.
-    ``zh3_hallucinated_solved``'s ``hallucinate``, and holds no radiance)."""
+    """Radiance stored in ≤ 16 bits: float16 fields or packed byte layouts (one uint8 per probe is a scale or flag,
+    e.g. ``zh3_hallucinated_solved``'s ``zonal_scale``, and holds no radiance)."""
     return any((np.dtype(s.dtype).kind == "f" and np.dtype(s.dtype).itemsize <= 2)
                or (np.dtype(s.dtype) == np.uint8 and s.nbytes > 1) for s in encoding(name).field_specs())
 
