@@ -12,8 +12,9 @@ References
     [VP]   G. H. Golub, V. Pereyra, "The Differentiation of Pseudo-Inverses and Nonlinear Least Squares Problems
            Whose Variables Separate", SIAM J. Numer. Anal. 10(2), 1973 (eliminating the linear zonal scale).
 
-The reader is unchanged: Listing 1 applied to the stored (f0, f1) (:func:`bakery.irradiance.zh3.
-hallucinate_zonal_l2`). Only the stored linear band differs from the projected one.
+The reader is Listing 1 applied to the stored (f0, f1) (:func:`bakery.irradiance.zh3.hallucinate_zonal_l2`), its
+zonal term times the stored scale (1 for the paper's shader). Only the stored linear band and the scale differ
+from the projected band and 1.
 
 Objective (derivation)
     The hallucinated irradiance is a band-≤2 polynomial, E_h = Σ_{l≤2} A_l h_lm Y_lm with h_0 = f0, h_1 = f1 and
@@ -36,7 +37,7 @@ Objective (derivation)
 
 Why the projected band is not always kept, and why SH2 can still win
     Listing 1 always adds a zonal term z_c ≥ 0 along the luminance axis. Moving the stored L1 trades L1 error for
-    a better zonal term, which the solve does. But Σ_c w_c d_c ≥ ‖u‖ > 0, so no stored band switches the zonal
+    a better zonal term, which the solve does. But Σ_c w_c d_c = ‖u‖ > 0, so no stored band switches the zonal
     term off: where the capture's L2 band is not a positive zonal lobe about the light (interiors lit by a ring
     of lamps), *every* 48-byte input to Listing 1 is worse than plain SH2 (``docs/irradiance.md``: 2048 random
     starts per map on ``lobby`` and ``night``, ``bakery bench irradiance``). For those probes the encoding stores
@@ -46,7 +47,7 @@ Why the projected band is not always kept, and why SH2 can still win
 
 The zonal scale (``zh3_hallucinated_solved`` 1.2.0)
     Eq. 21 sizes the zonal term from the L1/L0 ratio alone, a curve fitted to production maps; on a given probe
-    the capture's zonal coefficient is often larger or smaller (``studio``: the best scale is 2.6). One stored
+    the capture's zonal coefficient is often larger or smaller (``studio``: the best scale is 2.7). One stored
     byte g multiplies Listing 1's zonal term, z_c = g h_c, with h_c the term above; the axis and each channel's
     share stay hallucinated from the band. The objective is the one above with z_c = g h_c: quadratic in g for a
     fixed band (:func:`optimal_zonal_scale`), so :func:`solve_scaled_hallucination` eliminates g (variable
@@ -82,7 +83,7 @@ _K2 = sqrt(4.0 * pi / 5.0)
 _IRRADIANCE_SCALE = np.array([pi] + [_A1] * 3 + [_A2] * 5)
 
 
-#: ``zonal_scale`` codes per unit gain (``zh3_hallucinated_solved`` 1.2.0): scale = code / 64, so code 64 is
+#: ``zonal_scale`` codes per unit scale (``zh3_hallucinated_solved`` 1.2.0): scale = code / 64, so code 64 is
 #: Listing 1 as published, 0 is plain SH2 and 255 the largest scale, 3.98 (schemas/store-v1.md).
 ZONAL_SCALE_UNIT = 64
 MAX_ZONAL_SCALE_CODE = 255
@@ -173,9 +174,10 @@ def hallucination_beats_sh2(
 ) -> np.ndarray:
     """(P,) bool: Listing 1 on ``linear_sh`` (P, 4, C), its zonal term times ``scale`` (P,) (None: 1), has a
     band-≤2 irradiance error against the capture at least ``min_gain`` (relative) below plain ``sh2`` on the
-    capture's projected band — where it has not, ``zh3_hallucinated_solved`` stores ``zonal_scale`` = 0. Both are the L2 error against the capture's full
-    irradiance minus the same constant ‖E_>2‖² (Parseval), so the order is exact; ``min_gain`` keeps near-ties
-    (which the capture's resampling can flip against the true environment) on the plain reconstruction."""
+    capture's projected band — where it has not, ``zh3_hallucinated_solved`` stores ``zonal_scale`` = 0. Both
+    are the L2 error against the capture's full irradiance minus the same constant ‖E_>2‖² (Parseval), so the
+    order is exact; ``min_gain`` keeps near-ties (which the capture's resampling can flip against the true
+    environment) on the plain reconstruction."""
     sh = np.array(radiance_sh[:, :9], dtype=np.float64)
     hallucinated = hallucination_sh_error(linear_sh, sh, curve, scale)
     plain = plain_sh2_sh_error(sh[:, :4], sh)
