@@ -350,3 +350,21 @@ def test_shared_maps_solved_hallucination_beats_the_papers_and_sh2_everywhere(sh
         ratios.append(ours / paper)
     assert np.mean(ratios) < 0.9
     assert 0 in codes and len(set(codes) - {0, 64}) >= 3  # SH2 and solved scales both occur on real maps
+
+
+def test_encoding_is_bit_identical_whatever_the_batch_split():
+    """Determinism: the batched solve treats every probe on its own, so a probe's stored bytes do not depend on
+    which probes share its batch (workers and shards split batches differently)."""
+    from tests.encodings.test_quantized_search import sunny_cubes
+
+    rng = np.random.default_rng(4)
+    cubes = np.concatenate([sunny_cubes(rng, 5),
+                            np.stack([lamp_and_ring_cube(rng) for _ in range(3)]).astype(np.float32)])
+    encoding = ZH3HallucinatedSolved()
+    whole = encoding.encode(ProbeBatch(cubes))
+    for split in ([1] * 8, [3, 5], [2, 2, 4]):
+        bounds = np.cumsum([0, *split])
+        parts = [encoding.encode(ProbeBatch(cubes[a:b])) for a, b in zip(bounds[:-1], bounds[1:])]
+        for key, value in whole.items():
+            np.testing.assert_array_equal(value, np.concatenate([p[key] for p in parts]), err_msg=key)
+    assert len(set(whole["zonal_scale"].ravel()) - {0, 64}) >= 2  # solved scales, not only the paper's
