@@ -229,6 +229,28 @@ def _guard_negative(solved: np.ndarray, projected: np.ndarray, curve: tuple[floa
     return out, out_code.astype(code.dtype)
 
 
+def _irradiance_energy(radiance_sh: np.ndarray) -> np.ndarray:
+    """‖t‖² (P,): the squared norm of the capture's band-≤2 irradiance SH (P, 9, C), floored away from 0."""
+    return np.maximum(np.sum((radiance_sh * _IRRADIANCE_SCALE[None, :, None]) ** 2, axis=(1, 2)), 1e-300)
+
+
+def _bfgs_objective(radiance_sh: np.ndarray, curve: tuple[float, float], scale=None):
+    """The ``objective(flat (A, 3C), rows (A,))`` of :func:`~bakery.irradiance.zh3.batched_bfgs` over linear band
+    vectors: :func:`_hallucination_error` of probes ``rows`` divided by their ‖t‖², so one tolerance fits all.
+    ``scale``: None (1, the paper's), an array (P,) of fixed scales, or a callable (vector, rows) → (A,) (the
+    variable-projection scale of :func:`solve_scaled_hallucination`)."""
+    weight = 1.0 / _irradiance_energy(radiance_sh)
+    ch = radiance_sh.shape[-1]
+
+    def objective(flat: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        vector = flat.reshape(rows.size, 3, ch)
+        g = scale(vector, rows) if callable(scale) else None if scale is None else scale[rows]
+        e, grad = _hallucination_error(vector, radiance_sh[rows], curve, g)
+        return e * weight[rows], (grad * weight[rows, None, None]).reshape(rows.size, -1)
+
+    return objective
+
+
 def solve_hallucinated_linear(
     radiance_sh: np.ndarray, curve: tuple[float, float] = PAPER_HALLUCINATION_CURVE, max_iterations: int = 60,
     negative_guard: bool = True,
@@ -257,12 +279,7 @@ def solve_hallucinated_linear(
     sh = np.array(radiance_sh[:, :9], dtype=np.float64)
     p, _, ch = sh.shape
     projected = linear_band_vector(sh)
-    weight = 1.0 / np.maximum(np.sum((sh * _IRRADIANCE_SCALE[None, :, None]) ** 2, axis=(1, 2)), 1e-300)
-
-    def objective(flat: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        e, g = _hallucination_error(flat.reshape(rows.size, 3, ch), sh[rows], curve)
-        return e * weight[rows], (g * weight[rows, None, None]).reshape(rows.size, -1)
-
+    objective = _bfgs_objective(sh, curve)
     candidates = [projected]
     iterations = 0
     for start in [projected, *tetrahedral_starts(projected)]:
@@ -316,13 +333,7 @@ def solve_scaled_hallucination(
     p, _, ch = sh.shape
     everything = np.arange(p)
     projected = linear_band_vector(sh)
-    weight = 1.0 / np.maximum(np.sum((sh * _IRRADIANCE_SCALE[None, :, None]) ** 2, axis=(1, 2)), 1e-300)
-
-    def reduced(flat: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        vector = flat.reshape(rows.size, 3, ch)
-        e, g = _hallucination_error(vector, sh[rows], curve, optimal_zonal_scale(vector, sh[rows], curve))
-        return e * weight[rows], (g * weight[rows, None, None]).reshape(rows.size, -1)
-
+    reduced = _bfgs_objective(sh, curve, lambda vector, rows: optimal_zonal_scale(vector, sh[rows], curve))
     iterations, solutions, errors = 0, [], []
     for start in [projected, *tetrahedral_starts(projected)]:
         solved, used = batched_bfgs(reduced, start.reshape(p, -1), max_iterations)
@@ -331,13 +342,8 @@ def solve_scaled_hallucination(
         errors.append(np.where(np.isfinite(e := reduced(solved, everything)[0]), e, np.inf))
     best = np.stack(solutions)[np.argmin(np.stack(errors), axis=0), everything].reshape(p, 3, ch)
     code = np.clip(np.rint(optimal_zonal_scale(best, sh, curve) * ZONAL_SCALE_UNIT), 0, MAX_ZONAL_SCALE_CODE)
-    scale = code / ZONAL_SCALE_UNIT
-
-    def fixed_scale(flat: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        e, g = _hallucination_error(flat.reshape(rows.size, 3, ch), sh[rows], curve, scale[rows])
-        return e * weight[rows], (g * weight[rows, None, None]).reshape(rows.size, -1)
-
-    solved, used = batched_bfgs(fixed_scale, best.reshape(p, -1), max_iterations)
+    solved, used = batched_bfgs(_bfgs_objective(sh, curve, code / ZONAL_SCALE_UNIT), best.reshape(p, -1),
+                                max_iterations)
     iterations = max(iterations, used)
     vector = solved.reshape(p, 3, ch).astype(np.float32).astype(np.float64)  # compared as stored
     guarded = np.zeros(p, dtype=bool)
@@ -366,17 +372,11 @@ def random_start_bound(radiance_sh: np.ndarray, starts: int = 512, seed: int = 0
     rng = np.random.default_rng(seed)
     projected = linear_band_vector(sh)
     scale = np.linalg.norm(projected, axis=(1, 2))
-    energy = np.maximum(np.sum((sh * _IRRADIANCE_SCALE[None, :, None]) ** 2, axis=(1, 2)), 1e-300)
     repeated = np.repeat(sh, starts + 1, axis=0)
     x0 = rng.normal(size=(p, starts + 1, 3, ch)) * (scale[:, None] * rng.uniform(0, 1.5, (p, starts + 1)))[
         :, :, None, None]
     x0[:, 0] = projected
-    weight = np.repeat(1.0 / energy, starts + 1)
-
-    def objective(flat: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        e, g = _hallucination_error(flat.reshape(rows.size, 3, ch), repeated[rows], curve)
-        return e * weight[rows], (g * weight[rows, None, None]).reshape(rows.size, -1)
-
+    objective = _bfgs_objective(repeated, curve)
     solved, _ = batched_bfgs(objective, x0.reshape(p * (starts + 1), -1), max_iterations, 1e-10)
     error = objective(solved, np.arange(p * (starts + 1)))[0].reshape(p, starts + 1)
     return np.sqrt(np.maximum(np.min(error, axis=1), 0.0))

@@ -31,6 +31,8 @@
 #define BAKERY_LUMINANCE BK_FLOAT3(0.2126, 0.7152, 0.0722)
 // Paper curve of the hallucinated zonal L2 term, (c2, c1) of f2^0 = (c2 p² + c1 p) f0 ([ZH3] Eq. 21).
 #define BAKERY_ZH3_PAPER_CURVE BK_FLOAT2(0.6, 0.08)
+// `zh3_hallucinated_solved` zonal_scale codes per unit scale (store-v1.md; 64 = Listing 1 as published).
+#define BAKERY_ZONAL_SCALE_UNIT 64.0
 
 // ============================================================================================ SH basis
 // Real orthonormal SH in bakery's convention, as polynomials of a unit direction ([ZH3] Eq. 4–5 for l ≤ 2;
@@ -168,7 +170,7 @@ BK_FLOAT3 bakery_zh3_hallucinated_irradiance(BK_FLOAT3 sh[4], BK_FLOAT2 curve, B
 BK_FLOAT3 bakery_zh3_hallucinated_solved_irradiance(BK_FLOAT3 sh[4], BK_FLOAT2 curve, int zonal_scale, BK_FLOAT3 n)
 {
     BK_FLOAT3 axis = bakery_zh3_luminance_axis(sh);
-    BK_FLOAT3 zonal = (float(zonal_scale) / 64.0) * bakery_zh3_hallucinate_zonal_l2(sh, axis, curve);
+    BK_FLOAT3 zonal = (float(zonal_scale) / BAKERY_ZONAL_SCALE_UNIT) * bakery_zh3_hallucinate_zonal_l2(sh, axis, curve);
     return bakery_sh2_irradiance(sh, n) + bakery_zonal_l2_irradiance(zonal, axis, n);
 }
 
