@@ -19,7 +19,7 @@ def source_for(sources, layout=None, capture=None) -> Source:  # noqa: ANN001
 
     if isinstance(sources, Source):
         return sources
-    paths = tuple(Path(s) for s in sources)
+    paths = (Path(sources),) if isinstance(sources, (str, Path)) else tuple(Path(s) for s in sources)
     scenes = [p for p in paths if p.suffix.lower() in SCENE_SUFFIXES]
     if scenes:
         if len(paths) > 1:

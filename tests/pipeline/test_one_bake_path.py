@@ -157,3 +157,20 @@ def test_library_and_cli_write_the_same_store(tmp_path, environment):
         pytest.skip("SOURCE_DATE_EPOCH is set to another value in this environment")
     bakery.bake(environment, b, encodings=("zh3", "shexp"), face_size=8)
     assert a.read_bytes() == b.read_bytes()
+
+
+@pytest.mark.parametrize("as_type", [str, Path])
+def test_one_source_path_bakes_at_the_sources_default_face_size(tmp_path, environment, as_type):
+    """``bakery.bake(path, output)`` with one image or scene path (str or Path) and no face size bakes at the
+    source's default face size, as ``bakery bake path`` does. The path used to be iterated as a sequence of sources
+    there: a Path raised TypeError, a str's characters made an environment source (a scene baked at 64, not 32)."""
+    from bakery.sources import EnvironmentSource, UsdSceneSource
+
+    summary = bakery.bake(as_type(environment), tmp_path / "image.h5", encodings=("sh2",))
+    image = bakery.open_store(tmp_path / "image.h5")
+    assert image.probe_names == ["/environment"] and not summary.failed
+    assert image.attributes["bake_face_size"] == EnvironmentSource.default_face_size
+    bakery.bake(as_type(EXAMPLE_SCENE), tmp_path / "scene.h5", encodings=("sh2",), samples=1)
+    scene = bakery.open_store(tmp_path / "scene.h5")
+    assert scene.encodings["sh2"].probe_count > 0
+    assert scene.attributes["bake_face_size"] == UsdSceneSource.default_face_size != EnvironmentSource.default_face_size
