@@ -172,12 +172,25 @@ def layer_overwrite_refusal(path: Path) -> str | None:
     """Why an existing file must not be replaced by a baked-results layer (None: it is one)."""
     try:
         with open(path, "rb") as handle:
-            data = handle.read(256 << 20)
+            found = _contains(handle, BAKE_LAYER_MARKER, limit=256 << 20)
     except OSError as error:
         return f"exists and cannot be read ({os_error_message(error)})"
-    if BAKE_LAYER_MARKER in data:
-        return None
-    return "exists and is not a bakery baked-results layer"
+    return None if found else "exists and is not a bakery baked-results layer"
+
+
+def _contains(handle, marker: bytes, limit: int, chunk: int = 1 << 20) -> bool:  # noqa: ANN001
+    """Whether ``marker`` occurs in the first ``limit`` bytes of ``handle``, read in ``chunk``-sized pieces (one
+    256 MB read allocated 256 MB on every bake, whatever the layer's size)."""
+    tail, read = b"", 0
+    while read < limit:
+        data = handle.read(min(chunk, limit - read))
+        if not data:
+            return False
+        window = tail + data
+        if marker in window:
+            return True
+        tail, read = window[max(0, len(window) - len(marker) + 1):], read + len(data)
+    return False
 
 
 def layer_path_of(request: BakeRequest, source: Source) -> Path | None:

@@ -10,6 +10,8 @@ import shutil
 import h5py
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 from faultkit import (
     SCENE_FLAGS,
     assert_fails_cleanly,
@@ -130,3 +132,18 @@ def test_a_previous_store_and_layer_are_replaced(ws, tmp_path):
     rep = tmp_path / "rep"
     for _ in range(2):
         assert incli("report", store, "-o", rep, "--no-previews").returncode == 0
+
+
+@given(data=st.binary(max_size=96), marker=st.binary(min_size=1, max_size=7), position=st.integers(0, 96),
+       insert=st.booleans(), limit=st.integers(0, 110), chunk=st.integers(1, 9))
+def test_the_layer_marker_search_reads_in_chunks_and_finds_what_a_whole_read_finds(data, marker, position, insert,
+                                                                                   limit, chunk):
+    """The layer check's chunked search (a 256 MB read allocated 256 MB per bake) against ``marker in data[:limit]``,
+    markers straddling chunk borders included."""
+    import io
+
+    from bakery.pipeline.run import _contains
+
+    if insert:
+        data = data[:position] + marker + data[position:]
+    assert _contains(io.BytesIO(data), marker, limit, chunk) == (marker in data[:limit])
