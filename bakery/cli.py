@@ -743,18 +743,32 @@ def farm() -> None:
               help="How farm hosts run bakery (e.g. 'python -m bakery.cli').")
 @click.option("--no-resume", is_flag=True, help="A clean bake: do not reuse the existing store's probes.")
 @click.option("--calibration", type=click.Path(path_type=Path), help="Cost calibration JSON for the chunking.")
+@click.option("--force", "force_template", is_flag=True,
+              help="Let -o (and its .params.json) replace files bakery did not write (never an input).")
 def farm_openjd(sources: tuple[Path, ...], template: Path, store: Path | None, layer: Path | None,
                 shard_dir: Path | None, tasks: int, jobs: int, bakery_command: str, calibration: Path | None,
-                **params) -> None:  # noqa: ANN003
+                force_template: bool, **params) -> None:  # noqa: ANN003
     """Write an Open Job Description job template for SOURCES: one task per probe range of the plan (bakery bake
-    --probes) and a dependent merge step (bakery merge). Validate with `openjd check`, run with `openjd run`."""
-    from bakery.farm.openjd import job_parameters, job_template, write_template
+    --probes) and a dependent merge step (bakery merge). Validate with `openjd check`, run with `openjd run`.
+    The template and <template stem>.params.json are written only to new paths or over files this command wrote
+    (--force: any file but an input of the bake); exit 2 otherwise, before any work."""
+    from bakery.farm.openjd import (
+        check_template_outputs,
+        job_parameters,
+        job_template,
+        parameters_path,
+        write_template,
+    )
     from bakery.farm.plan import plan_info
+    from bakery.files import write_bytes_atomic
     from bakery.sources import default_layer_path
 
     if len(sources) > 1 and any(s.suffix.lower() in (".usd", ".usda", ".usdc", ".usdz") for s in sources):
         raise click.UsageError("bake one USD scene at a time")
     sources = tuple(s.resolve() for s in sources)
+    protected = [*sources, *([calibration] if calibration else []), *([store] if store else []),
+                 *([layer] if layer else [])]
+    check_template_outputs(template, protected, force_template)
     if store is not None:
         store.resolve().parent.mkdir(parents=True, exist_ok=True)  # the job's output folder
     request = _request({**params, "sources": sources}, store.resolve() if store else None)
@@ -765,14 +779,15 @@ def farm_openjd(sources: tuple[Path, ...], template: Path, store: Path | None, l
     shard_dir = (shard_dir or store.with_name(f"{store.stem}.shards")).resolve()
     if len(sources) != 1:
         raise click.UsageError("farm templates bake one scene or one image (the Scene job parameter)")
+    check_template_outputs(template, [*protected, *map(Path, info["inputs"]), store, layer], force_template)
     body = job_template(name=f"bakery {sources[0].name}", scene=sources[0], store=store, layer=layer,
                         shard_dir=shard_dir, ranges=info["chunking"]["ranges"], plan_id=info["plan_id"],
                         bake_args=_settings_args(params), command=bakery_command,
                         base=base is not None and store.is_file(), jobs=jobs, template_dir=template.resolve().parent)
     write_template(template, body)
     values = job_parameters(scene=sources[0], store=store, layer=layer, shard_dir=shard_dir, jobs=jobs)
-    parameters = template.with_name(template.stem + ".params.json")
-    parameters.write_text(json.dumps(values, indent=2) + "\n")
+    parameters = parameters_path(template)
+    write_bytes_atomic(parameters, (json.dumps(values, indent=2) + "\n").encode())
     console.print(f"wrote {template}: {len(info['chunking']['ranges'])} bake tasks "
                   f"({', '.join(info['chunking']['ranges'])}) and a merge into {store} (plan {info['plan_id']}); "
                   f"estimated makespan {info['chunking']['makespan_seconds']:.0f} s; job parameters in {parameters} "
@@ -782,11 +797,12 @@ def farm_openjd(sources: tuple[Path, ...], template: Path, store: Path | None, l
 @farm.command("calibrate")
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
               help="Where to write the calibration JSON (use it with --calibration or $BAKERY_CALIBRATION).")
-def farm_calibrate(output: Path) -> None:
+@click.option("--force", is_flag=True, help="Let -o replace a file that is not a calibration bakery wrote.")
+def farm_calibrate(output: Path, force: bool) -> None:
     """Measure the cost model's constants on this machine (five bakes of the scale bench's generated hall, ~1 min)."""
     from bakery.farm.calibrate import calibrate
 
-    data = calibrate(output)
+    data = calibrate(output, force=force)
     console.print(f"wrote {output} ({len(data['encodings'])} encodings; process {data['process_seconds']:.2f} s, "
                   f"{data['seconds_per_ray'] * 1e9:.1f} ns per modelled ray)")
 

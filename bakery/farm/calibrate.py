@@ -122,10 +122,26 @@ def _fit(rows: list[list[float]], values: list[float]) -> list[float]:
     return [float(v) for v in solution]
 
 
-def calibrate(output: Path, work: Path | None = None) -> dict[str, Any]:
-    """Measure and write the calibration JSON to ``output``; returns it."""
-    from bakery.bench.scale import generate_scene
+def calibration_refusal(path: Path) -> str | None:
+    """Why an existing file must not be replaced by a calibration (None: a calibration bakery wrote)."""
+    try:
+        data = json.loads(Path(path).read_bytes())
+    except (OSError, ValueError):
+        data = None
+    if isinstance(data, dict) and "version" in data and {"process_seconds", "encodings"} <= set(data):
+        return None
+    return "exists and is not a calibration written by bakery farm calibrate"
 
+
+def calibrate(output: Path, work: Path | None = None, force: bool = False) -> dict[str, Any]:
+    """Measure and write the calibration JSON to ``output`` (atomically; the output policy is checked before any
+    measurement: a new path or a calibration bakery wrote, ``force``: any file); returns it."""
+    from bakery.bench.scale import generate_scene
+    from bakery.files import check_output_file, write_bytes_atomic
+
+    output = Path(output)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    check_output_file(output, "calibration", refusal=calibration_refusal, force=force)
     runs = []
     load = os.getloadavg()  # other jobs on the machine slow every measurement; recorded with the result
     with tempfile.TemporaryDirectory(dir=work) as folder:
@@ -202,6 +218,5 @@ def calibrate(output: Path, work: Path | None = None) -> dict[str, Any]:
         "effective_bounces": {"default": CaptureSettings().bounces, "measured": effective},
         "encodings": encodings,
     }
-    output.parent.mkdir(parents=True, exist_ok=True)
-    output.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
+    write_bytes_atomic(output, (json.dumps(data, indent=1, sort_keys=True) + "\n").encode())
     return data

@@ -22,7 +22,10 @@ import shlex
 from pathlib import Path
 from typing import Any
 
-from bakery.files import write_bytes_atomic
+from bakery.files import check_output_file, write_bytes_atomic
+
+TEMPLATE_HEADER = "# Open Job Description job template written by `bakery farm openjd`"
+PARAMETER_KEYS = frozenset({"Scene", "ShardDir", "Store", "Layer", "Jobs"})
 
 
 def _default(path: Path, folder: Path) -> str | None:
@@ -125,5 +128,56 @@ def write_template(path: Path, template: dict[str, Any]) -> Path:
     if path.suffix.lower() == ".json":
         text = json.dumps(template, indent=2) + "\n"
     else:
-        text = "# Open Job Description job template written by `bakery farm openjd`\n" + to_yaml(template) + "\n"
+        text = TEMPLATE_HEADER + "\n" + to_yaml(template) + "\n"
     return write_bytes_atomic(path, text.encode())
+
+
+def parameters_path(template: Path) -> Path:
+    """Where the job parameter values of ``template`` are written (``<template stem>.params.json``)."""
+    return Path(template).with_name(Path(template).stem + ".params.json")
+
+
+def _read_head(path: Path, size: int = 1 << 16) -> bytes:
+    with open(path, "rb") as handle:
+        return handle.read(size)
+
+
+def template_refusal(path: Path) -> str | None:
+    """Why an existing file must not be replaced by a job template (None: a template ``bakery farm openjd`` wrote:
+    YAML with its header line, or JSON naming a ``bakery`` job)."""
+    try:
+        head = _read_head(path)
+        if head.startswith(TEMPLATE_HEADER.encode()):
+            return None
+        data = json.loads(Path(path).read_bytes()) if head.lstrip().startswith(b"{") else None
+    except (OSError, ValueError):
+        data = None
+    if isinstance(data, dict) and str(data.get("specificationVersion", "")).startswith("jobtemplate-") \
+            and str(data.get("name", "")).startswith("bakery "):
+        return None
+    return "exists and is not a job template written by bakery farm openjd"
+
+
+def parameters_refusal(path: Path) -> str | None:
+    """Why an existing file must not be replaced by the job parameter values (None: values bakery wrote)."""
+    try:
+        data = json.loads(Path(path).read_bytes())
+    except (OSError, ValueError):
+        data = None
+    if isinstance(data, dict) and set(data) == PARAMETER_KEYS:
+        return None
+    return "exists and is not a job parameter file written by bakery farm openjd"
+
+
+def check_template_outputs(template: Path, inputs: list[Path], force: bool = False) -> None:
+    """The output policy (:func:`bakery.files.check_output_file`) for the template and its parameter file: new
+    paths, or files ``bakery farm openjd`` wrote; never one of ``inputs`` (the scene, its layers, the store, …),
+    not even with ``force``."""
+    template = Path(template)
+    if template.suffix.lower() not in (".yaml", ".yml", ".json"):
+        from bakery.files import OutputError
+
+        raise OutputError(f"{template}: a job template is a .yaml, .yml or .json file")
+    check_output_file(template, "job template", inputs=inputs, refusal=template_refusal, force=force)
+    check_output_file(parameters_path(template), "job parameters", inputs=[*inputs, template],
+                      refusal=parameters_refusal, force=force)

@@ -14,6 +14,7 @@ from bakery.farm.cost import (
     load_calibration,
     pilot_capture,
 )
+from bakery.pipeline.run import source_inputs
 from bakery.pipeline.settings import BakeRequest
 from bakery.pipeline.shards import (
     batch_ranges,
@@ -71,6 +72,7 @@ def plan_info(request: BakeRequest, tasks: int = 4, base: Path | None = None,
         "store": str(request.output),
         "base": str(base) if base else None,
         "sources": [str(s) for s in request.sources],
+        "inputs": [str(p) for p in source_inputs(source)],  # every file the bake reads (the scene's layers too)
         "source_kind": source.kind,
         "settings_hash": request.settings.hash(),
         "probes": {"total": len(plan.tasks), "by_kind": kinds},

@@ -159,7 +159,7 @@ def load_previous(output: str | Path, *, warn: bool = True) -> StoreContents | N
     return previous
 
 
-def _source_inputs(source: Source) -> list[Path]:
+def source_inputs(source: Source) -> list[Path]:
     """Files the bake reads that no output may replace (images, the scene and, once planned, its layers)."""
     paths = [Path(p) for p in getattr(source, "paths", ())]
     if getattr(source, "path", None) is not None:
@@ -215,7 +215,7 @@ def check_store_output(output: Path, inputs: list[Path] = (), force: bool = Fals
 def check_output_paths(request: BakeRequest, source: Source) -> None:
     """Before any work: the output policy (module docstring) for the store and the layer."""
     output = request.output
-    inputs = _source_inputs(source)
+    inputs = source_inputs(source)
     check_store_output(output, inputs, request.force)
     layer = layer_path_of(request, source)
     if layer is not None:

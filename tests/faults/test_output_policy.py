@@ -6,12 +6,15 @@ reason named, every file byte-identical) unless ``--force``, which still never o
 from __future__ import annotations
 
 import shutil
+from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+
+import bakery.farm
 from faultkit import (
     SCENE_FLAGS,
     assert_fails_cleanly,
@@ -23,6 +26,7 @@ from faultkit import (
 )
 
 pytestmark = pytest.mark.faults
+OPENJD_FLAGS = ("--face-size", "4", "--samples", "1")
 
 
 @pytest.fixture(scope="module")
@@ -50,6 +54,9 @@ def ws(tmp_path_factory):
     shutil.copy(d / "prev.h5", d / "rdir" / "report.json")  # a store that happens to be called report.json
     (d / "rep").mkdir()
     (d / "rep" / "report.html").write_text("<html>my page</html>")
+    (d / "job.yaml").write_text("my: own yaml\n")
+    (d / "mine.params.json").write_text('{"my": "own parameters"}\n')
+    shutil.copy(Path(bakery.farm.__file__).with_name("calibration.json"), d / "cal.json")
     return d
 
 
@@ -99,6 +106,17 @@ CASES = {
                                         "--force"], ["sub.usda"]),
     "--force: report over its own store": (["report", "{d}/rdir/report.json", "-o", "{d}/rdir", "--no-previews",
                                             "--force"], ["report.json", "input"]),
+    # farm job templates and calibrations (they used to replace any file, the scene included, with exit 0)
+    "openjd -o onto the scene": (["farm", "openjd", "{d}/scene.usda", "-o", "{d}/scene.usda", *OPENJD_FLAGS],
+                                 ["scene.usda", "job template"]),
+    "openjd -o onto a foreign YAML file": (["farm", "openjd", "{d}/scene.usda", "-o", "{d}/job.yaml", *OPENJD_FLAGS],
+                                           ["job.yaml", "not a job template"]),
+    "openjd parameters onto a foreign JSON file": (["farm", "openjd", "{d}/scene.usda", "-o", "{d}/mine.yaml",
+                                                    *OPENJD_FLAGS], ["mine.params.json", "not a job parameter file"]),
+    "--force: openjd -o onto its calibration": (["farm", "openjd", "{d}/scene.usda", "-o", "{d}/cal.json",
+                                                 "--calibration", "{d}/cal.json", "--force", *OPENJD_FLAGS],
+                                                ["cal.json", "input"]),
+    "calibrate -o onto a text file": (["farm", "calibrate", "-o", "{d}/notes.h5"], ["notes.h5", "not a calibration"]),
 }
 
 
@@ -147,3 +165,12 @@ def test_the_layer_marker_search_reads_in_chunks_and_finds_what_a_whole_read_fin
     if insert:
         data = data[:position] + marker + data[position:]
     assert _contains(io.BytesIO(data), marker, limit, chunk) == (marker in data[:limit])
+
+
+def test_a_previous_job_template_and_its_parameters_are_replaced(ws, tmp_path):
+    template = tmp_path / "job.yaml"
+    for _ in range(2):  # the second run replaces what the first wrote: allowed
+        result = incli("farm", "openjd", ws / "scene.usda", "-o", template, "--store", tmp_path / "s.h5", *OPENJD_FLAGS)
+        assert result.returncode == 0, result.output
+    assert template.read_text().startswith("# Open Job Description") and (tmp_path / "job.params.json").is_file()
+    assert not temporaries(tmp_path)
