@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import bakery
+from bakery.conventions import SEED_RANGE
 from bakery.encodings import ENCODINGS, Encoding, EncodingParams, get_encoding
 from bakery.errors import ConfigError
 from bakery.files import stable_hash
@@ -50,8 +51,10 @@ class CaptureSettings:
             raise ConfigError(f"capture samples must be an integer >= 1, got {self.samples!r}")
         if isinstance(self.bounces, bool) or not isinstance(self.bounces, int) or self.bounces < 0:
             raise ConfigError(f"capture bounces must be an integer >= 0, got {self.bounces!r}")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int):
-            raise ConfigError(f"capture seed must be an integer, got {self.seed!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not (
+                SEED_RANGE[0] <= self.seed <= SEED_RANGE[1]):  # stored as the store's int64 capture_seed
+            raise ConfigError(f"capture seed must be a 64-bit signed integer (in [{SEED_RANGE[0]}, {SEED_RANGE[1]}]),"
+                              f" got {self.seed!r}")
         if isinstance(self.target_noise, bool) or not isinstance(self.target_noise, (int, float)) or not (
                 0.0 <= float(self.target_noise) < 1.0):
             raise ConfigError(f"capture target_noise must be a number in [0, 1), got {self.target_noise!r}")

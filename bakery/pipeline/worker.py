@@ -22,6 +22,7 @@ import time
 import traceback
 import warnings
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -103,6 +104,18 @@ def run_batch(task: BatchTask) -> BatchOutcome:
         return _run_batch(task)
 
 
+def failure_message(error: BaseException) -> str:
+    """One line for a probe that failed: a :class:`BakeryError`'s message as is; anything else as its type and
+    message and where it was raised (``MemoryError: Unable to allocate 74.5 GiB … (render.py:212 in capture)``),
+    not a traceback: the store's ``failed`` record and the CLI print it."""
+    if isinstance(error, BakeryError):
+        return str(error)
+    frames = traceback.extract_tb(error.__traceback__)
+    where = f" ({Path(frames[-1].filename).name}:{frames[-1].lineno} in {frames[-1].name})" if frames else ""
+    text = " ".join(str(error).split()) or "no message"
+    return f"{type(error).__name__}: {text}{where}"
+
+
 def _run_batch(task: BatchTask) -> BatchOutcome:
     start = time.perf_counter()
     watch_parent()  # LocalCluster workers: die with the bake (pool workers are set up by their initializer)
@@ -125,8 +138,7 @@ def _run_batch(task: BatchTask) -> BatchOutcome:
                 if not np.all(np.isfinite(capture.cube)):
                     raise BakeryError(f"{probe_task.probe.name}: capture produced non-finite radiance")
             except Exception as error:  # noqa: BLE001 - one failing probe must not lose the batch
-                failures[probe_task.probe.name] = (str(error) if isinstance(error, BakeryError)
-                                                   else traceback.format_exc(limit=3))
+                failures[probe_task.probe.name] = failure_message(error)
                 continue
             for key, value in capture.stats.items():
                 stats[key] = stats.get(key, 0.0) + value

@@ -41,6 +41,20 @@ def test_recipe_capture_section_and_flags(tmp_path):
         CaptureSettings(target_noise=1.5)
 
 
+@pytest.mark.parametrize("seed", [1 << 63, -(1 << 63) - 1, 10**23])
+def test_a_seed_the_store_cannot_record_is_refused_before_the_capture(tmp_path, seed):
+    """The store records the seed as an HDF5 int64: a larger one used to fail after the whole capture (a raw
+    TypeError, a checkpoint folder left behind); now a ConfigError / exit 2 before any work."""
+    scene = _scene(tmp_path)
+    with pytest.raises(ConfigError, match="seed must be a 64-bit signed integer"):
+        bakery.bake(scene, tmp_path / "o.h5", seed=seed)
+    result = subprocess.run([sys.executable, "-m", "bakery.cli", "bake", str(scene), "-o", str(tmp_path / "o.h5"),
+                             "--seed", str(seed)], capture_output=True, text=True)
+    assert result.returncode == 2 and "--seed" in result.stderr and "Traceback" not in result.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["box.usda"]
+    assert CaptureSettings(seed=(1 << 63) - 1).seed == (1 << 63) - 1 and CaptureSettings(seed=-(1 << 63)).seed < 0
+
+
 def test_adaptive_noise_is_stored_and_inspected(tmp_path):
     scene = _scene(tmp_path)
     recipe = _recipe(tmp_path, "samples = 2\ntarget_noise = 0.02")

@@ -316,3 +316,21 @@ def test_a_changed_encoding_default_re_bakes_only_that_encodings_probes(tmp_path
     second = bakery.bake(scene, store, **common)
     assert second.baked == 1 and second.reused == first.baked - 1
     assert np.abs(bakery.open_store(store).fields("shexp_hybrid")["level0"]).max() > 0
+
+
+def test_a_probe_that_fails_outside_bakery_errors_is_recorded_in_one_line():
+    """A failed probe's record (store ``failed``, the CLI's ``failed NAME: …``) is one line: the error's type, its
+    message and where it was raised; it used to be a three-frame traceback."""
+    from bakery.errors import SceneError
+    from bakery.pipeline.worker import failure_message
+
+    def allocate():
+        return np.zeros((1 << 26, 1 << 26))  # 32 PiB
+
+    try:
+        allocate()
+    except MemoryError as error:
+        message = failure_message(error)
+    assert "\n" not in message and "Traceback" not in message
+    assert message.startswith("MemoryError: Unable to allocate") and message.endswith("in allocate)")
+    assert failure_message(SceneError("/World/Probe: no geometry")) == "/World/Probe: no geometry"
