@@ -25,12 +25,20 @@ What is read (``docs/capture.md``)
     (:mod:`bakery.usd.materials`, :mod:`bakery.usd.mtlx`). Invisible prims and ``guide``/``proxy`` purposes are
     skipped. Composition errors (unparsable sublayers, missing references and payloads) are errors. The stage is
     read at ``time`` (default: authored defaults, else each attribute's earliest time sample).
+
+Attribute types
+    USD returns an opinion of another type than the schema declares as authored (``string bakery:volume:relocate =
+    "no"`` would read as a truthy "no"); every attribute is read with the type its schema declares — bakery's probe
+    schema (``bakery/usd/schema/generatedSchema.usda``), UsdLux, UsdGeom; xformOps by their operation — and another
+    type is an error on the prim naming the attribute, its authored and its expected type (:func:`typed_value`).
+    Floating-point precision and roles aside: a ``double`` authored for a ``float`` reads the same.
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,13 +56,18 @@ from bakery.usd import gprims
 from bakery.usd.assets import local_asset_path
 from bakery.usd.color import WORKING_SPACE, ColorSpaceError, to_working_space
 from bakery.usd.materials import MaterialReader, srgb_to_linear
-from bakery.usd.plugin import FALLBACKS, PROBE_TYPES
+from bakery.usd.plugin import FALLBACKS, PLUGIN_DIR, PROBE_TYPES
 
 _POLE_Y_TO_Z = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # row vectors: +Y ↦ +Z
 #: Time at which the scene is read: authored defaults, else the first time sample.
 _T = Usd.TimeCode.EarliestTime()
+#: Largest ``bakery:capture:resolution``: the largest bake face size (:class:`bakery.pipeline.settings.BakeSettings`)
+MAX_CAPTURE_RESOLUTION = 4096
 #: UsdLuxShadowAPI inputs the capture does not apply (reported per light)
 
+
+#: A world matrix with NaN or infinite entries (an xformOp value of the prim or of an ancestor)
+_NOT_FINITE_WORLD = "world transform is not finite (a NaN or infinite xformOp value on the prim or an ancestor)"
 
 #: :meth:`_SceneReader._shadow` of a light without ShadowAPI opinions
 _NO_SHADOW_API = {"shadow": True, "shadow_color": (0.0, 0.0, 0.0)}
@@ -92,6 +105,8 @@ class SceneReading:
 def open_stage(path: str | Path) -> Usd.Stage:
     """Open a stage with all payloads loaded. Raises SceneError if it cannot be opened."""
     path = Path(path)
+    if path.is_dir():
+        raise SceneError(f"{path}: is a directory, not a USD scene file")
     if not path.is_file():
         raise SceneError(f"{path}: scene not found")
     try:
@@ -122,6 +137,117 @@ def tf_error_message(error: Exception) -> str:
         match = _TF_ERROR.search(str(arg).strip())
         messages.append(match.group(1) if match else str(arg))
     text = " ".join(messages[0].split()) if messages else ""
+    return text if len(text) <= 300 else text[:297] + "..."
+
+
+#: Floating-point precisions of one kind of value (:func:`_value_kind`): a double authored for a float reads the same
+_REAL_TYPES = {"float": "real", "double": "real", "half": "real", "GfHalf": "real", "pxr_half::half": "real",
+               "string": "text", "std::string": "text", "TfToken": "text"}
+
+
+def _value_kind(type_name: Sdf.ValueTypeName) -> tuple[str, bool]:
+    """What a USD value type holds, for type checks: its scalar type without role or floating-point precision
+    (float, double and half → "real"; string and token → "text"; GfVec3f/d/h → "GfVec3"; GfQuatf/d/h → "GfQuat"),
+    and whether it is an array."""
+    scalar = str(type_name.scalarType.type.typeName)
+    scalar = _REAL_TYPES.get(scalar) or re.sub(r"^(Gf[A-Za-z]+\d?)[dfh]$", r"\1", scalar)
+    return scalar, bool(type_name.isArray)
+
+
+def _authored_type(attr: Usd.Attribute, time: Usd.TimeCode) -> Sdf.ValueTypeName | None:
+    """The type of the strongest opinion holding a value of ``attr`` (what the layer authored: for an attribute a
+    schema declares, ``attr.GetTypeName()`` is the schema's type whatever the layer says)."""
+    stack = attr.GetPropertyStack(time)
+    for spec in stack:
+        if spec.HasDefaultValue() or spec.layer.GetNumTimeSamplesForPath(spec.path):
+            return spec.typeName
+    return stack[0].typeName if stack else None
+
+
+def typed_value(attr: Usd.Attribute, time: Usd.TimeCode, expected: Sdf.ValueTypeName | None = None):
+    """The value of ``attr`` at ``time`` (None if it has none), of the type its schema declares: ``expected``, else
+    ``attr.GetTypeName()``. USD returns an opinion of another type as authored (``string bakery:volume:relocate =
+    "no"`` reads as the truthy "no", ``float`` 2.5 for an ``int`` as 2.5): raises SceneError naming the attribute,
+    its authored type and the expected one. Floating-point precision and role aside: a ``double3`` authored for a
+    ``color3f`` reads the same."""
+    value = attr.Get(time)
+    expected = expected or attr.GetTypeName()
+    if value is None or not expected or type(value) is type(expected.defaultValue):
+        return value
+    authored = _authored_type(attr, time)
+    if authored and _value_kind(authored) == _value_kind(expected):
+        return value
+    what = str(authored) if authored else type(value).__name__
+    raise SceneError(f"{attr.GetName()} is authored as {what} {_shown(value)}, expected {expected}")
+
+
+def _shown(value: object) -> str:
+    """A short text of an attribute value for messages: ``'no'``, ``2.5``, ``(2.7, 2, 2)``, ``@sky.hdr@``."""
+    if isinstance(value, Sdf.AssetPath):
+        text = f"@{value.path}@"
+    elif isinstance(value, float):
+        text = f"{value:g}"
+    elif isinstance(value, str) or not hasattr(value, "__len__"):
+        text = repr(value)
+    else:
+        try:
+            text = "(" + ", ".join(f"{float(x):g}" for x in value) + ")"
+        except (TypeError, ValueError):
+            text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+@functools.cache
+def _probe_schema_types() -> dict[str, dict[str, Sdf.ValueTypeName]]:
+    """{probe type: {attribute: declared type}} of bakery's schema (its ``generatedSchema.usda``), so that probe
+    attributes are checked whether or not OpenUSD's schema registry saw the plugin (:mod:`bakery.usd.plugin`)."""
+    layer = Sdf.Layer.FindOrOpen(str(PLUGIN_DIR / "generatedSchema.usda"))
+    if layer is None:
+        return {}
+    return {spec.name: {a.name: a.typeName for a in spec.attributes} for spec in layer.rootPrims
+            if spec.name in PROBE_TYPES}
+
+
+@functools.cache
+def _light_api_definitions() -> tuple:
+    """The prim definitions of the UsdLux API schemas whose ``inputs:*`` the capture reads on a light whether or not
+    the API is applied (ShapingAPI, ShadowAPI)."""
+    registry = Usd.SchemaRegistry()
+    return tuple(d for d in (registry.FindAppliedAPIPrimDefinition(api) for api in ("ShapingAPI", "ShadowAPI")) if d)
+
+
+def _xform_op_problem(prim: Usd.Prim) -> str | None:
+    """Why USD cannot compute the world transform of ``prim``: the first xformOp of the prim or of an ancestor
+    (named) whose authored type does not fit its operation (``string xformOp:translate``), or None."""
+    rotations = {f"rotate{axis}" for axis in "XYZ"}
+    owner = prim
+    while owner and not owner.IsPseudoRoot():
+        xformable = UsdGeom.Xformable(owner)
+        for op in xformable.GetOrderedXformOps() if xformable else ():
+            operation = str(UsdGeom.XformOp.GetOpTypeToken(op.GetOpType()))
+            if operation in rotations:
+                expected = ("double", "float", "half")
+            elif operation == "orient":
+                expected = ("quatd", "quatf", "quath")
+            elif operation == "transform":
+                expected = ("matrix4d",)
+            else:  # translate, scale, rotateXYZ…, pivots
+                expected = ("double3", "float3", "half3")
+            type_name = op.GetAttr().GetTypeName()  # not declared by a schema: the authored type
+            if not type_name or _value_kind(type_name) != _value_kind(Sdf.ValueTypeNames.Find(expected[0])):
+                where = "" if owner == prim else f" of {owner.GetPath()}"
+                allowed = expected[0] if len(expected) == 1 else f"{', '.join(expected[:-1])} or {expected[-1]}"
+                return (f"{op.GetAttr().GetName()}{where} is authored as {type_name or 'an unknown type'}, "
+                        f"expected {allowed}")
+        owner = owner.GetParent()
+    return None
+
+
+def _exception_text(error: Exception) -> str:
+    """One line of an exception raised while a prim was read (``Tf.ErrorException``: :func:`tf_error_message`)."""
+    if isinstance(error, Tf.ErrorException):
+        return tf_error_message(error)
+    text = " ".join(str(error).split()) or type(error).__name__
     return text if len(text) <= 300 else text[:297] + "..."
 
 
@@ -203,7 +329,17 @@ class SceneReader:
         self.issues.append(Issue(severity, path, message))
 
     def world(self, prim: Usd.Prim) -> np.ndarray:
-        return _matrix(self.xforms.GetLocalToWorldTransform(prim))
+        """The world matrix of ``prim``; SceneError if USD cannot compute it (a wrongly typed xformOp)."""
+        try:
+            return _matrix(self.xforms.GetLocalToWorldTransform(prim))
+        except Tf.ErrorException as error:
+            self.xforms = UsdGeom.XformCache(self.time)  # it may hold the failed ancestor: its descendants fail too
+            raise SceneError(_xform_op_problem(prim) or f"its world transform cannot be computed: "
+                             f"{tf_error_message(error)}") from error
+
+    def value(self, attr: Usd.Attribute, expected: Sdf.ValueTypeName | None = None):
+        """``attr``'s value at the reader's time, of its declared type (:func:`typed_value`)."""
+        return typed_value(attr, self.time, expected)
 
     def _read_skel_root(self, root_prim: Usd.Prim) -> None:
         """UsdSkel, at the reader's time (met in the traversal before the prims it skins): into ``_skinned``, per
@@ -308,6 +444,8 @@ class SceneReader:
                     self.issue("warning", prim, f"{type_name} gprims are not supported by the capture; skipped")
             except SceneError as exc:
                 self.issue("error", prim, str(exc))
+            except (TypeError, ValueError, IndexError, Tf.ErrorException) as exc:  # a bad value not named above
+                self.issue("error", prim, f"cannot be read: {_exception_text(exc)}")
         self._apply_geometry_lights()
         self._apply_light_links()
         self._check_encodings()
@@ -401,14 +539,19 @@ class SceneReader:
     # ------------------------------------------------------------------------------------------------------------
     # Probes
     def _attr(self, prim: Usd.Prim, name: str):
+        """A probe attribute of the type bakery's schema declares (SceneError otherwise), else its fallback."""
         attr = prim.GetAttribute(name)
-        value = attr.Get(self.time) if attr else None
+        expected = _probe_schema_types().get(str(prim.GetTypeName()), {}).get(name)
+        value = self.value(attr, expected) if attr else None
         return FALLBACKS.get(name) if value is None else value
 
     def _probe_placement(self, prim: Usd.Prim) -> np.ndarray | None:
         matrix = self.world(prim)
+        if not np.all(np.isfinite(matrix)):  # before the determinant (NaN: a numpy warning naming nothing)
+            self.issue("error", prim, f"{_NOT_FINITE_WORLD}; probe skipped")
+            return None
         det = np.linalg.det(matrix[:3, :3])
-        if not np.all(np.isfinite(matrix)) or abs(det) < 1e-12:
+        if abs(det) < 1e-12:
             self.issue("error", prim, f"non-invertible world transform (det = {det:.3g}); probe skipped")
             return None
         return matrix
@@ -418,19 +561,18 @@ class SceneReader:
         if matrix is None:
             return
         resolution = int(self._attr(prim, "bakery:capture:resolution") or 0)
-        if resolution < 0:
-            self.issue("error", prim, f"bakery:capture:resolution must be >= 0, got {resolution}")
+        if not 0 <= resolution <= MAX_CAPTURE_RESOLUTION:
+            self.issue("error", prim, f"bakery:capture:resolution must be >= 0 (0: the bake's face size) and <= "
+                       f"{MAX_CAPTURE_RESOLUTION} (the largest face size), got {resolution}")
             return
-        encodings_attr = prim.GetAttribute("bakery:encodings")
-        encodings = tuple(str(e) for e in (encodings_attr.Get(self.time) or ())) if encodings_attr else ()
+        encodings = tuple(str(e) for e in (self._attr(prim, "bakery:encodings") or ()))
         rotation = tuple(map(tuple, self.frame.rotation(matrix).tolist()))
         path = str(prim.GetPath())
         if type_name == "BakeryIrradianceProbeVolume":
             self._read_volume(prim, matrix, resolution, encodings)
             return
         image = ""
-        image_attr = prim.GetAttribute("bakery:capture:image")
-        asset = image_attr.Get(self.time) if image_attr else None
+        asset = self._attr(prim, "bakery:capture:image")
         if isinstance(asset, Sdf.AssetPath) and asset.path:
             image = local_asset_path(asset) or ""
             if not image:
@@ -478,8 +620,8 @@ class SceneReader:
         if counts.prod() > 100_000:
             self.issue("error", prim, f"bakery:volume:counts {counts.tolist()} gives more than 100000 probes")
             return
-        if (extent < 0).any():
-            self.issue("error", prim, f"bakery:volume:extent must be >= 0, got {extent.tolist()}")
+        if not np.all(np.isfinite(extent)) or (extent < 0).any():
+            self.issue("error", prim, f"bakery:volume:extent must be finite and >= 0, got {extent.tolist()}")
             return
         path = str(prim.GetPath())
         rotation = tuple(map(tuple, self.frame.rotation(matrix).tolist()))
@@ -545,14 +687,26 @@ class SceneReader:
     # ------------------------------------------------------------------------------------------------------------
     # Lights
     def _input(self, prim: Usd.Prim, name: str, fallback):
-        """``inputs:<name>`` if authored, else the legacy ``<name>`` if authored, else the schema fallback."""
+        """``inputs:<name>`` if authored, else the legacy ``<name>`` if authored, else the schema fallback; of the
+        type the light's schemas declare for ``inputs:<name>`` (SceneError otherwise)."""
+        expected = self._input_type(prim, f"inputs:{name}")
         for attr_name in (f"inputs:{name}", name):
             attr = prim.GetAttribute(attr_name)
             if attr and attr.HasAuthoredValue():
-                return attr.Get(self.time)
+                return self.value(attr, expected)
         attr = prim.GetAttribute(f"inputs:{name}")
-        value = attr.Get(self.time) if attr else None
+        value = self.value(attr, expected) if attr else None
         return fallback if value is None else value
+
+    @staticmethod
+    def _input_type(prim: Usd.Prim, name: str) -> Sdf.ValueTypeName | None:
+        """The type of light input ``name`` in the prim's definition, else in UsdLux's ShapingAPI or ShadowAPI
+        (read whether or not applied), or None."""
+        for definition in (prim.GetPrimDefinition(), *_light_api_definitions()):
+            attribute = definition.GetAttributeDefinition(name) if definition else None
+            if attribute:
+                return attribute.GetTypeName()
+        return None
 
     def _emission_scale(self, prim: Usd.Prim) -> np.ndarray:
         intensity = float(self._input(prim, "intensity", 1.0))
@@ -619,6 +773,9 @@ class SceneReader:
         """A UsdLux light at its world transform, or — one instance of a point instancer's prototype — at
         ``matrix`` under ``name`` ("<path>#n")."""
         matrix = self.world(prim) if matrix is None else matrix
+        if not np.all(np.isfinite(matrix)):
+            self.issue("error", prim, f"{_NOT_FINITE_WORLD}; light skipped")
+            return
         if abs(np.linalg.det(matrix[:3, :3])) < 1e-12:
             self.issue("error", prim, "non-invertible world transform; light skipped")
             return
@@ -871,11 +1028,11 @@ class SceneReader:
             mesh = UsdGeom.Mesh(prim)
             skinned = self._skinned.get(str(prim.GetPath()), (None, None))[0]
             points = skinned if skinned is not None else np.asarray(
-                mesh.GetPointsAttr().Get(self.time) or [], dtype=np.float64).reshape(-1, 3)
-            counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(self.time) or [], dtype=np.int64)
-            indices = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(self.time) or [], dtype=np.int64)
+                self.value(mesh.GetPointsAttr()) or [], dtype=np.float64).reshape(-1, 3)
+            counts = np.asarray(self.value(mesh.GetFaceVertexCountsAttr()) or [], dtype=np.int64)
+            indices = np.asarray(self.value(mesh.GetFaceVertexIndicesAttr()) or [], dtype=np.int64)
             scheme_attr = mesh.GetSubdivisionSchemeAttr()
-            scheme = str(scheme_attr.Get()) if scheme_attr and scheme_attr.HasAuthoredValue() else "none"
+            scheme = str(self.value(scheme_attr)) if scheme_attr and scheme_attr.HasAuthoredValue() else "none"
             if scheme not in ("none", "bilinear"):
                 levels = self.subdivision
                 refine = {"catmullClark": catmull_clark, "loop": loop_subdivide}.get(scheme)
@@ -906,7 +1063,7 @@ class SceneReader:
 
     def _hole_faces(self, mesh: UsdGeom.Mesh, faces: int) -> np.ndarray:
         """The mesh's ``holeIndices`` (faces that are holes), those outside 0..faces − 1 dropped (reported)."""
-        holes = np.asarray(mesh.GetHoleIndicesAttr().Get(self.time) or [], dtype=np.int64)
+        holes = np.asarray(self.value(mesh.GetHoleIndicesAttr()) or [], dtype=np.int64)
         valid = (holes >= 0) & (holes < faces)
         if not valid.all():
             self.issue("warning", mesh.GetPrim(), f"holeIndices {holes[~valid][:5].tolist()} are not faces of the mesh "
@@ -920,7 +1077,7 @@ class SceneReader:
             return self._points_or_curves(prim)
 
         def value(name: str) -> object:
-            return prim.GetAttribute(name).Get(self.time)
+            return self.value(prim.GetAttribute(name))
 
         def length(name: str) -> float:
             number = float(value(name))
@@ -949,10 +1106,10 @@ class SceneReader:
         """UsdGeomPoints as spheres and UsdGeomBasisCurves as tubes of their ``widths`` (:mod:`bakery.usd.gprims`:
         icosahedra and hexagonal prisms of the round shapes' mean projected area); widths per point or control
         point, per curve or constant; not authored: 1 stage unit (reported)."""
-        points = np.asarray(UsdGeom.PointBased(prim).GetPointsAttr().Get(self.time) or [],
+        points = np.asarray(self.value(UsdGeom.PointBased(prim).GetPointsAttr()) or [],
                             dtype=np.float64).reshape(-1, 3)
         schema = UsdGeom.Points(prim) if prim.IsA(UsdGeom.Points) else UsdGeom.Curves(prim)
-        widths = np.asarray(schema.GetWidthsAttr().Get(self.time) or [], dtype=np.float64).reshape(-1)
+        widths = np.asarray(self.value(schema.GetWidthsAttr()) or [], dtype=np.float64).reshape(-1)
         if widths.size == 0:
             self.issue("warning", prim, "widths not authored: read as 1 stage unit")
             widths = np.ones(1)
@@ -964,7 +1121,7 @@ class SceneReader:
                                  "one for all")
             return gprims.point_spheres(points, np.broadcast_to(widths, len(points)))
         curves = UsdGeom.BasisCurves(prim)
-        counts = np.asarray(curves.GetCurveVertexCountsAttr().Get(self.time) or [], dtype=np.int64)
+        counts = np.asarray(self.value(curves.GetCurveVertexCountsAttr()) or [], dtype=np.int64)
         if counts.sum() != len(points) or (counts < 1).any():
             raise SceneError(f"curveVertexCounts sum to {int(counts.sum())} for {len(points)} points: they must be "
                              "≥ 1 and sum to the number of points")
@@ -1032,7 +1189,7 @@ class SceneReader:
         if primvar and primvar.HasValue():
             values, interpolation = primvar.ComputeFlattened(self.time), primvar.GetInterpolation()
         elif mesh.GetNormalsAttr().HasAuthoredValue():
-            values, interpolation = mesh.GetNormalsAttr().Get(self.time), mesh.GetNormalsInterpolation()
+            values, interpolation = self.value(mesh.GetNormalsAttr()), mesh.GetNormalsInterpolation()
         else:
             return None
         values = np.asarray(values if values is not None else [], dtype=np.float64)
@@ -1066,6 +1223,8 @@ class SceneReader:
             return
         if not np.all(np.isfinite(local)):
             raise SceneError("mesh points are not finite")
+        if not np.all(np.isfinite(matrix)):
+            raise SceneError(_NOT_FINITE_WORLD)
         tris = self.frame.points(local.reshape(-1, 3), matrix).reshape(-1, 3, 3).astype(np.float32)
         normals = None if local_normals is None else self._bake_normals(prim, local_normals, matrix)
         for part, material, primvar, label in self._material_parts(prim, topology, tris.shape[0]):
@@ -1128,7 +1287,7 @@ class SceneReader:
         for k, subset in enumerate(subsets):
             if str(subset.GetElementTypeAttr().Get()) != "face":
                 continue
-            index = np.asarray(subset.GetIndicesAttr().Get(self.time) or [], dtype=np.int64)
+            index = np.asarray(self.value(subset.GetIndicesAttr()) or [], dtype=np.int64)
             index = index[(index >= 0) & (index < face_count)]
             owner[index[owner[index] < 0]] = k  # a face in two subsets keeps the first (the schema forbids it)
         parts = []
@@ -1151,11 +1310,16 @@ class SceneReader:
         point instancers (names "<path>#n#m"), skipping invisible and guide/proxy prims as the stage traversal
         does. ``instancer_world``: the instancer's world matrix when it is itself an instance of a prototype."""
         instancer = UsdGeom.PointInstancer(prim)
+        for attr in (instancer.GetPositionsAttr(), instancer.GetOrientationsAttr(), instancer.GetScalesAttr()):
+            self.value(attr)  # their types (USD computes the transforms from them)
         transforms = instancer.ComputeInstanceTransformsAtTime(self.time, self.time)
-        proto_indices = np.asarray(instancer.GetProtoIndicesAttr().Get(self.time) or [], dtype=np.int64)
+        proto_indices = np.asarray(self.value(instancer.GetProtoIndicesAttr()) or [], dtype=np.int64)
         prototypes = instancer.GetPrototypesRel().GetTargets()
-        if transforms is None or len(proto_indices) == 0:
+        if transforms is None or len(proto_indices) == 0 or not prototypes:
             return
+        if len(transforms) != len(proto_indices):  # USD computes none when an array's length does not match
+            raise SceneError(f"the transforms of its {len(proto_indices)} instances cannot be computed: positions "
+                             "(and orientations, scales when authored) need one value per protoIndices entry")
         instancer_world = self.world(prim) if instancer_world is None else instancer_world
         stage = prim.GetStage()
         for p_index, proto_path in enumerate(prototypes):
@@ -1201,6 +1365,8 @@ class SceneReader:
                                    "skipped")
                 except SceneError as exc:
                     self.issue("error", sub, str(exc))
+                except (TypeError, ValueError, IndexError, Tf.ErrorException) as exc:  # as in :meth:`read`
+                    self.issue("error", sub, f"cannot be read: {_exception_text(exc)}")
 
 
 def catmull_clark(points: np.ndarray, counts: np.ndarray, indices: np.ndarray, levels: int,
@@ -1321,10 +1487,10 @@ def _front_side(prim: Usd.Prim, matrix: np.ndarray, time: Usd.TimeCode = _T) -> 
     right-handed ``orientation`` (USD's fallback; implicit surfaces: normals outward), −1 for left-handed, the sign
     flipped by a mirroring world transform (det < 0) as Hydra flips the winding; the bake frame is a rotation."""
     gprim = UsdGeom.Gprim(prim)
-    double_sided = gprim.GetDoubleSidedAttr().Get(time)
+    double_sided = typed_value(gprim.GetDoubleSidedAttr(), time)
     if double_sided:
         return 0
-    orientation = gprim.GetOrientationAttr().Get(time)
+    orientation = typed_value(gprim.GetOrientationAttr(), time)
     side = -1 if orientation == UsdGeom.Tokens.leftHanded else 1
     return side if np.linalg.det(np.asarray(matrix, dtype=np.float64)[:3, :3]) >= 0 else -side
 
