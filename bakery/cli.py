@@ -821,7 +821,8 @@ def farm_calibrate(output: Path, force: bool) -> None:
 @click.option("--option", "options", multiple=True, metavar="KEY=VALUE",
               help="Format option, e.g. vk_format=E5B9G9R9_UFLOAT_PACK32, levels=5, layout=array (repeatable).")
 @click.option("--layer", type=click.Path(path_type=Path),
-              help="Baked USD layer to reference the files from (default: <store stem>.bake.usda beside the store).")
+              help="Baked USD layer of STORE to reference the files from (default: <store stem>.bake.usda beside the "
+                   "store, if present); any other file is refused (exit 2).")
 @click.option("--no-layer", is_flag=True, help="Do not touch any USD layer.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 def export_command(store: Path, out_dir: Path, fmt: str, profile: str | None, pattern: str | None,
@@ -850,7 +851,7 @@ def _run_recipe_exports(recipe: str, store: Path, layer: str | None) -> None:
         target = target if target.is_absolute() else Path(store).parent / target
         result = export_store(store, target, entry["format"], profile=entry.get("profile"),
                               probes=entry.get("probes"), options=entry.get("options", {}),
-                              layer=Path(layer) if layer else None)
+                              layer=Path(layer) if layer else False)  # no layer baked: touch none
         console.print(f"exported {_count(len(result.files), entry['format'] + ' file')} to {target}")
 
 

@@ -269,7 +269,7 @@ def folder_problem(folder: Path) -> str | None:
     return None
 
 
-def _same_file(a: Path, b: Path) -> bool:
+def same_file(a: Path, b: Path) -> bool:
     try:
         if a.resolve() == b.resolve():
             return True
@@ -296,7 +296,7 @@ def check_output_file(path: str | os.PathLike[str], what: str, *, inputs: Any = 
     if problem:
         raise OutputError(f"{path}: the {what} folder {folder} {problem}")
     for item in inputs:
-        if _same_file(path, Path(item)):
+        if same_file(path, Path(item)):
             raise OutputError(f"{path}: is an input of this command; refusing to overwrite it (also with --force); "
                               f"write the {what} elsewhere")
     if path.exists() or path.is_symlink():

@@ -11,7 +11,11 @@ up from :data:`EXPORT_FORMATS`.
 :func:`export_store` is the only writer:
 
 1. the format, profile and options are checked (ConfigError, exit 3), the store is opened (exit 2 if it is not one),
-   the output folder must be creatable and writable (exit 2);
+   the output folder must be creatable and writable (exit 2), and the USD layer of the bake (``--layer``, default
+   ``<store stem>.bake.usda`` / ``.usdc`` beside the store when it exists) must be a bakery baked-results layer
+   that records this store (:func:`bakery.usd.layer.open_export_layer`): the scene's own layers, a user's file, a
+   text file, a missing ``--layer`` or another store's layer are exit 2 — before anything is built or written, and
+   there is no ``--force`` for it (an export never edits a layer bakery does not own);
 2. the format yields its files one at a time (``build`` is a generator: a store without the encodings it needs is
    exit 2 before the first file; reflection formats prefilter a chunk of probes at a time,
    :class:`bakery.export.source.ProfileChains`), and each is staged at once — written to a temporary file beside its
@@ -20,11 +24,11 @@ up from :data:`EXPORT_FORMATS`.
 3. files already in the folder are overwritten only if the folder's manifest ``bakery-export.json`` lists them with
    their current sha256 (i.e. bakery wrote them and nobody changed them); any other existing file is *foreign* and
    the export is refused (exit 2) before any target is replaced;
-4. once every file is staged (fsync'ed) all are renamed; a failure before the renames (a foreign file, a format
-   error, a full disk) removes the temporaries and the folders the export created, so nothing is left;
-5. the manifest is updated last, then the USD layer of the bake (``--layer``, default ``<store stem>.bake.usda`` /
-   ``.usdc`` beside the store when it exists and names this store) gets ``bakery:export:<format>`` asset attributes
-   on each exported probe (:func:`bakery.usd.layer.add_export_attributes`, atomic).
+4. once every file is staged (fsync'ed), the layer is staged too, with ``bakery:export:<format>`` asset attributes
+   on each exported probe (:func:`bakery.usd.layer.staged_export_attributes`); then all files are renamed; a
+   failure before the renames (a foreign file, a format error, a layer USD cannot write, a full disk) removes the
+   temporaries and the folders the export created, so nothing is left;
+5. the manifest is updated after the files, then the staged layer is renamed over the layer.
 """
 
 from __future__ import annotations
@@ -34,7 +38,7 @@ import json
 import os
 import re
 from abc import ABC, abstractmethod
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -255,10 +259,15 @@ def _make_parents(target: Path, created: list[Path]) -> None:
         created.append(m)
 
 
-def write_files(folder: Path, files: Iterable[ExportedFile], record: dict[str, Any]) -> tuple[Path, list[WrittenFile]]:
+def write_files(folder: Path, files: Iterable[ExportedFile], record: dict[str, Any],
+                then: Callable[[list[WrittenFile], ExitStack], None] | None = None) -> tuple[Path, list[WrittenFile]]:
     """Stage every file of ``files`` as it comes, then rename them all and write the updated manifest,
     all-or-nothing (module docstring, steps 2–5). Returns the manifest path and the files written; when ``files``
-    is empty nothing is written (and no folder is left behind)."""
+    is empty nothing is written (and no folder is left behind).
+
+    ``then(written, stack)``, called once every file is staged (and none is foreign) but before any is renamed, may
+    stage more files in ``stack`` (e.g. the USD layer): they are renamed after the files and the manifest, and an
+    error in ``then`` removes every staged file, so nothing is written."""
     folder = Path(folder)
     _check_writable(folder)
     manifest = _read_manifest(folder)
@@ -266,46 +275,56 @@ def write_files(folder: Path, files: Iterable[ExportedFile], record: dict[str, A
     written: list[WrittenFile] = []
     seen: dict[str, tuple[str, ...]] = {MANIFEST: ()}  # file → the probes it holds
     foreign: list[str] = []
+    new_manifest = not (folder / MANIFEST).exists()
+    manifest_written = False
     try:
-        with ExitStack() as stack:  # leaving it renames every staged file; an error removes them instead
-            for f in files:
-                if f.path in seen:
-                    probes = ", ".join(dict.fromkeys([*seen[f.path], *f.probes])) or "bakery's manifest"
-                    raise InputError(f"{folder / f.path}: two exported files have this name ({probes}: probe names "
-                                     f"that differ only in punctuation?); export them to separate folders with "
-                                     f"--probes")
-                seen[f.path] = tuple(f.probes)
-                reason = _foreign(folder, f, manifest)
-                if reason:
-                    foreign.append(reason)
-                    continue
-                _make_parents(folder / f.path, created)
-                tmp = stack.enter_context(atomic_replace(folder / f.path))
-                tmp.write_bytes(f.data)
-                manifest["files"][f.path] = {"sha256": sha256_bytes(f.data), **record, "role": f.role,
-                                             "probes": list(f.probes)}
-                written.append(WrittenFile(f.path, tuple(f.probes), f.role))
-            if foreign:
-                raise InputError(f"{folder}: refusing to overwrite file(s) bakery did not write or that changed "
-                                 f"since ({', '.join(sorted(foreign)[:5])}{' …' if len(foreign) > 5 else ''}); "
-                                 f"choose another folder or remove them")
-        if written:
-            # the manifest last: a crash between the renames and here leaves files the manifest does not list,
-            # which the next export refuses to overwrite (safe side)
-            with atomic_replace(folder / MANIFEST) as tmp:
-                tmp.write_bytes((json.dumps(manifest, indent=1, sort_keys=True) + "\n").encode())
+        with ExitStack() as late:  # what ``then`` staged: renamed last
+            with ExitStack() as stack:  # leaving it renames every staged file; an error removes them instead
+                for f in files:
+                    if f.path in seen:
+                        probes = ", ".join(dict.fromkeys([*seen[f.path], *f.probes])) or "bakery's manifest"
+                        raise InputError(f"{folder / f.path}: two exported files have this name ({probes}: probe "
+                                         f"names that differ only in punctuation?); export them to separate folders "
+                                         f"with --probes")
+                    seen[f.path] = tuple(f.probes)
+                    reason = _foreign(folder, f, manifest)
+                    if reason:
+                        foreign.append(reason)
+                        continue
+                    _make_parents(folder / f.path, created)
+                    tmp = stack.enter_context(atomic_replace(folder / f.path))
+                    tmp.write_bytes(f.data)
+                    manifest["files"][f.path] = {"sha256": sha256_bytes(f.data), **record, "role": f.role,
+                                                 "probes": list(f.probes)}
+                    written.append(WrittenFile(f.path, tuple(f.probes), f.role))
+                if foreign:
+                    raise InputError(f"{folder}: refusing to overwrite file(s) bakery did not write or that changed "
+                                     f"since ({', '.join(sorted(foreign)[:5])}{' …' if len(foreign) > 5 else ''}); "
+                                     f"choose another folder or remove them")
+                if written and then is not None:
+                    then(written, late)
+            if written:
+                # the manifest after the files: a crash between the renames and here leaves files the manifest
+                # does not list, which the next export refuses to overwrite (safe side)
+                with atomic_replace(folder / MANIFEST) as tmp:
+                    tmp.write_bytes((json.dumps(manifest, indent=1, sort_keys=True) + "\n").encode())
+                manifest_written = True
     except BaseException:
-        _remove_written(folder, written, created)
+        _remove_written(folder, written, created, folder / MANIFEST if manifest_written and new_manifest else None)
         raise
     return folder / MANIFEST, written
 
 
-def _remove_written(folder: Path, written: list[WrittenFile], created: list[Path]) -> None:
-    """After a failed export: the files it renamed into folders it created, then those folders if empty."""
+def _remove_written(folder: Path, written: list[WrittenFile], created: list[Path],
+                    manifest: Path | None = None) -> None:
+    """After a failed export: the files it renamed into folders it created (and the ``manifest`` it created, if
+    given, when its folder is one of them), then those folders if empty."""
     for w in written:
         target = folder / w.path
         if target.parent in created and target.exists():
             target.unlink()
+    if manifest is not None and manifest.parent in created and manifest.exists():
+        manifest.unlink()
     for d in reversed(created):
         if d.exists() and not any(d.iterdir()):
             d.rmdir()
@@ -324,8 +343,14 @@ def export_store(store_path: str | os.PathLike[str], output: str | os.PathLike[s
                  profile: str | None = None, probes: str | None = None, options: dict[str, Any] | None = None,
                  layer: str | os.PathLike[str] | None | bool = None) -> ExportResult:
     """Export a store (module docstring). ``layer``: a baked layer path, None = the default layer if it exists,
-    False = do not touch any layer."""
+    False = do not touch any layer.
+
+    The layer is checked before anything is built or written (:func:`bakery.usd.layer.open_export_layer`): it must
+    be a bakery baked-results layer of this store — never the scene's own layers or any other file, and there is no
+    way to force it — else :class:`~bakery.errors.SceneError` (exit 2) and nothing is written. Its new content is
+    staged with the export's files and renamed after them (:func:`write_files`)."""
     from bakery.api import open_store
+    from bakery.usd.layer import open_export_layer, staged_export_attributes
 
     cls = get_format(format)
     prof = get_profile(profile or cls.default_profile)
@@ -337,23 +362,25 @@ def export_store(store_path: str | os.PathLike[str], output: str | os.PathLike[s
     selected = select_probes(store, probes)
     output = Path(output)
     _check_writable(output)
+    layer_path = None if layer is False else (Path(layer) if layer else default_layer(store_path))
+    target = None if layer_path is None else open_export_layer(layer_path, store_path, default=not layer)
     context = ExportContext(store=store, probes=selected, profile=prof, params=params, format_name=format)
     record = {"format": format, "profile": prof.name, "store": os.path.relpath(store_path.resolve(),
                                                                               output.resolve())}
-    manifest, files = write_files(output, cls().build(context), record)
-    if not files:
-        raise InputError(f"{store_path}: nothing to export as {format} (no selected probe of a kind it exports)")
-    result = ExportResult(format, prof.name, output, [f.path for f in files], manifest)
-    layer_path = None if layer is False else (Path(layer) if layer else default_layer(store_path))
-    if layer_path is not None:
-        from bakery.usd.layer import add_export_attributes
 
+    def stage_layer(files: list[WrittenFile], stack: ExitStack) -> None:
         assets: dict[str, dict[str, str]] = {}
         for f in files:
             for probe in f.probes:
                 assets.setdefault(probe, {})[f"{format}" + (f":{f.role}" if f.role else "")] = str(
-                    os.path.relpath((output / f.path).resolve(), layer_path.resolve().parent))
-        result.layer = add_export_attributes(layer_path, assets, store_path=store_path)
+                    os.path.relpath((output / f.path).resolve(), target.path.parent))
+        stack.enter_context(staged_export_attributes(target, assets))
+
+    manifest, files = write_files(output, cls().build(context), record, then=None if target is None else stage_layer)
+    if not files:
+        raise InputError(f"{store_path}: nothing to export as {format} (no selected probe of a kind it exports)")
+    result = ExportResult(format, prof.name, output, [f.path for f in files], manifest)
+    result.layer = None if target is None else target.path
     return result
 
 

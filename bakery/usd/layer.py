@@ -44,7 +44,9 @@ from __future__ import annotations
 import json
 import math
 import os
-from collections.abc import Mapping
+import re
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -350,26 +352,89 @@ def read_baked_values(stage_or_path: Usd.Stage | str | os.PathLike[str]) -> dict
     return result
 
 
-def add_export_attributes(layer_path: str | os.PathLike[str], assets: dict[str, dict[str, str]],
-                          store_path: str | os.PathLike[str] | None = None) -> Path:
-    """Add ``bakery:export:<key>`` asset attributes to the probe ``over`` specs of an existing baked layer, atomically
-    (temporary file + rename), for ``bakery export``.
+@dataclass
+class ExportLayer:
+    """A baked-results layer ``bakery export`` may add asset attributes to, checked by :func:`open_export_layer`:
+    ``path`` (resolved), the name it was ``given`` by, the ``store`` it belongs to and an anonymous copy of its
+    content as it was checked (re-read if the file changes before :func:`staged_export_attributes` writes it)."""
 
-    ``assets`` maps a probe name to {key: asset path relative to the layer}, e.g.
-    ``{"/Room/Probes/TableReflection": {"ktx2": "exports/Room_Probes_TableReflection.ktx2"}}``. A probe volume's
-    probes (``/Vol[i,j,k]``) map onto the volume prim ``/Vol``. Probes without an ``over`` in the layer are
-    skipped. With ``store_path``, the layer must record that store (``customLayerData["bakery"]["store"]``), so an
-    unrelated layer is never edited. Returns the layer path."""
-    layer_path = Path(layer_path).resolve()
-    layer = Sdf.Layer.FindOrOpen(str(layer_path))
+    path: Path
+    given: Path
+    store: Path | None
+    layer: Sdf.Layer
+    stamp: tuple[int, ...]
+    default: bool = False
+
+
+def _usd_error_reason(error: BaseException) -> str:
+    """The message of a USD (Tf) error on one line, without its C++ location."""
+    text = " ".join(str(error).split())
+    parts = re.split(r"Error in '[^']*' at line \d+ in file \S+ : ", text)
+    return parts[-1].strip().strip("'").strip() or type(error).__name__
+
+
+def _stamp(path: Path) -> tuple[int, ...]:
+    stat = path.stat()
+    return (stat.st_dev, stat.st_ino, stat.st_size, stat.st_mtime_ns)
+
+
+def open_export_layer(layer_path: str | os.PathLike[str], store_path: str | os.PathLike[str] | None,
+                      default: bool = False) -> ExportLayer:
+    """Check, before anything is written, that ``bakery export`` may add to ``layer_path``, and read it.
+
+    ``bakery export`` never edits a layer it does not own: the file must exist, be a ``.usda``/``.usdc``/``.usd``
+    layer in a writable folder (:func:`bakery.files.check_output_file`; never the store), carry the baked-results
+    marker (:func:`bakery.pipeline.run.layer_overwrite_refusal`, the test ``bakery bake`` applies before replacing
+    a layer), open in USD, and record ``store_path`` as its store (``customLayerData["bakery"]["store"]``, relative to
+    the layer; with ``store_path`` None, any recorded store). Anything else — the scene or one of its layers, a
+    user's own file, a text file, the layer of another store — is a :class:`SceneError` (exit 2) naming the layer
+    and the reason; there is no ``--force`` for it. ``default``: the path is the default ``<store stem>.bake.usda``
+    (said in the message)."""
+    from bakery.files import check_output_file, same_file
+    from bakery.pipeline.run import layer_overwrite_refusal
+
+    given = Path(layer_path)
+    which = f"{given} (the default layer beside the store)" if default else str(given)
+    store = Path(store_path) if store_path is not None else None
+    hint = (f"bakery export edits only the baked-results layer bakery bake wrote for "
+            f"{store.name if store is not None else 'the store'} (pass it with --layer) or none (--no-layer)")
+    if given.suffix.lower() not in LAYER_SUFFIXES:
+        kinds = ", ".join(LAYER_SUFFIXES[:-1]) + " or " + LAYER_SUFFIXES[-1]
+        raise SceneError(f"{which}: not a USD layer (a baked layer is a {kinds} file); {hint}")
+    if not given.exists() and not given.is_symlink():
+        raise SceneError(f"{which}: no such layer; {hint}")
+    # the folder must be writable, the path a regular file and not the store (an existing layer is allowed here:
+    # whether it is one bakery may edit is checked below, with a message for export)
+    check_output_file(given, "layer", inputs=[store] if store is not None else [], refusal=lambda _path: None)
+    path = given.resolve()
+    try:
+        stamp = _stamp(path)  # before reading: a change from here on is seen when the layer is staged
+    except OSError as error:
+        raise SceneError(f"{which}: cannot be read ({error.strerror or error})") from None
+    reason = layer_overwrite_refusal(given)  # the test a bake applies before replacing a layer
+    if reason is not None:
+        raise SceneError(f"{which}: {reason.removeprefix('exists and ')}; {hint}")
+    try:
+        layer = Sdf.Layer.OpenAsAnonymous(str(path))
+    except Exception as error:  # noqa: BLE001 - USD raises Tf errors for files it cannot parse
+        if not type(error).__module__.startswith("pxr"):
+            raise
+        raise SceneError(f"{which}: USD cannot read it ({_usd_error_reason(error)})") from None
     if layer is None:
-        raise SceneError(f"{layer_path}: not a USD layer bakery can open")
-    recorded = (layer.customLayerData or {}).get("bakery", {}).get("store")
-    if store_path is not None and recorded is not None:
-        if (layer_path.parent / recorded).resolve() != Path(store_path).resolve():
-            raise SceneError(f"{layer_path}: this layer was baked into {recorded}, not {store_path}; pass the "
-                             f"store's own layer (--layer)")
-    copy = Sdf.Layer.CreateAnonymous(layer_path.suffix)
+        raise SceneError(f"{which}: USD cannot read it")
+    data = dict(layer.customLayerData or {}).get("bakery")
+    recorded = data.get("store") if isinstance(data, Mapping) else None
+    if not isinstance(recorded, str) or not recorded:
+        raise SceneError(f"{which}: records no store (customLayerData bakery.store), so it is not a baked-results "
+                         f"layer bakery export can edit; {hint}")
+    if store is not None and not same_file(path.parent / recorded, store):
+        raise SceneError(f"{which}: is the baked-results layer of the store {recorded}, not of {store}; {hint}")
+    return ExportLayer(path, given, store, layer, stamp, default)
+
+
+def _with_export_attributes(layer: Sdf.Layer, suffix: str, assets: dict[str, dict[str, str]]) -> Sdf.Layer:
+    """A copy of ``layer`` with the ``bakery:export:<key>`` attributes of ``assets`` (:func:`add_export_attributes`)."""
+    copy = Sdf.Layer.CreateAnonymous(suffix)
     copy.TransferContent(layer)
     for probe, entries in sorted(assets.items()):
         prim_path = probe.split("[", 1)[0] if probe.endswith("]") else probe
@@ -382,8 +447,47 @@ def add_export_attributes(layer_path: str | os.PathLike[str], assets: dict[str, 
             if attr is None:
                 attr = Sdf.AttributeSpec(spec, name, Sdf.ValueTypeNames.Asset, Sdf.VariabilityUniform)
             attr.default = Sdf.AssetPath(asset)
-    with atomic_replace(layer_path, suffix=layer_path.suffix) as tmp:
-        if not copy.Export(str(tmp)):
-            raise SceneError(f"{layer_path}: USD could not write the layer")
-    layer.Reload(force=True)
-    return layer_path
+    return copy
+
+
+@contextmanager
+def staged_export_attributes(target: ExportLayer, assets: dict[str, dict[str, str]]) -> Iterator[Path]:
+    """Stage ``target`` with the asset attributes of ``assets`` (:func:`add_export_attributes`) in a temporary file
+    beside it; leaving the block renames it over the layer, an error removes it (:func:`bakery.files.atomic_replace`).
+    If the layer changed on disk since it was checked, it is checked and read again (a bake may have replaced it)."""
+    try:
+        current = _stamp(target.path)
+    except OSError:
+        current = None
+    if current != target.stamp:
+        target = open_export_layer(target.given, target.store, target.default)
+    copy = _with_export_attributes(target.layer, target.path.suffix, assets)
+    with atomic_replace(target.path, suffix=target.path.suffix) as tmp:  # USD picks the file format by extension
+        try:
+            exported = copy.Export(str(tmp))
+        except Exception as error:  # noqa: BLE001 - USD raises Tf errors when it cannot write
+            if not type(error).__module__.startswith("pxr"):
+                raise
+            raise SceneError(f"{target.given}: USD could not write the layer ({_usd_error_reason(error)})") from None
+        if not exported:
+            raise SceneError(f"{target.given}: USD could not write the layer")
+        yield tmp
+    opened = Sdf.Layer.Find(str(target.path))  # a copy this process holds sees the new content
+    if opened is not None:
+        opened.Reload(force=True)
+
+
+def add_export_attributes(layer_path: str | os.PathLike[str], assets: dict[str, dict[str, str]],
+                          store_path: str | os.PathLike[str] | None = None) -> Path:
+    """Add ``bakery:export:<key>`` asset attributes to the probe ``over`` specs of an existing baked layer, atomically
+    (temporary file + rename), for ``bakery export``.
+
+    ``assets`` maps a probe name to {key: asset path relative to the layer}, e.g.
+    ``{"/Room/Probes/TableReflection": {"ktx2": "exports/Room_Probes_TableReflection.ktx2"}}``. A probe volume's
+    probes (``/Vol[i,j,k]``) map onto the volume prim ``/Vol``. Probes without an ``over`` in the layer are
+    skipped. The layer must be a bakery baked-results layer of ``store_path`` (:func:`open_export_layer`: a layer
+    bakery does not own, or of another store, is refused and left untouched). Returns the layer path."""
+    target = open_export_layer(layer_path, store_path)
+    with staged_export_attributes(target, assets):
+        pass
+    return target.path
