@@ -468,20 +468,44 @@ def bench_splitsum(environments: tuple[Path, ...], output: Path, face_size: int,
     (output / "splitsum.json").write_text(json.dumps(result, indent=2, default=str))
 
 
+class IntList(click.ParamType):
+    """Comma-separated integers ≥ ``minimum`` (``count`` of them when given), e.g. ``25,16,25``."""
+
+    name = "INTS"
+
+    def __init__(self, minimum: int, count: int | None = None) -> None:
+        self.minimum, self.count = minimum, count
+
+    def convert(self, value, param, ctx):  # noqa: ANN001, ANN201
+        if isinstance(value, tuple):
+            return value
+        try:
+            numbers = tuple(int(v) for v in str(value).split(","))
+        except ValueError:
+            numbers = ()
+        if not numbers or any(n < self.minimum for n in numbers) or (self.count and len(numbers) != self.count):
+            size = f"{self.count} " if self.count else ""
+            self.fail(f"{value!r} is not {size}comma-separated integers >= {self.minimum}", param, ctx)
+        return numbers
+
+
 @bench.command("scale")
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=Path("bench-results/scale"), show_default=True)
-@click.option("--volume", default="25,16,25", show_default=True, help="Irradiance volume counts nx,ny,nz.")
-@click.option("--reflection", type=int, default=1000, show_default=True, help="Number of reflection probes.")
+@click.option("--volume", type=IntList(1, 3), default="25,16,25", show_default=True,
+              help="Irradiance volume counts nx,ny,nz.")
+@click.option("--reflection", type=click.IntRange(min=0), default=1000, show_default=True,
+              help="Number of reflection probes.")
 @click.option("--recipe", default="console", show_default=True)
-@click.option("--face-size", type=int, default=16, show_default=True)
-@click.option("--jobs", "jobs", default="1,2", show_default=True, help="Worker counts to run, comma-separated.")
+@click.option("--face-size", type=click.IntRange(min=1), default=16, show_default=True)
+@click.option("--jobs", "jobs", type=IntList(1), default="1,2", show_default=True,
+              help="Worker counts to run, comma-separated.")
 @click.option("--repeats", type=click.IntRange(min=1), default=1, show_default=True,
               help="Bake each worker count this many times, alternating; report the median of each.")
 @click.option("--production", is_flag=True,
               help="Issue 14's production scene: 10,000 irradiance probes at 32², 1,000 reflection probes at 128² "
                    "(console recipe), 2 workers, KTX2 export; overrides the other options.")
-def bench_scale(output: Path, volume: str, reflection: int, recipe: str, face_size: int, jobs: str, repeats: int,
-                production: bool) -> None:
+def bench_scale(output: Path, volume: tuple[int, ...], reflection: int, recipe: str, face_size: int,
+                jobs: tuple[int, ...], repeats: int, production: bool) -> None:
     """Wall time, per-stage timings, peak memory and store size of a generated large scene."""
     from bakery.bench.scale import PRODUCTION, run_scale_bench
 
@@ -491,8 +515,7 @@ def bench_scale(output: Path, volume: str, reflection: int, recipe: str, face_si
     if production:
         result = run_scale_bench(output, **PRODUCTION, progress_bar=progress_bar, repeats=repeats)
     else:
-        result = run_scale_bench(output, tuple(int(v) for v in volume.split(",")), reflection, recipe, face_size,
-                                 jobs=tuple(int(j) for j in jobs.split(",")), progress_bar=progress_bar,
+        result = run_scale_bench(output, volume, reflection, recipe, face_size, jobs=jobs, progress_bar=progress_bar,
                                  repeats=repeats)
     out.print_json(json.dumps(result))
 

@@ -119,6 +119,14 @@ def is_8bit_image(path: str | os.PathLike[str]) -> bool:
         return False
 
 
+def missing_image_message(path: Path) -> str:
+    """Why ``path`` cannot be read as an environment image: a folder (or a USD scene's suffix missing), or absent."""
+    if path.is_dir():
+        return (f"{path}: is a directory, not an environment image (give the image files, or a USD scene file, "
+                f"e.g. {path}/*.hdr)")
+    return f"{path}: environment image not found"
+
+
 def read_environment(path: str | os.PathLike[str], layout: str | None = None) -> tuple[EnvironmentImage, SanitizeReport]:
     """Read an environment image as linear RGB radiance, sanitised (see :mod:`bakery.environment.sanitize`).
 
@@ -127,7 +135,7 @@ def read_environment(path: str | os.PathLike[str], layout: str | None = None) ->
     """
     path = Path(path)
     if not path.is_file():
-        raise ImageError(f"{path}: environment image not found")
+        raise ImageError(missing_image_message(path))
     if layout is not None and layout not in LAYOUTS:
         raise ImageError(f"{path}: unknown layout {layout!r}; expected one of {LAYOUTS}")
     image = read_image(path, channels=3)

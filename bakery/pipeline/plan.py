@@ -133,6 +133,14 @@ def plan_tasks(source_kind: str, source_plan: SourcePlan, settings: BakeSettings
                 params[name] = stable_hash(encoding_params(name, settings))
         tasks.append(ProbeTask(planned.probe, planned.capture, encodings,
                                probe_content_hash(source_kind, planned, encodings, settings_hash, params)))
+    if skipped and not tasks:  # a store of no encoding at all: bad settings, not a bake that succeeded
+        from bakery.errors import ConfigError
+
+        kinds = sorted({k for p in source_plan.probes for k in p.probe.kinds})
+        asked = ", ".join(f"{n} ({get_encoding(n).kind})" for n in settings.encodings) or "the probes' own encodings"
+        where = f"{source_plan.attributes['source']}: " if source_plan.attributes.get("source") else ""
+        raise ConfigError(f"{where}no probe takes any requested encoding: asked for {asked}; the probes are "
+                          f"{' and '.join(kinds)} probes ({skipped[0]['probe']}: {skipped[0]['reason']})")
     reused: list[str] = []
     if previous is not None and previous.probe_hashes is not None:
         old = dict(zip(previous.probe_names, previous.probe_hashes))

@@ -96,7 +96,11 @@ def load_recipe(name_or_path: str) -> Recipe:
         listing = ", ".join(presets) or f"none in {RECIPE_DIR}"
         raise ConfigError(f"recipe {name_or_path!r} not found; presets: {listing}")
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(path.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError as error:
+        raise ConfigError(f"{path}: not a TOML recipe (not UTF-8 text: byte {error.start})") from None
     except tomllib.TOMLDecodeError as error:
         raise ConfigError(f"{path}: not valid TOML: {error}") from None
+    except OSError as error:
+        raise ConfigError(f"{path}: cannot read the recipe ({error.strerror or error})") from None
     return validate_recipe(data, str(path))

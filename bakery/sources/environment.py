@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from bakery.environment.io import read_environment
+from bakery.environment.io import missing_image_message, read_environment
 from bakery.environment.resample import RESAMPLE_MODEL_VERSION, environment_samples, resample_to_cube
 from bakery.errors import DegenerateInputWarning, ImageError
 from bakery.files import sha256_file
@@ -57,10 +57,12 @@ class EnvironmentSource(Source):
     def plan(self, settings, previous) -> SourcePlan:  # noqa: ANN001, ARG002
         missing = [p for p in self.paths if not p.is_file()]
         if missing:
-            raise ImageError(f"{missing[0]}: environment image not found")
+            raise ImageError(missing_image_message(missing[0]))
         stems = [p.stem for p in self.paths]
-        if len(set(stems)) != len(stems):
-            raise ImageError("environment images must have distinct file names (probe names are /environment/<stem>)")
+        clashing = sorted(str(p) for p in self.paths if stems.count(p.stem) > 1)
+        if clashing:
+            raise ImageError(f"{', '.join(clashing[:4])}{' …' if len(clashing) > 4 else ''}: environment images must "
+                             f"have distinct file names (probe names are /environment/<stem>)")
         probes = []
         for path in self.paths:
             name = "/environment" if len(self.paths) == 1 else f"/environment/{path.stem}"

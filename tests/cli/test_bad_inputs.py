@@ -388,3 +388,36 @@ def test_wrong_attribute_type_names_the_prim(usd_ok, tmp_path, existing):
         pytest.fail(f"a string-typed xformOp was baked silently: {bake.stderr[-2000:]}")
     assert "Traceback" not in bake.stderr and "/P" in bake.stderr
     assert untouched(existing)
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["--volume", "2,x,2"], "'--volume'"), (["--volume", "2,2"], "3 comma-separated"),
+    (["--volume", "2,0,2"], ">= 1"), (["--jobs", "a"], "'--jobs'"), (["--reflection", "-1"], "'--reflection'"),
+])
+def test_bench_scale_options_are_checked_before_any_work(tmp_path, args, needle):
+    """Comma-separated counts were parsed with int() in the command: a ValueError traceback, exit 1."""
+    result = run("bench", "scale", "-o", tmp_path / "out", *args)
+    assert_clean_failure(result, 2, needle)
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_folder_or_clashing_image_names_are_named_as_such(good_exr, existing, tmp_path):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    shutil.copy(good_exr, tmp_path / "a" / "sky.exr")
+    shutil.copy(good_exr, tmp_path / "b" / "sky.exr")
+    assert_clean_failure(run("bake", tmp_path / "a", "-o", existing), 2, "a: is a directory, not an environment image")
+    assert_clean_failure(run("bake", tmp_path / "a" / "sky.exr", tmp_path / "b" / "sky.exr", "-o", existing), 2,
+                         str(tmp_path / "a" / "sky.exr"), str(tmp_path / "b" / "sky.exr"), "distinct file names")
+    assert untouched(existing)
+
+
+def test_encodings_no_probe_takes_are_a_settings_error(tmp_path):
+    """``-e shexp`` on a scene of irradiance probes used to write an empty store and layer with exit 0."""
+    from usd_scenes import box_mesh, header, material, probe, write
+
+    text = header() + material("M", diffuse=(0.7, 0.7, 0.7), emissive=(1.0, 1.0, 1.0)) + box_mesh("Box", 2.0, "/M")
+    scene = write(tmp_path / "irr.usda", text + probe("A", (0.2, 0.1, 0.0)))
+    result = run("bake", scene, "-o", tmp_path / "irr.h5", "-e", "shexp", "--face-size", "4", "--samples", "1")
+    assert_clean_failure(result, 3, "irr.usda", "shexp (reflection)", "irradiance probes")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["irr.usda"]

@@ -242,10 +242,12 @@ def test_migrate_from_1_1_adds_checksums(tmp_path, environments):
     ('[targets]\nirradiance = ["zh3"]', "'name' is a required property"),
     ('name = "x"\n[targets]\nreflection = ["zh3"]', "is a irradiance encoding"),
     ('name = "x"\n[targets\n', "not valid TOML"),
+    (b'name = "x\xff"\n', "not UTF-8 text: byte 9"),  # a UnicodeDecodeError traceback before
+    ("\ufeffname = 'x'".encode("utf-16"), "not UTF-8 text: byte 0"),
 ])
 def test_recipe_schema_rejects_bad_recipes(tmp_path, text, message):
     path = tmp_path / "bad.toml"
-    path.write_text(text)
+    path.write_bytes(text) if isinstance(text, bytes) else path.write_text(text)
     with pytest.raises(ConfigError, match=message.replace("[", "\\[").replace("(", "\\(")) as error:
         load_recipe(str(path))
     assert "bad.toml" in str(error.value)
