@@ -50,7 +50,7 @@ def bake(  # noqa: PLR0913 - a façade over BakeRequest
     from bakery.pipeline.settings import request_from
 
     request = request_from(
-        sources, output, recipe=recipe, encodings=tuple(encodings or ()), face_size=face_size,
+        sources, output, recipe=recipe, encodings=encodings or (), face_size=face_size,
         encoding_settings=encoding_settings, layer=layer, layout=layout, samples=samples, bounces=bounces, seed=seed,
         resume=resume, reference_errors=reference_errors, quality_directions=quality_directions,
         band_energy_tolerance=band_energy_tolerance, batch_size=batch_size, target_noise=target_noise, time=time,

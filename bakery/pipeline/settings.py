@@ -10,6 +10,8 @@ the bake face size for encodings that follow it.
 from __future__ import annotations
 
 import json
+import math
+import os
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -195,6 +197,39 @@ class BakeRequest:
 DEFAULT_BAND_TOLERANCE = 1e-6
 
 
+def _checked_arguments(sources: Any, output: Any, recipe: Any, encodings: Any, encoding_settings: Any, layer: Any,
+                       batch_size: Any, band_energy_tolerance: Any, source_type: type) -> tuple[str, ...]:
+    """ConfigError naming the argument for a value of the wrong type (the API's raw TypeErrors and a string of
+    encodings split into letters before); returns ``encodings`` as a tuple (one name may be given as a str)."""
+    def path_like(value: Any) -> bool:
+        return isinstance(value, (str, os.PathLike)) and str(value) != ""
+
+    def kind(value: Any) -> str:
+        return f"{type(value).__name__} {value!r}"[:80]
+
+    if not (isinstance(sources, source_type) or path_like(sources) or (
+            isinstance(sources, (list, tuple)) and sources and all(path_like(s) for s in sources))):
+        raise ConfigError(f"sources must be a file path, a non-empty list of them or a bakery.sources.Source, got "
+                          f"{kind(sources)}")
+    for name, value in (("output", output), ("recipe", recipe), ("layer", layer)):
+        if value is not None and not path_like(value):
+            raise ConfigError(f"{name} must be a path (str or os.PathLike), got {kind(value)}")
+    if isinstance(encodings, str):
+        encodings = (encodings,)
+    if not isinstance(encodings, (list, tuple)) or not all(isinstance(n, str) for n in encodings):
+        raise ConfigError(f"encodings must be encoding names (a str or a sequence of them), got {kind(encodings)}")
+    if encoding_settings is not None and not (isinstance(encoding_settings, Mapping) and all(
+            isinstance(k, str) and isinstance(v, Mapping) for k, v in encoding_settings.items())):
+        raise ConfigError(f"encoding_settings must map encoding names to {{parameter: value}} mappings, got "
+                          f"{kind(encoding_settings)}")
+    if batch_size is not None and (isinstance(batch_size, bool) or not isinstance(batch_size, int)):
+        raise ConfigError(f"batch_size must be an integer >= 1, got {kind(batch_size)}")
+    if band_energy_tolerance is not None and (isinstance(band_energy_tolerance, bool) or not isinstance(
+            band_energy_tolerance, (int, float)) or not math.isfinite(band_energy_tolerance)):
+        raise ConfigError(f"band_energy_tolerance must be a number in (0, 1), got {kind(band_energy_tolerance)}")
+    return tuple(encodings)
+
+
 def request_from(
     sources: Any, output: str | Path | None = None, *, recipe: str | None = None, encodings: tuple[str, ...] = (),
     face_size: int | None = None, encoding_settings: Mapping[str, Mapping[str, Any]] | None = None,
@@ -213,7 +248,9 @@ def request_from(
     from bakery.pipeline.recipe import load_recipe
     from bakery.sources import Source, source_for
 
-    loaded = load_recipe(recipe) if recipe else None
+    encodings = _checked_arguments(sources, output, recipe, encodings, encoding_settings, layer, batch_size,
+                                   band_energy_tolerance, Source)
+    loaded = load_recipe(str(recipe)) if recipe else None
     bake_options = dict(loaded.bake) if loaded else {}
     pipeline_options = dict(loaded.pipeline) if loaded else {}
     source = sources if isinstance(sources, Source) else None

@@ -174,3 +174,27 @@ def test_one_source_path_bakes_at_the_sources_default_face_size(tmp_path, enviro
     scene = bakery.open_store(tmp_path / "scene.h5")
     assert scene.encodings["sh2"].probe_count > 0
     assert scene.attributes["bake_face_size"] == UsdSceneSource.default_face_size != EnvironmentSource.default_face_size
+
+
+@pytest.mark.parametrize("arguments,named", [
+    ({"sources": 5}, "sources"), ({"sources": None}, "sources"), ({"sources": [5]}, "sources"),
+    ({"sources": []}, "sources"), ({"output": 5}, "output"), ({"layer": 5}, "layer"), ({"recipe": 5}, "recipe"),
+    ({"encodings": 5}, "encodings"), ({"encodings": "nope"}, "unknown encoding 'nope'"),
+    ({"encoding_settings": {"zh3": 5}}, "encoding_settings"), ({"encoding_settings": ["zh3"]}, "encoding_settings"),
+    ({"batch_size": "3"}, "batch_size"), ({"batch_size": 2.5}, "batch_size"),
+    ({"band_energy_tolerance": "x"}, "band_energy_tolerance"),
+])
+def test_wrongly_typed_bake_arguments_are_config_errors_naming_the_argument(tmp_path, environment, arguments, named):
+    """``bakery.bake`` raised raw TypeError/AttributeError/ValueError for these, and split a str of encodings into
+    letters ('unknown encoding z')."""
+    from bakery.errors import ConfigError
+
+    call = {"sources": environment, "output": tmp_path / "s.h5", "face_size": 8, **arguments}
+    with pytest.raises(ConfigError, match=named):
+        bakery.bake(call.pop("sources"), call.pop("output"), **call)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["sky.exr"]
+
+
+def test_one_encoding_name_may_be_given_as_a_str(tmp_path, environment):
+    bakery.bake(environment, tmp_path / "s.h5", encodings="sh2", face_size=8)
+    assert list(bakery.open_store(tmp_path / "s.h5").encodings) == ["sh2"]
