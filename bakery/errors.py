@@ -48,6 +48,42 @@ class EncodingError(BakeryError):
     exit_code = 4
 
 
+class ArgumentError(ConfigError, ValueError):
+    """An argument of a Python API call is invalid (wrong type, shape or range): the message names the argument and
+    says what is wrong. A :class:`ConfigError` (exit code 3) and, like
+    :class:`bakery.encodings.base.ParamsError`, a ValueError."""
+
+
+class EvaluationError(ArgumentError):
+    """Invalid inputs of an evaluation (``normals``; ``view``, ``normal``, ``alpha``, ``f0``; ``probes``). A ValueError:
+    ``schemas/store-reflection.md`` ("Evaluation inputs") documents ``ValueError`` naming ``alpha``."""
+
+
+class EncodingKindError(ArgumentError, NotImplementedError):
+    """An encoding was evaluated as the other kind (irradiance evaluation of a reflection encoding or vice versa);
+    the message names the encoding, its kind and the method to use. Also a NotImplementedError (what the encoding
+    base class raised before)."""
+
+
+class _NamedLookupError(BakeryError, KeyError):
+    """A BakeryError that is also a KeyError (what dictionary-style lookups raised before), printed as its message:
+    ``str()`` of a plain KeyError would quote it."""
+
+    exit_code = 2
+
+    def __str__(self) -> str:
+        return str(self.args[0]) if self.args else ""
+
+
+class UnknownEncodingError(_NamedLookupError):
+    """An encoding name that a store does not hold, or that this bakery does not know (a store written by a newer
+    version may hold encodings this one cannot evaluate)."""
+
+
+class UnknownProbeError(_NamedLookupError):
+    """A probe name that a store (or one of its encodings) does not hold."""
+
+
 class BakeryWarning(UserWarning):
     """Base of bakery's warnings: a documented clamp, fallback or suspicious input."""
 
@@ -62,6 +98,10 @@ class ClampWarning(BakeryWarning):
 
 class SceneWarning(BakeryWarning):
     """A scene problem that the bake works around (unsupported light feature, MaterialX-only material, …)."""
+
+
+class UnsupportedEncodingWarning(BakeryWarning):
+    """A store holds an encoding this bakery cannot evaluate (unknown, or a newer major version); it was skipped."""
 
 
 class DegenerateInputWarning(BakeryWarning):

@@ -32,7 +32,13 @@ Instance
                             and used for evaluation (default: ``self.params``)
     ``settings``            ``params.as_dict()`` + ``derived_settings()`` (JSON-able), the group attribute
                             ``settings``; ``from_settings`` rebuilds the encoding from it
-    ``evaluate_irradiance`` / ``evaluate_reflection``: what an engine reconstructs, from stored fields only
+    ``evaluate_irradiance`` / ``evaluate_reflection``: what an engine reconstructs, from stored fields only. Every
+                            subclass's ``evaluate_reflection`` is wrapped (:meth:`Encoding.__init_subclass__`) so that
+                            it receives its arguments checked and in row form: view, normal (M, 3), α (M,), F0 (M,) or
+                            (M, 3) float64 (:func:`bakery.reflection.validation.check_reflection_inputs`; bad input
+                            raises :class:`~bakery.errors.EvaluationError`, a ValueError naming the argument).
+                            Evaluating an encoding as the other kind raises
+                            :class:`~bakery.errors.EncodingKindError` (also a NotImplementedError).
 
 Parameters (:class:`EncodingParams`)
     Frozen dataclasses whose field annotations are the schema: ``bool``, ``int``, ``float`` (an int is accepted),
@@ -47,6 +53,7 @@ Parameters (:class:`EncodingParams`)
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 import types
@@ -57,7 +64,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Literal, Union, get_args, get_o
 
 import numpy as np
 
-from bakery.errors import ConfigError
+from bakery.errors import ConfigError, EncodingKindError
 
 if TYPE_CHECKING:
     from bakery.probe import ProbeBatch
@@ -296,6 +303,20 @@ class NoParams(EncodingParams):
 
 
 # ------------------------------------------------------------------------------------------------ encodings
+def _checked_reflection(method: Any) -> Any:
+    """``method`` (an ``evaluate_reflection``) called with its arguments checked and in row form (module doc)."""
+
+    @functools.wraps(method)
+    def evaluate_reflection(self: Encoding, fields: dict[str, np.ndarray], shared: dict[str, np.ndarray],
+                            view: np.ndarray, normal: np.ndarray, alpha: np.ndarray, f0: np.ndarray) -> np.ndarray:
+        from bakery.reflection.validation import check_reflection_inputs
+
+        return method(self, fields, shared, *check_reflection_inputs(view, normal, alpha, f0))
+
+    evaluate_reflection.checks_inputs = True  # type: ignore[attr-defined]
+    return evaluate_reflection
+
+
 class Encoding(ABC):
     """Base class of every encoding; see the module docstring for the contract."""
 
@@ -310,6 +331,14 @@ class Encoding(ABC):
     accepts_alpha_range: ClassVar[bool] = False
     follows_bake_face_size: ClassVar[bool] = False
     worse_than: ClassVar[tuple[str, type[Encoding]] | None] = None
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """Wrap the subclass's own ``evaluate_reflection`` so that every reflection encoding checks its arguments in
+        one place (module doc); the checks are idempotent, so a wrapped method calling a wrapped super() is fine."""
+        super().__init_subclass__(**kwargs)
+        method = cls.__dict__.get("evaluate_reflection")
+        if callable(method) and not getattr(method, "checks_inputs", False):
+            cls.evaluate_reflection = _checked_reflection(method)  # type: ignore[method-assign]
 
     def __init__(self, params: EncodingParams | None = None, **overrides: Any) -> None:
         """``params`` (default ``Params()``) with ``overrides`` applied. Keys of :meth:`derived_settings` are
@@ -391,7 +420,8 @@ class Encoding(ABC):
 
     def evaluate_irradiance(self, fields: dict[str, np.ndarray], normals: np.ndarray) -> np.ndarray:
         """Irradiance (P, N, 3) at unit normals (N, 3) from stored fields {name: (P, *shape)}."""
-        raise NotImplementedError(f"{self.name} is not an irradiance encoding")
+        raise EncodingKindError(f"{self.name} is a {self.kind} encoding, not an irradiance encoding: evaluate it with "
+                                "evaluate_reflection(fields, shared, view, normal, alpha, f0)")
 
     def evaluate_reflection(
         self,
@@ -404,4 +434,5 @@ class Encoding(ABC):
     ) -> np.ndarray:
         """Specular radiance E (P, N, 3) for (N,) batches of view v (N, 3) (towards the viewer), normal n (N, 3),
         GGX α (N,) and F0 (N,) or (N, 3), from stored fields and shared tables."""
-        raise NotImplementedError(f"{self.name} is not a reflection encoding")
+        raise EncodingKindError(f"{self.name} is an {self.kind} encoding, not a reflection encoding: evaluate it with "
+                                "evaluate_irradiance(fields, normals)")

@@ -218,14 +218,14 @@ class SHExpHybrid(SHExpLights):
         (the E each part alone gives, (P, M, 3)), the chain weights ``w0``, ``w1`` (P, M) and ``E`` (P, M, 3)."""
         from bakery.brdf.ggx import reflect
         from bakery.reflection.tables import lookup_table
-        from bakery.reflection.validation import check_rows, clamp_view_to_horizon
+        from bakery.reflection.validation import check_reflection_inputs, clamp_view_to_horizon
 
-        v, n, a = check_rows(view, normal, alpha)
+        # the arguments' rules (bakery.reflection.validation): F0 (M,) or (M, 3), α (M,), view/normal (M, 3)
+        v, n, a, f0 = check_reflection_inputs(view, normal, alpha, f0)
         v = clamp_view_to_horizon(v, n)
         coeffs = np.concatenate([np.asarray(fields["p"]), np.asarray(fields["q"])], axis=1)
         nv = np.clip(np.sum(v * n, axis=-1), 0.0, 1.0)
         ab = lookup_table(self._table(shared), nv, a)  # (M, 2)
-        f0 = np.asarray(f0, dtype=np.float64)
         f0 = np.broadcast_to(f0[:, None] if f0.ndim == 1 else f0, (v.shape[0], 3))
         pq = clamped_pq(coeffs, v, n, a, self.model, self._alpha_range(fields))
         lights0, lights1 = evaluate_light_parts(fields["light_direction"], fields["light_flux"], v, n, a)

@@ -16,11 +16,13 @@ Reference availability
 from __future__ import annotations
 
 import warnings
+import weakref
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from bakery.errors import UnsupportedEncodingWarning
 from bakery.sphere.fibonacci import fibonacci_directions
 
 #: Normals of the quality metrics (same size as the bake's default diagnostics).
@@ -32,8 +34,31 @@ CURVE_ALPHAS = (0.0, 0.02, 0.04, 0.0625, 0.1, 0.16, 0.25, 0.36, 0.49, 0.64, 0.81
 MATERIALS = {"chrome": 1.0, "glass": 0.04}
 
 
+#: Stores already warned about, with the encodings skipped (one warning per store and encoding).
+_WARNED: weakref.WeakKeyDictionary[Any, set[str]] = weakref.WeakKeyDictionary()
+
+
+def evaluable(store: Any, name: str) -> bool:
+    """Whether this bakery can evaluate the stored encoding ``name``. A store written by a newer bakery may hold an
+    encoding this one does not know (or a newer major version of one): the report skips it in its quality figures
+    and previews (it stays in the memory table) with an :class:`~bakery.errors.UnsupportedEncodingWarning`, once."""
+    reason = store.unsupported_reason(name) if hasattr(store, "unsupported_reason") else None
+    if reason is None:
+        return True
+    try:
+        warned = _WARNED.setdefault(store, set())
+    except TypeError:  # not weak-referenceable: warn every time
+        warned = set()
+    if name not in warned:
+        warned.add(name)
+        warnings.warn(f"{getattr(store, 'path', 'store')}: {reason}; skipped in the report's quality figures and "
+                      "previews", UnsupportedEncodingWarning, stacklevel=2)
+    return False
+
+
 def encodings_of_kind(store: Any, kind: str) -> list[str]:
-    return [name for name, info in store.encodings.items() if info.kind == kind]
+    """The stored encodings of ``kind`` that this bakery can evaluate (:func:`evaluable`)."""
+    return [name for name, info in store.encodings.items() if info.kind == kind and evaluable(store, name)]
 
 
 def probe_rows(store: Any, encoding: str) -> np.ndarray:
@@ -126,7 +151,7 @@ def quantization_source(store: Any, name: str) -> str | None:
         return None
     base = name[: -len("_quantized")]
     candidates = ([f"{base}_deringed"] if store.encodings[name].settings.get("dering") else []) + [base]
-    return next((c for c in candidates if c in store.encodings), None)
+    return next((c for c in candidates if c in store.encodings and evaluable(store, c)), None)
 
 
 def quantization_errors(store: Any) -> dict[str, dict[str, Any]]:

@@ -29,7 +29,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from bakery.errors import BakeryWarning, StoreFormatError
+from bakery.errors import ArgumentError, BakeryWarning, StoreFormatError
 from bakery.files import (
     atomic_replace,
     os_error_message,
@@ -460,10 +460,17 @@ def read_store(path: str | os.PathLike[str], load_fields: bool = True, *, strict
 
     Raises :class:`StoreFormatError` for a missing, corrupt, foreign or newer-major file, and (``strict``)
     :class:`StoreIntegrityError` naming the datasets that fail their checksums. With ``strict=False`` the findings
-    are returned in ``integrity`` (a dataset that cannot be read at all is then treated as damaged, not raised)."""
-    path = Path(path)
+    are returned in ``integrity`` (a dataset that cannot be read at all is then treated as damaged, not raised).
+
+    The structure the reader relies on is checked first (``/probes`` and ``/encodings`` are groups holding datasets,
+    …: :class:`StoreFormatError` naming the node otherwise); ``strict`` also checks the layout of every encoding
+    (:func:`check_encoding_layout`)."""
+    path = store_path(path)
+    if path.is_dir():
+        raise StoreFormatError(f"{path}: is a directory, not a store file")
     if not path.is_file():
-        raise StoreFormatError(f"{path}: store not found")
+        raise StoreFormatError(f"{path}: store not found" if not path.exists() else
+                               f"{path}: is not a regular file (not a store)")
     try:
         f = h5py.File(path, "r")
     except OSError as error:
@@ -504,6 +511,7 @@ def read_store(path: str | os.PathLike[str], load_fields: bool = True, *, strict
                                               for v in np.asarray(values, dtype=object).reshape(-1).tolist()]
 
         try:
+            _check_structure(path, f)
             names = strings(f["probes/name"])
             kinds = strings(f["probes/kinds"])
             positions = value(f["probes/position"])
@@ -556,6 +564,9 @@ def read_store(path: str | os.PathLike[str], load_fields: bool = True, *, strict
             raise StoreFormatError(f"{path}: store is missing required data or is corrupt: {error}") from error
         except OSError as error:
             raise StoreFormatError(f"{path}: store is corrupt: {os_error_message(error)}") from error
+        except (AttributeError, TypeError, ValueError) as error:  # a node of an unexpected type or shape
+            raise StoreFormatError(f"{path}: store is malformed ({type(error).__name__}: {error}); the file was not "
+                                   "written by bakery or is corrupt") from None
     if len(hashes) != count or len(kinds) != count or np.shape(positions) != (count, 3) \
             or np.shape(bake_ids) != (count,):
         if strict or not integrity.problems:
@@ -567,8 +578,102 @@ def read_store(path: str | os.PathLike[str], load_fields: bool = True, *, strict
         kinds = (list(kinds) + [""] * count)[:count]
     if strict and integrity.problems:
         raise _integrity_error(path, integrity)
+    if strict and load_fields:
+        check_encoding_layout(path, encodings, count)
     return StoreContents(attributes, names, kinds, np.asarray(positions), encodings, diagnostics, hashes,
                          np.asarray(bake_ids, dtype=np.int32), history, integrity)
+
+
+def store_path(path: Any) -> Path:
+    """``path`` as a Path, or :class:`~bakery.errors.ArgumentError` naming the argument when it is not a file path
+    (None, a number, …)."""
+    try:
+        text = os.fspath(path)
+    except TypeError:
+        text = None
+    if not isinstance(text, str) or not text:
+        raise ArgumentError(f"store path must be a file name (str or os.PathLike), got {path!r} "
+                            f"({type(path).__name__})")
+    return Path(text)
+
+
+#: Datasets of ``/probes`` every version has.
+_PROBE_DATASETS = ("name", "kinds", "position")
+
+
+def _check_structure(path: Path, f: h5py.File) -> None:
+    """The node types :func:`read_store` relies on (a crafted or damaged file may have a dataset where a group
+    belongs, …): :class:`StoreFormatError` naming the node otherwise."""
+
+    def need(node: Any, where: str, kind: type, required: bool = True) -> None:
+        if node is None:
+            if required:
+                raise StoreFormatError(f"{path}: {where} is missing (a bakery store always has it)")
+            return
+        if not isinstance(node, kind):
+            found = "a group" if isinstance(node, h5py.Group) else "a dataset" if isinstance(node, h5py.Dataset) \
+                else type(node).__name__
+            expected = "a group" if kind is h5py.Group else "a dataset"
+            raise StoreFormatError(f"{path}: {where} is {found}, expected {expected}; the file was not written by "
+                                   "bakery or is corrupt")
+
+    def child(group: h5py.Group, name: str) -> Any:
+        return group.get(name) if name in group else None
+
+    need(child(f, "probes"), "/probes", h5py.Group)
+    probes = f["probes"]
+    for name in _PROBE_DATASETS:
+        need(child(probes, name), f"/probes/{name}", h5py.Dataset)
+    if "content_hash" in probes:
+        need(child(probes, "content_hash"), "/probes/content_hash", h5py.Dataset)
+        need(child(probes, "bake_id"), "/probes/bake_id", h5py.Dataset)
+    need(child(f, "encodings"), "/encodings", h5py.Group)
+    for name, group in f["encodings"].items():
+        need(group, f"/encodings/{name}", h5py.Group)
+        if "shared" in group:
+            need(child(group, "shared"), f"/encodings/{name}/shared", h5py.Group)
+            for table, item in group["shared"].items():
+                need(item, f"/encodings/{name}/shared/{table}", h5py.Dataset)
+    for name in ("history", "diagnostics"):
+        need(child(f, name), f"/{name}", h5py.Group, required=False)
+    if "history" in f:
+        for column, item in f["history"].items():
+            need(item, f"/history/{column}", h5py.Dataset)
+
+
+def check_encoding_layout(path: str | os.PathLike[str], encodings: dict[str, dict[str, Any]], count: int) -> None:
+    """Every encoding has ``probe_index`` (P_k,) of distinct integers in [0, P) and every other field has P_k rows
+    (``schemas/store-v1.md``, ``/encodings/<name>``); :class:`StoreFormatError` naming the dataset otherwise. Read
+    with ``strict`` (the stores a user reads: ``inspect``, ``diff``, ``report``, the API)."""
+    for name, entry in encodings.items():
+        where = f"/encodings/{name}"
+        fields = entry["fields"]
+        if fields.get("probe_index") is None:
+            raise StoreFormatError(f"{path}: dataset {where}/probe_index is missing (every encoding has one)")
+        index = np.asarray(fields["probe_index"])
+        if index.ndim != 1 or index.dtype.kind not in "iu":
+            raise StoreFormatError(f"{path}: dataset {where}/probe_index is {_array_description(index)}, expected "
+                                   "(P_k,) integers")
+        outside = (index < 0) | (index >= count)
+        if np.any(outside):
+            raise StoreFormatError(f"{path}: dataset {where}/probe_index refers to probe {int(index[outside][0])}, "
+                                   f"the store has {count} probes (0 … {count - 1})")
+        unique, counts = np.unique(index, return_counts=True)
+        if np.any(counts > 1):
+            raise StoreFormatError(f"{path}: dataset {where}/probe_index lists probe {int(unique[counts > 1][0])} "
+                                   f"{int(counts[counts > 1][0])} times")
+        for key, values in fields.items():
+            if key == "probe_index" or values is None:
+                continue
+            array = np.asarray(values)
+            if array.ndim == 0 or array.shape[0] != index.size:
+                raise StoreFormatError(f"{path}: dataset {where}/{key} is {_array_description(array)}, expected "
+                                       f"{index.size} rows (one per entry of {where}/probe_index)")
+
+
+def _array_description(array: np.ndarray) -> str:
+    kind = "str" if array.dtype.kind in "OSU" else str(array.dtype)
+    return f"{kind} of shape {tuple(array.shape)}"
 
 
 def _verify(f: h5py.File, integrity: StoreIntegrity, unreadable: dict[str, str], names: list[str], kinds: list[str],
