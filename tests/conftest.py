@@ -31,3 +31,32 @@ def random_positive_radiance_sh(rng: np.random.Generator, lights: int = 4, max_b
     ambient = rng.uniform(0.0, 0.5, size=3)
     sh[0] += ambient * 2.0 * np.sqrt(np.pi)
     return sh[None]
+
+
+# ------------------------------------------------------------------ tests/bench: the pytest-benchmark suite
+# (here, not in tests/bench/conftest.py: the subfolders' conftests are imported as one module name, `conftest`)
+MEASURED_KEY = pytest.StashKey[list]()
+
+
+@pytest.fixture
+def measured(request) -> list[dict]:  # noqa: ANN001
+    """Where a benchmark appends {name, group, median_s, probes, store_bytes, peak_alloc_mb, …} for the summary."""
+    return request.config.stash.setdefault(MEASURED_KEY, [])
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config):  # noqa: ANN001, ARG001
+    measured = config.stash.get(MEASURED_KEY, [])
+    if not measured:
+        return
+    write = terminalreporter.write_line
+    terminalreporter.section("bakery benchmarks: per probe (medians of the timed rounds)")
+    write(f"{'benchmark':<54} {'probes':>6} {'ms/probe':>9} {'× best':>7} {'bytes/probe':>12} {'store B':>9} "
+          f"{'traced peak MB':>14}")
+    for group in dict.fromkeys(m["group"] for m in measured):
+        rows = [m for m in measured if m["group"] == group]
+        best = min(m["median_s"] / m["probes"] for m in rows)
+        write(group)
+        for m in sorted(rows, key=lambda m: m["median_s"] / m["probes"]):
+            per_probe = m["median_s"] / m["probes"]
+            write(f"  {m['name']:<52} {m['probes']:>6} {1e3 * per_probe:>9.2f} {per_probe / best:>7.2f} "
+                  f"{m.get('bytes_per_probe', '—'):>12} {m['store_bytes']:>9} {m['peak_alloc_mb']:>14.1f}")

@@ -49,7 +49,7 @@ import numpy as np
 from bakery.encodings.base import EncodingParams, NoParams
 from bakery.errors import ConfigError, InputError
 from bakery.export.profiles import Profile, get_profile
-from bakery.files import atomic_replace, sha256_bytes, sha256_file
+from bakery.files import FileLock, atomic_replace, folder_problem, sha256_bytes, sha256_file
 
 MANIFEST = "bakery-export.json"
 MANIFEST_FORMAT = "bakery.export"
@@ -348,21 +348,35 @@ def export_store(store_path: str | os.PathLike[str], output: str | os.PathLike[s
     The layer is checked before anything is built or written (:func:`bakery.usd.layer.open_export_layer`): it must
     be a bakery baked-results layer of this store — never the scene's own layers or any other file, and there is no
     way to force it — else :class:`~bakery.errors.SceneError` (exit 2) and nothing is written. Its new content is
-    staged with the export's files and renamed after them (:func:`write_files`)."""
-    from bakery.api import open_store
-    from bakery.usd.layer import open_export_layer, staged_export_attributes
-
+    staged with the export's files and renamed after them (:func:`write_files`), under the store's writer lock
+    (:class:`bakery.files.FileLock`: exit 2 while a bake of the store runs)."""
     cls = get_format(format)
     prof = get_profile(profile or cls.default_profile)
     params = cls.Params.from_mapping(dict(options or {}), where=f"export {format}")
     store_path = Path(store_path)
     if not store_path.is_file():
         raise InputError(f"{store_path}: no such store")
+    layer_path = None if layer is False else (Path(layer) if layer else default_layer(store_path))
+    with ExitStack() as held:
+        if layer_path is not None and folder_problem(store_path.parent) is None:
+            # the store's writer lock while the layer is read and replaced: a bake of the store writes the layer
+            # too, and an export must not put back the attributes of a layer the bake has just replaced (a store
+            # in a read-only folder has no writer to wait for)
+            held.enter_context(FileLock(store_path))
+        return _export_locked(store_path, output, format, cls, prof, params, probes, layer, layer_path)
+
+
+def _export_locked(store_path: Path, output: str | os.PathLike[str], format: str, cls: type[ExportFormat],
+                   prof: Profile, params: Any, probes: str | None, layer: Any, layer_path: Path | None
+                   ) -> ExportResult:
+    """:func:`export_store` once the store's lock is held (when a layer is edited)."""
+    from bakery.api import open_store
+    from bakery.usd.layer import open_export_layer, staged_export_attributes
+
     store = open_store(store_path)
     selected = select_probes(store, probes)
     output = Path(output)
     _check_writable(output)
-    layer_path = None if layer is False else (Path(layer) if layer else default_layer(store_path))
     target = None if layer_path is None else open_export_layer(layer_path, store_path, default=not layer)
     context = ExportContext(store=store, probes=selected, profile=prof, params=params, format_name=format)
     record = {"format": format, "profile": prof.name, "store": os.path.relpath(store_path.resolve(),

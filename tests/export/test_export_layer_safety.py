@@ -190,3 +190,19 @@ def test_a_layer_usd_cannot_write_leaves_no_export_file(work, monkeypatch):
     assert not (work / "exports").exists() and snapshot(work / "previous") == before
     assert (work / "indoor.bake.usda").read_bytes() == layer
     assert not [p for p in work.iterdir() if ".tmp-" in p.name]
+
+
+def test_an_export_that_edits_the_layer_waits_for_no_bake_of_the_store(work):
+    """A bake of the store writes its layer too: while one holds the store's lock, an export that would edit the
+    layer is refused (exit 2) rather than write attributes into a layer the bake is about to replace; with
+    ``--no-layer`` it only reads the store (replaced atomically) and goes ahead."""
+    from bakery.files import FileLock
+
+    before = snapshot(work)
+    with FileLock(work / "indoor.h5"):  # what a running `bakery bake … -o indoor.h5` holds
+        result = cli("export", "indoor.h5", "-o", "exports", "--format", "ktx2", cwd=work)
+        free = cli("export", "indoor.h5", "-o", "plain", "--format", "ktx2", "--no-layer", cwd=work)
+    assert result.returncode == 2 and "another bake is writing this store" in result.stderr, result.stderr
+    assert "Traceback" not in result.stderr and not (work / "exports").exists()
+    assert free.returncode == 0, free.stderr
+    assert {k: v for k, v in snapshot(work).items() if not k.startswith("plain/")} == before
