@@ -85,3 +85,6 @@ def convention_attributes() -> dict[str, str]:
 
 #: Capture seeds a store can record (its ``capture_seed`` attribute is an HDF5 int64).
 SEED_RANGE = (-(1 << 63), (1 << 63) - 1)
+
+#: Largest cube face size (texels) of a bake grid and of a probe's ``bakery:capture:resolution``.
+MAX_FACE_SIZE = 4096

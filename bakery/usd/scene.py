@@ -49,7 +49,7 @@ from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, UsdSkel
 from bakery.capture.ies import IesError, IesShaping, parse_ies
 from bakery.capture.lights import LIGHT_MODELS, Placement
 from bakery.capture.scene import CaptureScene, Dome, Light, Material, Mesh, ProbeSpec
-from bakery.conventions import stage_to_bake_axes
+from bakery.conventions import MAX_FACE_SIZE, stage_to_bake_axes
 from bakery.environment.io import is_8bit_image, read_environment
 from bakery.errors import ImageError, SceneError
 from bakery.usd import gprims
@@ -61,8 +61,8 @@ from bakery.usd.plugin import FALLBACKS, PLUGIN_DIR, PROBE_TYPES
 _POLE_Y_TO_Z = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # row vectors: +Y ↦ +Z
 #: Time at which the scene is read: authored defaults, else the first time sample.
 _T = Usd.TimeCode.EarliestTime()
-#: Largest ``bakery:capture:resolution``: the largest bake face size (:class:`bakery.pipeline.settings.BakeSettings`)
-MAX_CAPTURE_RESOLUTION = 4096
+#: Largest ``bakery:capture:resolution``: the largest bake face size
+MAX_CAPTURE_RESOLUTION = MAX_FACE_SIZE
 #: UsdLuxShadowAPI inputs the capture does not apply (reported per light)
 
 
