@@ -91,6 +91,8 @@ def build_report(store_path: str | os.PathLike[str], environment: str | os.PathL
         "capture_sh_noise": _capture_noise(store),
         "capture_validity": _capture_validity(store),
         "warnings": json.loads(store.attributes.get("warnings", "[]") or "[]"),
+        # encodings of a newer bakery: in the memory table, not in the quality figures (quality.evaluable)
+        "not_evaluated": {n: reason for n in store.encodings for reason in [store.unsupported_reason(n)] if reason},
     }
     plots: dict[str, str] = {}
     for kind, suffix, ylabel in (("irradiance", "", "relative RMSE vs exact irradiance"),

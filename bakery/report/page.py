@@ -191,6 +191,11 @@ def render_page(data: dict[str, Any], plots: dict[str, str], previews: dict[str,
             parts.append(_preview_section("Diffuse sphere (irradiance / π)", previews["irradiance"]))
         if "reflection" in previews:
             parts.append(_preview_section("Chrome (F0 = 1) and glass (F0 = 0.04) spheres", previews["reflection"]))
+    if data.get("not_evaluated"):
+        parts.append("<h2>Encodings not evaluated</h2><p class=\"note\">In the memory table only: this bakery cannot "
+                     "evaluate them (upgrade bakery to see their quality).</p><ul>"
+                     + "".join(f"<li>{escape(n)}: {escape(str(r))}</li>" for n, r in data["not_evaluated"].items())
+                     + "</ul>")
     if data.get("warnings"):
         parts.append("<h2>Bake warnings</h2><ul>" + "".join(f"<li>{escape(str(w))}</li>" for w in data["warnings"])
                      + "</ul>")

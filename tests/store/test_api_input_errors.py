@@ -320,6 +320,8 @@ def test_report_skips_unknown_encodings_with_a_warning(future_store):
     assert sum("zz_future_irradiance" in str(w.message) for w in recorded) == 1  # once per encoding
     assert "sh2" in data["negative_share"] and "zz_future_irradiance" not in data["negative_share"]
     assert "zz_future_irradiance" in data["memory"]["encodings"]  # the memory table still lists it
+    assert set(data["not_evaluated"]) == {"zz_future_irradiance", "zz_future_reflection"}  # and the page says why
+    assert "Encodings not evaluated" in html and "zz_future_reflection is not known to this bakery" in html
 
 
 def test_report_cli_on_a_store_with_unknown_encodings(future_store, tmp_path):
