@@ -181,6 +181,27 @@ def typed_value(attr: Usd.Attribute, time: Usd.TimeCode, expected: Sdf.ValueType
     raise SceneError(f"{attr.GetName()} is authored as {what} {_shown(value)}, expected {expected}")
 
 
+#: Token attributes whose value decides what the capture sees, checked against their schema's allowedTokens
+_CHECKED_TOKENS = ("visibility", "purpose")
+
+
+def _token_problem(prim: Usd.Prim, time: Usd.TimeCode) -> str | None:
+    """Why ``prim``'s authored visibility or purpose is not one of the tokens its schema allows (USD computes an
+    unknown ``visibility = "hidden"`` as visible), or None."""
+    for name in _CHECKED_TOKENS:
+        attr = prim.GetAttribute(name)
+        if not attr or not attr.HasAuthoredValue():
+            continue
+        try:
+            value = typed_value(attr, time)
+        except SceneError as error:
+            return str(error)
+        allowed = [str(t) for t in (attr.GetMetadata("allowedTokens") or [])]
+        if allowed and str(value) not in allowed:
+            return f"{name} is {str(value)!r}, expected one of {', '.join(allowed)}"
+    return None
+
+
 def _shown(value: object) -> str:
     """A short text of an attribute value for messages: ``'no'``, ``2.5``, ``(2.7, 2, 2)``, ``@sky.hdr@``."""
     if isinstance(value, Sdf.AssetPath):
@@ -413,6 +434,9 @@ class SceneReader:
             if prim.IsPseudoRoot():
                 continue
             imageable = UsdGeom.Imageable(prim)
+            problem = _token_problem(prim, self.time)
+            if problem:  # USD reads an unknown token as visible / default: a typo would show hidden geometry
+                self.issue("error", prim, problem)
             if imageable and imageable.ComputeVisibility(self.time) == UsdGeom.Tokens.invisible:
                 iterator.PruneChildren()
                 continue

@@ -144,6 +144,9 @@ def PointInstancer "PI"
     }
 }
 """, "/PI", "need one value per protoIndices entry"),
+    # USD computes an unknown visibility token as visible: a typo showed geometry meant to be hidden
+    "visibility_unknown_token": (mesh(extra='token visibility = "hidden"'), "/M", "visibility is 'hidden'"),
+    "purpose_unknown_token": (mesh(extra='token purpose = "guides"'), "/M", "expected one of default, render"),
 }
 
 
