@@ -83,6 +83,7 @@ def convention_attributes() -> dict[str, str]:
     attributes["conventions"] = json.dumps(CONVENTIONS, sort_keys=True)
     return attributes
 
+
 #: Capture seeds a store can record (its ``capture_seed`` attribute is an HDF5 int64).
 SEED_RANGE = (-(1 << 63), (1 << 63) - 1)
 

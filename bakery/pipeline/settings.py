@@ -91,7 +91,8 @@ class BakeSettings:
     reference_errors: bool = True
 
     def __post_init__(self) -> None:
-        if isinstance(self.face_size, bool) or not isinstance(self.face_size, int) or not 4 <= self.face_size <= MAX_FACE_SIZE:
+        if isinstance(self.face_size, bool) or not isinstance(self.face_size, int) or not (
+                4 <= self.face_size <= MAX_FACE_SIZE):
             raise ConfigError(f"face_size must be an integer in [4, {MAX_FACE_SIZE}], got {self.face_size!r}")
         if not isinstance(self.quality_directions, int) or self.quality_directions < 4:
             raise ConfigError(f"quality_directions must be an integer >= 4, got {self.quality_directions!r}")
