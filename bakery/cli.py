@@ -119,7 +119,8 @@ def _scheduler_address(ctx: click.Context, param: click.Parameter, value: str | 
 @click.option("--samples", type=click.IntRange(min=1), default=None, help="Rays per cube texel (scenes; default 4).")
 @click.option("--bounces", type=click.IntRange(min=0), default=None,
               help="Largest number of bounces, Russian roulette from the 4th (scenes; default 64).")
-@click.option("--seed", type=click.IntRange(*SEED_RANGE), default=None, help="Base seed of the per-probe capture seeds (scenes).")
+@click.option("--seed", type=click.IntRange(*SEED_RANGE), default=None,
+              help="Base seed of the per-probe capture seeds (scenes).")
 @click.option("--target-noise", type=click.FloatRange(min=0.0, max=1.0, max_open=True), default=None,
               help="Adaptive capture: add rays until each probe's relative SH noise is below this (scenes; 0 = off).")
 @click.option("--time", "time_code", type=float, default=None,
@@ -648,7 +649,8 @@ def _settings_options(command):  # noqa: ANN001, ANN202
         click.option("--layout", type=click.Choice(LAYOUTS), help="Force the image layout."),
         click.option("--samples", type=click.IntRange(min=1), default=None, help="Rays per cube texel (scenes)."),
         click.option("--bounces", type=click.IntRange(min=0), default=None, help="Diffuse bounces (scenes)."),
-        click.option("--seed", type=click.IntRange(*SEED_RANGE), default=None, help="Base seed of the per-probe capture seeds (scenes)."),
+        click.option("--seed", type=click.IntRange(*SEED_RANGE), default=None,
+                     help="Base seed of the per-probe capture seeds (scenes)."),
         click.option("--no-reference", is_flag=True, help="Skip error-vs-reference diagnostics."),
     ]
     for option in reversed(options):
