@@ -68,26 +68,19 @@ def _a(word: str) -> str:
     return ("an " if word[:1] in "aeiou" else "a ") + word
 
 
-def _is_text(value: Any) -> bool:
-    return isinstance(value, str)
+def _list_of_objects(*keys: str) -> Callable[[Any], str | None]:
+    """Check of a JSON list of objects that each hold every one of ``keys``."""
+    shape = "{" + ", ".join(f'"{k}": …' for k in keys) + "}"
 
+    def check(value: Any) -> str | None:
+        if not isinstance(value, list):
+            return "must be a JSON list"
+        for item in value:
+            if not (isinstance(item, dict) and all(k in item for k in keys)):
+                return f"must list {shape} objects, got {json.dumps(item)[:60]}"
+        return None
 
-def _check_skipped(value: Any) -> str | None:
-    if not isinstance(value, list):
-        return "must be a JSON list"
-    for item in value:
-        if not (isinstance(item, dict) and "reason" in item):
-            return f'must list {{"encoding" or "probe": …, "reason": …}} objects, got {json.dumps(item)[:60]}'
-    return None
-
-
-def _check_roughness_ranges(value: Any) -> str | None:
-    if not isinstance(value, list):
-        return "must be a JSON list"
-    for item in value:
-        if not (isinstance(item, dict) and "probe" in item and "reason" in item):
-            return f'must list {{"probe": …, "reason": …}} objects, got {json.dumps(item)[:60]}'
-    return None
+    return check
 
 
 def _check_light_sampling(value: Any) -> str | None:
@@ -103,7 +96,7 @@ def _check_light_sampling(value: Any) -> str | None:
 
 
 def _check_conventions(value: Any) -> str | None:
-    if not isinstance(value, dict) or not all(_is_text(k) and _is_text(v) for k, v in value.items()):
+    if not isinstance(value, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in value.items()):
         return "must be a JSON object of strings"
     return None
 
@@ -113,8 +106,8 @@ def _check_conventions(value: Any) -> str | None:
 JSON_ROOT_ATTRIBUTES: dict[str, tuple[Any, bool, Callable[[Any], str | None]]] = {
     "conventions": ({}, False, _check_conventions),
     "warnings": ([], True, lambda v: None if isinstance(v, list) else "must be a JSON list"),
-    "skipped": ([], False, _check_skipped),
-    "roughness_ranges": ([], False, _check_roughness_ranges),
+    "skipped": ([], False, _list_of_objects("reason")),  # each also names its "encoding" or "probe"
+    "roughness_ranges": ([], False, _list_of_objects("probe", "reason")),
     "capture_light_sampling": (None, True, _check_light_sampling),
 }
 

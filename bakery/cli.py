@@ -329,10 +329,10 @@ def inspect(store: Path, as_json: bool, pattern: str | None, region: str | None)
         last = s.history[-1]
         out.print(f"last bake {last.get('time_utc')} (bakery {last.get('bakery_version')}); "
                   f"{_count(len(s.history), 'bake')} in the history")
-    skipped = json.loads(s.attributes.get("skipped", "[]"))
+    skipped = s.json_attribute("skipped")
     for skip in skipped:
         out.print(f"skipped {escape(str(skip.get('encoding') or skip.get('probe')))}: {escape(str(skip['reason']))}")
-    for note in json.loads(s.attributes.get("roughness_ranges", "[]")):
+    for note in s.json_attribute("roughness_ranges"):
         out.print(f"roughness range {escape(str(note['probe']))}: {escape(str(note['reason']))}")
     if "capture/sh_noise" in s.diagnostics:  # capture settings and achieved noise (issue 11)
         noise = np.asarray(s.diagnostics["capture/sh_noise"], dtype=np.float64)
@@ -342,7 +342,7 @@ def inspect(store: Path, as_json: bool, pattern: str | None, region: str | None)
             out.print(f"capture: {a.get('capture_samples')} rays/texel, ≤ {a.get('capture_bounces')} bounces, target "
                       f"noise {a.get('capture_target_noise', 0)}; SH noise median {np.median(noise):.3g}, "
                       f"max {noise.max():.3g} ({_count(noise.size, 'rendered probe')})")
-        sampling = json.loads(a.get("capture_light_sampling", "null") or "null")
+        sampling = s.json_attribute("capture_light_sampling")
         if sampling and sampling.get("drawn"):
             out.print(f"lights: {sampling['lights']}; {sampling['draws_per_vertex']} of the {sampling['non_distant']} "
                       f"non-distant ones drawn per path vertex from the light grid (all sampled up to "

@@ -278,6 +278,20 @@ def same_file(a: Path, b: Path) -> bool:
         return False
 
 
+def json_output_refusal(path: str | os.PathLike[str], keys: Any, what: str) -> str | None:
+    """A ``refusal`` for :func:`check_output_file` of a JSON output bakery writes: None when the existing file is a
+    previous one (a JSON object holding every one of ``keys``), else why it must not be replaced."""
+    try:
+        data = json.loads(Path(path).read_bytes())
+    except OSError as error:
+        return f"exists and cannot be read ({os_error_message(error)})"
+    except ValueError:  # not JSON, not UTF-8
+        data = None
+    if isinstance(data, dict) and set(keys) <= set(data):
+        return None
+    return f"exists and is not {what}"
+
+
 def check_output_file(path: str | os.PathLike[str], what: str, *, inputs: Any = (), refusal: Any = None,
                       force: bool = False) -> None:
     """The output policy for one file a command is about to write (:class:`OutputError` if refused):

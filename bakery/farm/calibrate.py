@@ -124,13 +124,10 @@ def _fit(rows: list[list[float]], values: list[float]) -> list[float]:
 
 def calibration_refusal(path: Path) -> str | None:
     """Why an existing file must not be replaced by a calibration (None: a calibration bakery wrote)."""
-    try:
-        data = json.loads(Path(path).read_bytes())
-    except (OSError, ValueError):
-        data = None
-    if isinstance(data, dict) and "version" in data and {"process_seconds", "encodings"} <= set(data):
-        return None
-    return "exists and is not a calibration written by bakery farm calibrate"
+    from bakery.files import json_output_refusal
+
+    return json_output_refusal(path, ("version", "process_seconds", "encodings"),
+                               "a calibration written by bakery farm calibrate")
 
 
 def calibrate(output: Path, work: Path | None = None, force: bool = False) -> dict[str, Any]:

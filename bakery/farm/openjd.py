@@ -22,7 +22,7 @@ import shlex
 from pathlib import Path
 from typing import Any
 
-from bakery.files import check_output_file, write_bytes_atomic
+from bakery.files import OutputError, check_output_file, json_output_refusal, write_bytes_atomic
 
 TEMPLATE_HEADER = "# Open Job Description job template written by `bakery farm openjd`"
 PARAMETER_KEYS = frozenset({"Scene", "ShardDir", "Store", "Layer", "Jobs"})
@@ -160,13 +160,7 @@ def template_refusal(path: Path) -> str | None:
 
 def parameters_refusal(path: Path) -> str | None:
     """Why an existing file must not be replaced by the job parameter values (None: values bakery wrote)."""
-    try:
-        data = json.loads(Path(path).read_bytes())
-    except (OSError, ValueError):
-        data = None
-    if isinstance(data, dict) and set(data) == PARAMETER_KEYS:
-        return None
-    return "exists and is not a job parameter file written by bakery farm openjd"
+    return json_output_refusal(path, PARAMETER_KEYS, "a job parameter file written by bakery farm openjd")
 
 
 def check_template_outputs(template: Path, inputs: list[Path], force: bool = False) -> None:
@@ -175,8 +169,6 @@ def check_template_outputs(template: Path, inputs: list[Path], force: bool = Fal
     not even with ``force``."""
     template = Path(template)
     if template.suffix.lower() not in (".yaml", ".yml", ".json"):
-        from bakery.files import OutputError
-
         raise OutputError(f"{template}: a job template is a .yaml, .yml or .json file")
     check_output_file(template, "job template", inputs=inputs, refusal=template_refusal, force=force)
     check_output_file(parameters_path(template), "job parameters", inputs=[*inputs, template],

@@ -24,6 +24,7 @@ from bakery.files import (
     atomic_replace,
     check_output_file,
     folder_problem,
+    json_output_refusal,
     os_error_message,
 )
 from bakery.report import quality, render, svg
@@ -90,7 +91,7 @@ def build_report(store_path: str | os.PathLike[str], environment: str | os.PathL
         # issue 11: the relative SH noise each rendered probe's capture achieved (NaN: loaded from an image)
         "capture_sh_noise": _capture_noise(store),
         "capture_validity": _capture_validity(store),
-        "warnings": json.loads(store.attributes.get("warnings", "[]") or "[]"),
+        "warnings": store.json_attribute("warnings"),
         # encodings of a newer bakery: in the memory table, not in the quality figures (quality.evaluable)
         "not_evaluated": {n: reason for n in store.encodings for reason in [store.unsupported_reason(n)] if reason},
     }
@@ -180,20 +181,14 @@ def _previews(store: Any, errors: dict[str, np.ndarray], references: list[Any] |
 
 def _report_refusal(path: Path) -> str | None:
     """Why an existing file must not be replaced by a report file (None: a previous bakery report)."""
+    if path.suffix != ".html":
+        return json_output_refusal(path, ("store", "bakery_version", "memory"), "a bakery report")
     try:
         with open(path, "rb") as handle:
             head = handle.read(1 << 20)
     except OSError as error:
         return f"exists and cannot be read ({os_error_message(error)})"
-    if path.suffix == ".html":
-        return None if b"<title>bakery report:" in head else "exists and is not a bakery report page"
-    try:
-        data = json.loads(head.decode("utf-8"))
-    except (UnicodeDecodeError, ValueError):
-        return "exists and is not a bakery report (not JSON)"
-    if isinstance(data, dict) and {"store", "bakery_version", "memory"} <= set(data):
-        return None
-    return "exists and is not a bakery report"
+    return None if b"<title>bakery report:" in head else "exists and is not a bakery report page"
 
 
 def check_report_output(out: Path, inputs: list[Path], force: bool = False) -> None:
