@@ -229,8 +229,9 @@ def recover_staged(record: str | os.PathLike[str]) -> list[Path]:
 
 def os_error_message(error: BaseException) -> str:
     """One line for an OS-level failure: ``<file>: <reason>``, also for HDF5's errors, which carry the errno in
-    their text (``errno = 28, error message = 'No space left on device'``)."""
-    text = str(error)
+    their text (``errno = 28, error message = 'No space left on device'``), and of h5py's KeyError and RuntimeError
+    for a failed metadata checksum."""
+    text = str(error.args[0]) if isinstance(error, KeyError) and error.args else str(error)
     code = getattr(error, "errno", None)
     reason = getattr(error, "strerror", None)
     match = re.search(r"errno = (\d+), error message = '([^']*)'", text)

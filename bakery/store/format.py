@@ -380,7 +380,8 @@ def _write_file(target: Any, contents: StoreContents) -> None:
             entry = contents.encodings[name]
             group = encodings.create_group(name)
             _write_attributes(group, entry["attributes"])
-            for field_name, array in entry["fields"].items():
+            # fields by name: the bytes must not depend on whether a fresh batch or a reused store came first
+            for field_name, array in sorted(entry["fields"].items()):
                 ds = _dataset(group, field_name, array, given)
                 description = entry.get("descriptions", {}).get(field_name)
                 if description:
@@ -418,6 +419,12 @@ def _read_attributes(node: h5py.HLObject) -> dict[str, Any]:
     return out
 
 
+#: What h5py raises for a damaged file: OSError for most damage, but KeyError ("Unable to synchronously open object")
+#: or RuntimeError ("Error iterating over attributes") when a metadata checksum fails (a flipped byte in an object
+#: header, a zeroed tail)
+_DAMAGED = (OSError, RuntimeError, KeyError)
+
+
 def overwrite_refusal(path: str | os.PathLike[str]) -> str | None:
     """Why an existing file at ``path`` must not be replaced by a new store (None: it is a bakery store of a
     format version this bakery reads and writes, i.e. a previous output). Used by the output policy."""
@@ -432,7 +439,7 @@ def overwrite_refusal(path: str | os.PathLike[str]) -> str | None:
     try:
         with h5py.File(path, "r") as f:
             attributes = _read_attributes(f)
-    except OSError:
+    except _DAMAGED:
         return "exists and is not a readable HDF5 file (truncated or corrupt?)"
     if attributes.get("format") != FORMAT_NAME:
         return "exists and is an HDF5 file but not a bakery probe store"
@@ -473,7 +480,7 @@ def read_store(path: str | os.PathLike[str], load_fields: bool = True, *, strict
                                f"{path}: is not a regular file (not a store)")
     try:
         f = h5py.File(path, "r")
-    except OSError as error:
+    except _DAMAGED as error:
         raise StoreFormatError(f"{path}: not a readable HDF5 file (truncated or corrupt?): "
                                f"{os_error_message(error)}") from error
     integrity = StoreIntegrity()
@@ -483,7 +490,7 @@ def read_store(path: str | os.PathLike[str], load_fields: bool = True, *, strict
         """The dataset's values; a read failure (fletcher32 mismatch, damaged chunk) is recorded, not raised."""
         try:
             return item[()]
-        except (OSError, ValueError) as error:
+        except (OSError, RuntimeError, ValueError) as error:
             unreadable[item.name] = os_error_message(error)
             if strict:
                 raise StoreIntegrityError(f"{path}: dataset {item.name} cannot be read: {unreadable[item.name]}; "
@@ -491,7 +498,11 @@ def read_store(path: str | os.PathLike[str], load_fields: bool = True, *, strict
             return None
 
     with f:
-        attributes = _read_attributes(f)
+        try:
+            attributes = _read_attributes(f)
+        except _DAMAGED as error:
+            raise StoreFormatError(f"{path}: store is corrupt (its root attributes cannot be read: "
+                                   f"{os_error_message(error)}); restore a copy or re-bake it") from None
         if attributes.get("format") != FORMAT_NAME:
             raise StoreFormatError(f"{path}: not a bakery probe store (format attribute {attributes.get('format')!r})")
         version = str(attributes.get("format_version", ""))
@@ -562,7 +573,7 @@ def read_store(path: str | os.PathLike[str], load_fields: bool = True, *, strict
                 integrity.whole_store = True
         except KeyError as error:
             raise StoreFormatError(f"{path}: store is missing required data or is corrupt: {error}") from error
-        except OSError as error:
+        except (OSError, RuntimeError) as error:
             raise StoreFormatError(f"{path}: store is corrupt: {os_error_message(error)}") from error
         except (AttributeError, TypeError, ValueError) as error:  # a node of an unexpected type or shape
             raise StoreFormatError(f"{path}: store is malformed ({type(error).__name__}: {error}); the file was not "

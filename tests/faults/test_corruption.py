@@ -160,3 +160,39 @@ def test_damaged_checkpoint_is_recomputed_not_reused(tmp_path):
     path.write_bytes(bytes(data))
     (journal.directory / "k2.pkl").write_bytes(b"bakery-journal 1 " + b"0" * 64 + b"\n" + b"garbage")
     assert journal.load({"k1", "k2"}) == {}
+
+
+def _header_byte_flipped(path):
+    data = bytearray(path.read_bytes())
+    data[60] ^= 0x01  # inside the root group's object header (superblock v2/v3: 48 bytes, then the header)
+    path.write_bytes(bytes(data))
+
+
+def _tail_zeroed(path):
+    data = bytearray(path.read_bytes())
+    data[-4096:] = bytes(4096)  # the metadata HDF5 writes last (object headers, the heap of attribute names)
+    path.write_bytes(bytes(data))
+
+
+#: damage to HDF5's own metadata, which h5py reports as KeyError or RuntimeError ("incorrect metadata checksum"),
+#: not as the OSError of a truncated file
+METADATA_DAMAGE = {"root header byte flipped": _header_byte_flipped, "tail zeroed": _tail_zeroed}
+
+
+@pytest.mark.parametrize("case", list(METADATA_DAMAGE))
+def test_damaged_hdf5_metadata_fails_cleanly_and_force_replaces_it(baked, case, tmp_path):
+    d, images = baked
+    bad = tmp_path / f"{case.replace(' ', '_')}.h5"
+    shutil.copy(d / "clean.h5", bad)
+    METADATA_DAMAGE[case](bad)
+    before = bad.read_bytes()
+    for args in (["inspect", bad], ["diff", d / "clean.h5", bad], ["migrate", bad],
+                 ["report", bad, "-o", tmp_path / "rep", "--no-previews"]):
+        assert_fails_cleanly(incli(*args), 2, bad.name, "corrupt")
+    _refused = incli("bake", *images, "-o", bad, *FLAGS)
+    assert_fails_cleanly(_refused, 2, bad.name, "not a readable HDF5 file", "--force")
+    assert bad.read_bytes() == before and not (tmp_path / "rep").exists()
+    replaced = incli("bake", *images, "-o", bad, *FLAGS, "--force", "--json")
+    assert replaced.returncode == 0, replaced.output
+    assert json.loads(replaced.stdout)["baked"] == 3  # nothing read from the damaged file
+    assert json.loads(incli("diff", d / "clean.h5", bad, "--json").output)["unchanged"] == 3
