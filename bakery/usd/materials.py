@@ -29,6 +29,21 @@ Inputs
     mesh's corner colours, ``Mesh.colors``, interpolated with the hit's barycentrics; the reader's fallback where
     the mesh lacks it); other primvar readers give their fallback (reported).
 
+Input types
+    Every input is read with the type the shader's definition declares: Sdr's node for the ``Usd*`` shaders
+    (UsdPreviewSurface, UsdUVTexture, UsdTransform2d, UsdPrimvarReader_*), MaterialX's standard library node
+    definition for ``ND_*`` shaders (usd-core registers no MaterialX nodes with Sdr). A value of another type —
+    ``string inputs:roughness = "rough"``, ``float inputs:diffuseColor = 0.5``, ``string inputs:file`` — is an error
+    naming the prim that authored it (a shader, or the material's interface input it is connected to), its authored
+    and its expected type; precision and roles aside (a ``double3`` for a ``color3f`` reads the same, as does a
+    ``token`` for a ``string``).
+
+Ranges
+    UsdPreviewSurface's unit inputs (roughness, metallic, opacity, opacityThreshold, clearcoat, clearcoatRoughness)
+    outside [0, 1], negative colours, diffuse and specular colours above 1 and ``ior`` ≤ 0 are reported (a warning
+    on the material) and read as the capture always has (:mod:`bakery.capture.surfaces`: roughness, metallic,
+    opacity and coat clamped to [0, 1], albedo and F0 to [0, 1], emission to ≥ 0; F0 = 0 for ``ior`` ≤ 0).
+
 Colour
     ``sourceColorSpace`` "sRGB" decodes sRGB; "raw" leaves data alone; "auto" decodes 8-bit images as sRGB and
     reads float images as linear. A ``colorSpace`` on the file attribute (or inherited from the layer, e.g.
@@ -40,16 +55,18 @@ Colour
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cache
 from pathlib import Path
 
 import numpy as np
-from pxr import Ar, Sdf, Usd, UsdGeom, UsdShade
+from pxr import Ar, Sdf, Sdr, Usd, UsdGeom, UsdShade
 
 from bakery.capture.scene import Material, Texture
 from bakery.environment.io import read_image
-from bakery.errors import ImageError
+from bakery.errors import ImageError, SceneError
 from bakery.usd.assets import local_asset_path
 from bakery.usd.color import ColorSpaceError, canonical_name, to_working_space
+from bakery.usd.values import typed_value
 
 _T = Usd.TimeCode.EarliestTime()
 #: Largest texture side kept in the snapshot (larger textures are box-filtered to it).
@@ -79,6 +96,8 @@ PREVIEW_FALLBACKS = {
     "clearcoatRoughness": 0.01,
 }
 COLOR_INPUTS = ("diffuseColor", "emissiveColor", "specularColor")
+#: UsdPreviewSurface inputs whose specification range is [0, 1] (module docstring "Ranges")
+UNIT_INPUTS = ("roughness", "metallic", "opacity", "opacityThreshold", "clearcoat", "clearcoatRoughness")
 #: UsdPreviewSurface inputs the capture does not model (reported when authored away from their fallbacks).
 UNMODELLED = {"displacement": 0.0, "occlusion": 1.0}
 
@@ -174,7 +193,7 @@ class MaterialReader:
             self._preview_input(shader, name, fallback, surface)
         for name, neutral in UNMODELLED.items():
             shader_input = shader.GetInput(name)
-            value = shader_input.Get(self.time) if shader_input else None
+            value = self._input_value(shader, name, None)
             if shader_input and (shader_input.HasConnectedSource() or (
                     value is not None and float(np.mean(value)) != neutral)):
                 surface.notes.append(f"{name} is not modelled by the capture")
@@ -188,7 +207,8 @@ class MaterialReader:
 
     def _finish(self, path: str, surface: Surface) -> tuple[Material, bool, str | None]:
         v = {**PREVIEW_FALLBACKS, **surface.values}
-        for note in surface.notes:
+        constants = {k: value for k, value in surface.values.items() if k not in surface.maps}
+        for note in [*surface.notes, *_range_notes(constants)]:
             self._warn_once(path, note)
         opacity, threshold = float(np.mean(v["opacity"])), float(np.mean(v["opacityThreshold"]))
         maps = []
@@ -238,15 +258,26 @@ class MaterialReader:
 
     # ------------------------------------------------------------------------------------------------------------
     def _producer(self, shader_input: UsdShade.Input):  # noqa: ANN202
-        """(value, upstream shader, output name) at the end of the input's connections (interface inputs followed)."""
+        """(value, upstream shader, output name) at the end of the input's connections (interface inputs followed);
+        the value of the type the shader declares for the input, else None and an error (module doc "Input
+        types")."""
         attrs = shader_input.GetValueProducingAttributes()
-        if not attrs:
-            return shader_input.Get(self.time), None, None
-        attr = attrs[0]
-        if UsdShade.Output.IsOutput(attr):
-            output = UsdShade.Output(attr)
+        if attrs and UsdShade.Output.IsOutput(attrs[0]):
+            output = UsdShade.Output(attrs[0])
             return None, UsdShade.Shader(output.GetPrim()), output.GetBaseName()
-        return attr.Get(self.time), None, None
+        return self._declared_value(shader_input, attrs[0] if attrs else shader_input.GetAttr()), None, None
+
+    def _declared_value(self, shader_input: UsdShade.Input, attr: Usd.Attribute):  # noqa: ANN202
+        """The value of ``attr`` (the end of ``shader_input``'s connections) if it has the type the input's shader
+        declares for it; otherwise an error on the prim that authored it, and None (the fallback is used)."""
+        shader_id = UsdShade.Shader(shader_input.GetPrim()).GetShaderId() or ""
+        expected = declared_input_type(shader_id, shader_input.GetBaseName())
+        try:
+            return typed_value(attr, self.time, expected)
+        except SceneError as error:
+            self._warn_once(str(attr.GetPrim().GetPath()), f"{error} (an input of {shader_id or 'a shader'})",
+                            severity="error")
+            return None
 
     def _input_value(self, shader: UsdShade.Shader, name: str, fallback):  # noqa: ANN001, ANN202
         """An input's value through its connections to interface inputs (not computed by a shader), else
@@ -280,8 +311,7 @@ class MaterialReader:
                 surface.primvar = surface.primvar or primvar
             return
         if upstream_id.startswith("UsdPrimvarReader"):
-            fb = upstream.GetInput("fallback")
-            fb_value = fb.Get(self.time) if fb else None
+            fb_value = self._input_value(upstream, "fallback", None)
             if fb_value is not None:
                 surface.values[name] = fb_value
             varname = upstream.GetInput("varname")
@@ -311,7 +341,7 @@ class MaterialReader:
         if resolved is None:
             self._warn_once(path, f"texture {asset.path!r} not found; using the input's value")
             return None, None, None
-        source_cs = _token(texture, "sourceColorSpace", "auto", self.time)
+        source_cs = str(self._input_value(texture, "sourceColorSpace", "") or "auto")
         color_space = file_input.GetAttr().GetColorSpace() if file_input else ""
         if not color_space:
             color_space = _inherited_color_space(texture.GetPrim())
@@ -325,10 +355,10 @@ class MaterialReader:
                        for tile, file in tiles]
             udim_tiles = tuple((tile, i) for tile, i in indices if i is not None)
             texel_mean = np.mean([self._means[i] for _, i in udim_tiles], axis=0)
-        scale = _value4(texture, "scale", (1.0, 1.0, 1.0, 1.0), self.time)
-        bias = _value4(texture, "bias", (0.0, 0.0, 0.0, 0.0), self.time)
-        fallback = _value4(texture, "fallback", (0.0, 0.0, 0.0, 1.0), self.time)
-        wrap = tuple(_wrap_mode(_token(texture, w, "useMetadata", self.time)) for w in ("wrapS", "wrapT"))
+        scale = _value4(self._input_value(texture, "scale", None), (1.0, 1.0, 1.0, 1.0))
+        bias = _value4(self._input_value(texture, "bias", None), (0.0, 0.0, 0.0, 0.0))
+        fallback = _value4(self._input_value(texture, "fallback", None), (0.0, 0.0, 0.0, 1.0))
+        wrap = tuple(_wrap_mode(str(self._input_value(texture, w, "") or "useMetadata")) for w in ("wrapS", "wrapT"))
         channels = output if output in ("r", "g", "b", "a") else "rgb"
         mean = texel_mean * scale + bias
         mean_out = float(mean[{"r": 0, "g": 1, "b": 2, "a": 3}[channels]]) if channels != "rgb" else mean[:3]
@@ -468,6 +498,52 @@ def _downsample(pixels: np.ndarray, limit: int) -> np.ndarray:
     return pixels
 
 
+@cache
+def declared_input_type(shader_id: str, name: str) -> Sdf.ValueTypeName | None:
+    """The type the definition of shader ``shader_id`` declares for its input ``name`` (module doc "Input types"):
+    Sdr's node, else MaterialX's node definition of an ``ND_…`` id; None where neither knows the shader or input."""
+    node = Sdr.Registry().GetShaderNodeByIdentifier(shader_id) if shader_id else None
+    if node is not None:
+        shader_input = node.GetShaderInput(name)
+        return shader_input.GetTypeAsSdfType().GetSdfType() if shader_input else None
+    if shader_id.startswith("ND_"):
+        from bakery.usd.mtlx import nodedef_input_type
+
+        return Sdf.ValueTypeNames.Find(_MTLX_TYPES.get(nodedef_input_type(shader_id, name), "")) or None
+    return None
+
+
+#: MaterialX value types → the USD value types they are authored as in USD (usdMtlx's mapping)
+_MTLX_TYPES = {"boolean": "bool", "integer": "int", "float": "float", "color3": "color3f", "color4": "color4f",
+               "vector2": "float2", "vector3": "float3", "vector4": "float4", "matrix33": "matrix3d",
+               "matrix44": "matrix4d", "string": "string", "filename": "asset", "integerarray": "int[]",
+               "floatarray": "float[]", "color3array": "color3f[]", "vector3array": "float3[]"}
+
+
+def _range_notes(values: dict[str, object]) -> list[str]:
+    """Warnings for untextured inputs (by their UsdPreviewSurface names) outside their range, with the clamp the
+    capture applies (module doc "Ranges")."""
+    notes = []
+    for name in UNIT_INPUTS:
+        value = values.get(name)
+        if value is not None and np.ndim(value) == 0 and not 0.0 <= float(value) <= 1.0:
+            notes.append(f"{name} = {float(value):g} is outside [0, 1]; read as {min(max(float(value), 0.0), 1.0):g}")
+    for name in COLOR_INPUTS:
+        value = values.get(name)
+        if value is None or not np.size(value):
+            continue
+        colour = np.asarray(value, dtype=np.float64).reshape(-1)
+        shown = "(" + ", ".join(f"{x:g}" for x in colour) + ")"
+        if colour.min() < 0.0:
+            notes.append(f"{name} = {shown} has negative components; they are read as 0")
+        if name != "emissiveColor" and colour.max() > 1.0:  # a reflectance above 1 would create energy
+            notes.append(f"{name} = {shown} has components above 1; they are read as 1")
+    ior = values.get("ior")
+    if ior is not None and np.ndim(ior) == 0 and float(ior) <= 0.0:
+        notes.append(f"ior = {float(ior):g} is not positive; the dielectric reflects nothing (F0 = 0)")
+    return notes
+
+
 def srgb_to_linear(values: np.ndarray) -> np.ndarray:
     """IEC 61966-2-1 sRGB decoding of values in [0, 1]."""
     values = np.asarray(values)
@@ -478,19 +554,9 @@ def _color(value) -> tuple[float, float, float]:  # noqa: ANN001
     return tuple(float(x) for x in np.broadcast_to(np.asarray(value, dtype=np.float64), 3))
 
 
-def _token(shader: UsdShade.Shader, name: str, fallback: str, time: Usd.TimeCode) -> str:
-    shader_input = shader.GetInput(name)
-    value = shader_input.Get(time) if shader_input else None
-    return str(value) if value else fallback
-
-
-def _value4(shader: UsdShade.Shader, name: str, fallback, time: Usd.TimeCode) -> np.ndarray:  # noqa: ANN001
-    shader_input = shader.GetInput(name)
-    value = shader_input.Get(time) if shader_input else None
-    array = np.asarray(fallback if value is None else value, dtype=np.float64).reshape(-1)
-    if array.size < 4:
-        array = np.concatenate([array, np.asarray(fallback, dtype=np.float64)[array.size:]])
-    return array[:4]
+def _value4(value, fallback) -> np.ndarray:  # noqa: ANN001
+    """A float4 input's value (4,) float64, ``fallback`` where it has none."""
+    return np.asarray(fallback if value is None else value, dtype=np.float64).reshape(-1)[:4]
 
 
 def _wrap_mode(token: str) -> str:

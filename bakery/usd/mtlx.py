@@ -120,6 +120,14 @@ def _library():  # noqa: ANN202
     return library
 
 
+def nodedef_input_type(node_def_name: str, name: str) -> str:
+    """The MaterialX type (``float``, ``color3``, …) the standard library's node definition ``node_def_name``
+    declares for input ``name``; "" if it has no such definition or input."""
+    node_def = _library().getNodeDef(node_def_name)
+    node_input = node_def.getActiveInput(name) if node_def is not None else None
+    return node_input.getType() if node_input is not None else ""
+
+
 def _category(node_def_name: str) -> str:
     """``ND_standard_surface_surfaceshader`` → ``standard_surface``."""
     name = node_def_name[3:] if node_def_name.startswith("ND_") else node_def_name
@@ -856,8 +864,8 @@ def _usd_normal_map(reader, node, node_id: str, notes: list[str]) -> dict | None
     if not node_id.startswith("ND_normalmap"):
         _unmapped_normal(notes, f"computed by {node_id or 'an untyped shader'}")
         return None
-    space = node.GetInput("space")
-    if space and space.Get(reader.time) and str(space.Get(reader.time)) != "tangent":
+    space = reader._input_value(node, "space", "")
+    if space and str(space) != "tangent":
         _unmapped_normal(notes, "an object-space normal map")
         return None
     source = node.GetInput("in")
@@ -867,8 +875,7 @@ def _usd_normal_map(reader, node, node_id: str, notes: list[str]) -> dict | None
         _unmapped_normal(notes, "a normalmap of a computed vector")
         return None
     entry = _usd_image_map(reader, image, False)
-    scale = node.GetInput("scale")
-    return None if entry is None else _normal_entry(entry, scale.Get(reader.time) if scale else None)
+    return None if entry is None else _normal_entry(entry, reader._input_value(node, "scale", None))
 
 
 def _usd_image_map(reader, node, is_color: bool) -> dict | None:  # noqa: ANN001
@@ -877,7 +884,7 @@ def _usd_image_map(reader, node, is_color: bool) -> dict | None:  # noqa: ANN001
     from bakery.usd.assets import local_asset_path
 
     file_input = node.GetInput("file")
-    asset = file_input.Get(reader.time) if file_input else None
+    asset = reader._input_value(node, "file", None)
     if not isinstance(asset, Sdf.AssetPath) or not asset.path:
         return None
     color_space = file_input.GetAttr().GetColorSpace() or ""
@@ -902,8 +909,8 @@ def _usd_image_map(reader, node, is_color: bool) -> dict | None:  # noqa: ANN001
     modes = {"periodic": "repeat", "clamp": "clamp", "mirror": "mirror", "constant": "black"}
     wrap = []
     for a in ("uaddressmode", "vaddressmode"):
-        inp = node.GetInput(a)
-        wrap.append(modes.get(str(inp.Get(reader.time)) if inp and inp.Get(reader.time) else "periodic", "repeat"))
+        mode = reader._input_value(node, a, "")
+        wrap.append(modes.get(str(mode) if mode else "periodic", "repeat"))
     entry = {"texture": index, "channels": "rgb" if is_color else "r", "scale": (1.0, 1.0, 1.0, 1.0),
             "bias": (0.0, 0.0, 0.0, 0.0), "fallback": (0.0, 0.0, 0.0, 1.0), "wrap": tuple(wrap),
             "_mean": tuple(reader.texture_mean(index)[:3].tolist()), **_udim_fields(reader, tiles)}

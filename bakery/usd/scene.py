@@ -57,6 +57,7 @@ from bakery.usd.assets import local_asset_path
 from bakery.usd.color import WORKING_SPACE, ColorSpaceError, to_working_space
 from bakery.usd.materials import MaterialReader, srgb_to_linear
 from bakery.usd.plugin import FALLBACKS, PLUGIN_DIR, PROBE_TYPES
+from bakery.usd.values import typed_value, value_kind
 
 _POLE_Y_TO_Z = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # row vectors: +Y ↦ +Z
 #: Time at which the scene is read: authored defaults, else the first time sample.
@@ -140,47 +141,6 @@ def tf_error_message(error: Exception) -> str:
     return text if len(text) <= 300 else text[:297] + "..."
 
 
-#: Floating-point precisions of one kind of value (:func:`_value_kind`): a double authored for a float reads the same
-_REAL_TYPES = {"float": "real", "double": "real", "half": "real", "GfHalf": "real", "pxr_half::half": "real",
-               "string": "text", "std::string": "text", "TfToken": "text"}
-
-
-def _value_kind(type_name: Sdf.ValueTypeName) -> tuple[str, bool]:
-    """What a USD value type holds, for type checks: its scalar type without role or floating-point precision
-    (float, double and half → "real"; string and token → "text"; GfVec3f/d/h → "GfVec3"; GfQuatf/d/h → "GfQuat"),
-    and whether it is an array."""
-    scalar = str(type_name.scalarType.type.typeName)
-    scalar = _REAL_TYPES.get(scalar) or re.sub(r"^(Gf[A-Za-z]+\d?)[dfh]$", r"\1", scalar)
-    return scalar, bool(type_name.isArray)
-
-
-def _authored_type(attr: Usd.Attribute, time: Usd.TimeCode) -> Sdf.ValueTypeName | None:
-    """The type of the strongest opinion holding a value of ``attr`` (what the layer authored: for an attribute a
-    schema declares, ``attr.GetTypeName()`` is the schema's type whatever the layer says)."""
-    stack = attr.GetPropertyStack(time)
-    for spec in stack:
-        if spec.HasDefaultValue() or spec.layer.GetNumTimeSamplesForPath(spec.path):
-            return spec.typeName
-    return stack[0].typeName if stack else None
-
-
-def typed_value(attr: Usd.Attribute, time: Usd.TimeCode, expected: Sdf.ValueTypeName | None = None):
-    """The value of ``attr`` at ``time`` (None if it has none), of the type its schema declares: ``expected``, else
-    ``attr.GetTypeName()``. USD returns an opinion of another type as authored (``string bakery:volume:relocate =
-    "no"`` reads as the truthy "no", ``float`` 2.5 for an ``int`` as 2.5): raises SceneError naming the attribute,
-    its authored type and the expected one. Floating-point precision and role aside: a ``double3`` authored for a
-    ``color3f`` reads the same."""
-    value = attr.Get(time)
-    expected = expected or attr.GetTypeName()
-    if value is None or not expected or type(value) is type(expected.defaultValue):
-        return value
-    authored = _authored_type(attr, time)
-    if authored and _value_kind(authored) == _value_kind(expected):
-        return value
-    what = str(authored) if authored else type(value).__name__
-    raise SceneError(f"{attr.GetName()} is authored as {what} {_shown(value)}, expected {expected}")
-
-
 #: Token attributes whose value decides what the capture sees, checked against their schema's allowedTokens
 _CHECKED_TOKENS = ("visibility", "purpose")
 
@@ -200,22 +160,6 @@ def _token_problem(prim: Usd.Prim, time: Usd.TimeCode) -> str | None:
         if allowed and str(value) not in allowed:
             return f"{name} is {str(value)!r}, expected one of {', '.join(allowed)}"
     return None
-
-
-def _shown(value: object) -> str:
-    """A short text of an attribute value for messages: ``'no'``, ``2.5``, ``(2.7, 2, 2)``, ``@sky.hdr@``."""
-    if isinstance(value, Sdf.AssetPath):
-        text = f"@{value.path}@"
-    elif isinstance(value, float):
-        text = f"{value:g}"
-    elif isinstance(value, str) or not hasattr(value, "__len__"):
-        text = repr(value)
-    else:
-        try:
-            text = "(" + ", ".join(f"{float(x):g}" for x in value) + ")"
-        except (TypeError, ValueError):
-            text = repr(value)
-    return text if len(text) <= 40 else text[:37] + "..."
 
 
 @functools.cache
@@ -255,7 +199,7 @@ def _xform_op_problem(prim: Usd.Prim) -> str | None:
             else:  # translate, scale, rotateXYZ…, pivots
                 expected = ("double3", "float3", "half3")
             type_name = op.GetAttr().GetTypeName()  # not declared by a schema: the authored type
-            if not type_name or _value_kind(type_name) != _value_kind(Sdf.ValueTypeNames.Find(expected[0])):
+            if not type_name or value_kind(type_name) != value_kind(Sdf.ValueTypeNames.Find(expected[0])):
                 where = "" if owner == prim else f" of {owner.GetPath()}"
                 allowed = expected[0] if len(expected) == 1 else f"{', '.join(expected[:-1])} or {expected[-1]}"
                 return (f"{op.GetAttr().GetName()}{where} is authored as {type_name or 'an unknown type'}, "
