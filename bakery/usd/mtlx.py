@@ -2,7 +2,8 @@
 
 Sources: ``.mtlx`` documents read with the ``MaterialX`` package (the usd-core wheel has no usdMtlx file format, so
 a reference to a ``.mtlx`` file does not compose), and MaterialX shaders authored as USD prims (``info:id`` =
-``ND_<node>_surfaceshader``). Defaults come from MaterialX's own standard library node definitions.
+``ND_<node>_surfaceshader``). Defaults and input types come from MaterialX's own standard library node
+definitions: a surface input of another type than its definition declares is an error on the material.
 
 Mapping (metallic workflow of the capture; see ``docs/capture.md``)
     ===================  ==============================================  ==========================================
@@ -139,6 +140,15 @@ def _defaults(category: str) -> dict[str, object]:
     for node_def in library.getNodeDefs():
         if node_def.getNodeString() == category and node_def.getType() == "surfaceshader":
             return {i.getName(): _py(i.getValue()) for i in node_def.getActiveInputs() if i.getValue() is not None}
+    return {}
+
+
+@lru_cache(maxsize=16)
+def _surface_input_types(category: str) -> dict[str, str]:
+    """{input: MaterialX type} of the standard library's ``surfaceshader`` definition of ``category``."""
+    for node_def in _library().getNodeDefs():
+        if node_def.getNodeString() == category and node_def.getType() == "surfaceshader":
+            return {i.getName(): i.getType() for i in node_def.getActiveInputs()}
     return {}
 
 
@@ -453,8 +463,14 @@ def surface_from_document(reader, document: str, material_name: str, prim: str) 
     maps: dict[str, dict] = {}
     notes: list[str] = []
     base_dir = Path(document).parent
+    declared = _surface_input_types(category)
     for inp in shader.getActiveInputs():
         name = inp.getName()
+        if name in declared and inp.getType() != declared[name]:  # as a USD shader's inputs (materials.py)
+            shown = f" {inp.getValueString()!r}" if inp.getValueString() else ""
+            reader._warn_once(prim, f"MaterialX {Path(document).name}: {shader.getName()} input {name} is authored "
+                              f"as {inp.getType()}{shown}, expected {declared[name]}", severity="error")
+            continue
         upstream = inp.getConnectedNode()
         upstream_output = inp.getOutputString() or "out"  # the output of a multi-output node (separate3: outg)
         if upstream is None and inp.getNodeGraphString():

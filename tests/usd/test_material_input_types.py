@@ -15,6 +15,7 @@ from pxr import Sdf, Sdr
 from usd_scenes import header, mtlx_material, plane_mesh, probe, write
 
 import bakery
+from bakery.errors import SceneWarning
 from bakery.usd.check import check_scene
 from bakery.usd.materials import declared_input_type
 from bakery.usd.scene import read_scene
@@ -105,6 +106,38 @@ def test_wrongly_typed_material_input_is_an_error_on_its_prim(tmp_path, case):
     assert f"{name} is authored as {authored}" in message and f"expected {expected}" in message, message
 
 
+def test_wrongly_typed_input_in_a_mtlx_document_is_an_error_on_the_material(tmp_path):
+    """The same check for a ``.mtlx`` document (read with the MaterialX package): the types MaterialX's own
+    validation calls an interface error."""
+    import MaterialX as mx
+
+    document = """<?xml version="1.0"?>
+<materialx version="1.39">
+  <standard_surface name="SR" type="surfaceshader">
+    <input name="base_color" type="float" value="0.5" />
+    <input name="specular_roughness" type="float" value="0.3" />
+  </standard_surface>
+  <surfacematerial name="Doc" type="material">
+    <input name="surfaceshader" type="surfaceshader" nodename="SR" />
+  </surfacematerial>
+</materialx>
+"""
+    write(tmp_path / "looks.mtlx", document)
+    parsed = mx.createDocument()
+    mx.readFromXmlString(parsed, document)
+    library = mx.createDocument()
+    mx.loadLibraries(mx.getDefaultDataLibraryFolders(), mx.getDefaultDataSearchPath(), library)
+    parsed.importLibrary(library)
+    valid, why = parsed.validate()
+    assert not valid and "base_color" in why  # MaterialX agrees that the document is wrong
+    text = (header() + LAMP + 'def Scope "Looks" (\n    references = @./looks.mtlx@</MaterialX>\n)\n{\n}\n'
+            + plane_mesh("Floor", 2.0, "/Looks/Materials/Doc") + probe("P", (0, 1, 0)))
+    issues = check_scene(write(tmp_path / "scene.usda", text))
+    errors = [i for i in issues if i.severity == "error"]
+    assert len(errors) == 1 and errors[0].prim == "/Looks/Materials/Doc", issues
+    assert "base_color is authored as float '0.5', expected color3" in errors[0].message, errors[0].message
+
+
 def test_bake_refuses_a_wrongly_typed_material_input_and_writes_nothing(tmp_path):
     path = write(tmp_path / "scene.usda", WRONG_TYPES["roughness_string"][0])
     with pytest.raises(bakery.errors.SceneError) as raised:
@@ -165,9 +198,10 @@ def test_out_of_range_inputs_are_reported_and_read_clamped(tmp_path, case):
         assert any(needle in m for m in messages), (needle, messages)
     assert not [i for i in check_scene(write(tmp_path / "clamped.usda", scene(preview(clamped))))
                 if i.prim == "/Mat"]
-    for name in ("authored", "clamped"):
-        bakery.bake(tmp_path / f"{name}.usda", tmp_path / f"{name}.h5", encodings=["sh2"], face_size=8, samples=2,
-                    bounces=2, jobs=1)
+    settings = dict(encodings=["sh2"], face_size=8, samples=2, bounces=2, jobs=1)
+    with pytest.warns(SceneWarning, match="outside|negative|above 1"):
+        bakery.bake(tmp_path / "authored.usda", tmp_path / "authored.h5", **settings)
+    bakery.bake(tmp_path / "clamped.usda", tmp_path / "clamped.h5", **settings)
     normals = np.eye(3)
     a = bakery.open_store(tmp_path / "authored.h5").evaluate_irradiance("sh2", normals)
     b = bakery.open_store(tmp_path / "clamped.h5").evaluate_irradiance("sh2", normals)
