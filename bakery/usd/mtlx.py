@@ -135,21 +135,22 @@ def _category(node_def_name: str) -> str:
     return name.rsplit("_surfaceshader", 1)[0]
 
 
-def _defaults(category: str) -> dict[str, object]:
-    library = _library()
-    for node_def in library.getNodeDefs():
+def _surface_inputs(category: str) -> list:
+    """The active inputs of the standard library's ``surfaceshader`` definition of ``category`` ([] if none)."""
+    for node_def in _library().getNodeDefs():
         if node_def.getNodeString() == category and node_def.getType() == "surfaceshader":
-            return {i.getName(): _py(i.getValue()) for i in node_def.getActiveInputs() if i.getValue() is not None}
-    return {}
+            return node_def.getActiveInputs()
+    return []
+
+
+def _defaults(category: str) -> dict[str, object]:
+    return {i.getName(): _py(i.getValue()) for i in _surface_inputs(category) if i.getValue() is not None}
 
 
 @lru_cache(maxsize=16)
 def _surface_input_types(category: str) -> dict[str, str]:
     """{input: MaterialX type} of the standard library's ``surfaceshader`` definition of ``category``."""
-    for node_def in _library().getNodeDefs():
-        if node_def.getNodeString() == category and node_def.getType() == "surfaceshader":
-            return {i.getName(): i.getType() for i in node_def.getActiveInputs()}
-    return {}
+    return {i.getName(): i.getType() for i in _surface_inputs(category)}
 
 
 def _py(value):  # noqa: ANN001, ANN202
