@@ -153,6 +153,47 @@ def _surface_input_types(category: str) -> dict[str, str]:
     return {i.getName(): i.getType() for i in _surface_inputs(category)}
 
 
+def graph_type_problems(node, seen: set[str] | None = None) -> list[str]:  # noqa: ANN001
+    """Why ``node`` and the nodes upstream of it in a MaterialX document match no node definition of their category
+    (an input of another type than every definition declares, an input no definition has, an output type none
+    has), one sentence per node; [] when all match. A category without any definition is not judged here (the graph
+    evaluator reports the nodes it cannot evaluate)."""
+    seen = set() if seen is None else seen
+    if node.getNamePath() in seen:
+        return []
+    seen.add(node.getNamePath())
+    problems = []
+    definitions = node.getDocument().getMatchingNodeDefs(node.getCategory())
+    if definitions and node.getNodeDef() is None:  # MaterialX matches a definition by output and input types
+        problems.append(_mismatch(node, definitions))
+    for inp in node.getInputs():
+        upstream = inp.getConnectedNode()
+        if upstream is not None:
+            problems += graph_type_problems(upstream, seen)
+    return problems
+
+
+def _mismatch(node, definitions: list) -> str:  # noqa: ANN001
+    """The sentence of :func:`graph_type_problems` for ``node``, whose category has ``definitions`` but none
+    matching."""
+    what = f"node {node.getNamePath()} ({node.getCategory()}, {node.getType()})"
+    outputs = [d for d in definitions if d.getType() == node.getType()]
+    if not outputs:
+        declared = ", ".join(dict.fromkeys(d.getType() for d in definitions))
+        return f"{what}: no definition of {node.getCategory()} outputs {node.getType()} (they output {declared})"
+    for inp in node.getInputs():
+        declared = list(dict.fromkeys(d.getActiveInput(inp.getName()).getType() for d in outputs
+                                      if d.getActiveInput(inp.getName()) is not None))
+        if not declared:
+            return f"{what}: {inp.getName()} is not an input of {node.getCategory()}"
+        if inp.getType() not in declared:
+            shown = f" {inp.getValueString()!r}" if inp.getValueString() else ""
+            return (f"{what}: input {inp.getName()} is authored as {inp.getType()}{shown}, expected "
+                    f"{' or '.join(declared)}")
+    authored = ", ".join(f"{inp.getName()} {inp.getType()}" for inp in node.getInputs())
+    return f"{what}: no definition of {node.getCategory()} takes these input types together ({authored})"
+
+
 def _py(value):  # noqa: ANN001, ANN202
     """MaterialX values (Color3, Vector2, float, …) as Python floats / tuples."""
     if isinstance(value, (int, float, bool, str)):
@@ -482,6 +523,11 @@ def surface_from_document(reader, document: str, material_name: str, prim: str) 
         if upstream is None:
             if inp.getValue() is not None:
                 values[name] = _py(inp.getValue())
+            continue
+        problems = graph_type_problems(upstream)
+        for problem in problems:  # the document's own graph nodes: what MaterialX's validate() calls interface errors
+            reader._warn_once(prim, f"MaterialX {Path(document).name}: {problem}", severity="error")
+        if problems:
             continue
         if name == "normal":
             entry = _document_normal_map(reader, upstream, base_dir, prim, notes)

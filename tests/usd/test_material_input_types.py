@@ -138,6 +138,63 @@ def test_wrongly_typed_input_in_a_mtlx_document_is_an_error_on_the_material(tmp_
     assert "base_color is authored as float '0.5', expected color3" in errors[0].message, errors[0].message
 
 
+GRAPH_DOCUMENT = """<?xml version="1.0"?>
+<materialx version="1.39">
+  <nodegraph name="NG">
+    <image name="tex" type="color3">
+      <input name="file" type="filename" value="missing.png" />
+    </image>
+    {node}
+    <output name="out" type="color3" nodename="m" />
+  </nodegraph>
+  <standard_surface name="SR" type="surfaceshader">
+    <input name="base_color" type="color3" nodegraph="NG" output="out" />
+  </standard_surface>
+  <surfacematerial name="Doc" type="material">
+    <input name="surfaceshader" type="surfaceshader" nodename="SR" />
+  </surfacematerial>
+</materialx>
+"""
+
+GRAPH_NODES = {  # a graph node no standard library definition matches: (node XML, expected sentence)
+    "input_type": ('<multiply name="m" type="color3"><input name="in1" type="color3" nodename="tex" />'
+                   '<input name="in2" type="string" value="abc" /></multiply>',
+                   "node NG/m (multiply, color3): input in2 is authored as string 'abc', expected color3 or float"),
+    "unknown_input": ('<multiply name="m" type="color3"><input name="in1" type="color3" nodename="tex" />'
+                      '<input name="gain" type="float" value="2" /></multiply>',
+                      "node NG/m (multiply, color3): gain is not an input of multiply"),
+    "output_type": ('<multiply name="m" type="string"><input name="in1" type="color3" nodename="tex" /></multiply>',
+                    "node NG/m (multiply, string): no definition of multiply outputs string"),
+    "upstream": ('<multiply name="m" type="color3"><input name="in1" type="color3" nodename="k" /></multiply>'
+                 '<constant name="k" type="color3"><input name="value" type="float" value="0.5" /></constant>',
+                 "node NG/k (constant, color3): input value is authored as float '0.5', expected color3"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(GRAPH_NODES))
+def test_a_mtlx_graph_node_matching_no_definition_is_an_error_on_the_material(tmp_path, case):
+    """Nodes inside a ``.mtlx`` document's graphs: MaterialX picks a node's definition by its output and input
+    types, and a node that matches none is what its validate() reports; it is an error on the material, naming
+    the node and the input, not a numpy error on the mesh (before: "/Floor: cannot be read: could not convert
+    string to float: 'abc'")."""
+    import MaterialX as mx
+
+    node, expected = GRAPH_NODES[case]
+    document = GRAPH_DOCUMENT.replace("{node}", node)
+    write(tmp_path / "looks.mtlx", document)
+    parsed = mx.createDocument()
+    mx.readFromXmlString(parsed, document)
+    library = mx.createDocument()
+    mx.loadLibraries(mx.getDefaultDataLibraryFolders(), mx.getDefaultDataSearchPath(), library)
+    parsed.importLibrary(library)
+    assert not parsed.validate()[0]  # MaterialX agrees that the document is wrong
+    text = (header() + LAMP + 'def Scope "Looks" (\n    references = @./looks.mtlx@</MaterialX>\n)\n{\n}\n'
+            + plane_mesh("Floor", 2.0, "/Looks/Materials/Doc") + probe("P", (0, 1, 0)))
+    errors = [i for i in check_scene(write(tmp_path / "scene.usda", text)) if i.severity == "error"]
+    assert [i.prim for i in errors] == ["/Looks/Materials/Doc"], errors
+    assert f"MaterialX looks.mtlx: {expected}" in errors[0].message, errors[0].message
+
+
 def test_bake_refuses_a_wrongly_typed_material_input_and_writes_nothing(tmp_path):
     path = write(tmp_path / "scene.usda", WRONG_TYPES["roughness_string"][0])
     with pytest.raises(bakery.errors.SceneError) as raised:
