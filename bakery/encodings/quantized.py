@@ -53,6 +53,9 @@ QUANTIZED_MARGIN = 1.0 / 127.0
 #: Steps each code may move from its rounded value in the code search (``search_zh3_codes``); the wider radii
 #: are searched (from the previous result) only for probes the narrower search left negative.
 SEARCH_RADII = (1, 2, 4)
+#: Steps a DC field may move in any search: one R11G11B10F step (1/64 relative, 1/32 in blue) keeps each probe's
+#: mean irradiance within the format's precision (wider DC moves trade brightness for shape: +4…9 % measured).
+DC_RADIUS = 1
 
 
 def _warn_clamps(name: str, stats: dict) -> None:
@@ -93,7 +96,8 @@ class ZH3Quantized(Encoding):
     re-clamped with the decoded DC; then the codes are chosen by a greedy search over neighbouring codes (each
     within :data:`SEARCH_RADII` of its rounded value) for the lowest irradiance error against the capture, subject
     to a non-negative decoded probe (:func:`bakery.irradiance.code_search.search_zh3_codes`). Probes the search
-    cannot make non-negative (none on the shared maps) fall back to the windowing of :func:`_window_quantized`.
+    cannot make non-negative fall back to the windowing of :func:`_window_quantized`, and the search runs again
+    from the windowed (non-negative) codes.
     """
 
     @dataclass(frozen=True)
@@ -125,17 +129,23 @@ class ZH3Quantized(Encoding):
             zonal = clamp_zonal_l2(decoded_linear, zonal, decoded_axis)
         packed, _ = quantize.pack_zh3(decoded_linear, zonal, companding)
         # [ZH3] App. A.1 codes chosen by the lowest error with E ≥ 0 after decoding (App. B), not by re-windowing.
-        packed, search = search_zh3_codes(packed, radiance_sh, companding, non_negative=dering,
-                                          radius=SEARCH_RADII[0])
+        rounded = packed
+        packed, search = search_zh3_codes(rounded, radiance_sh, companding, non_negative=dering,
+                                          radius=SEARCH_RADII[0], dc_radius=DC_RADIUS)
         if dering and search["negative"]:
             still = negative_part(decoded_zh3_sh3(packed, companding)) > 0
-            for radius in SEARCH_RADII[1:]:
-                packed[still], _ = search_zh3_codes(packed[still], radiance_sh[still], companding, radius=radius)
+            for radius in SEARCH_RADII[1:]:  # from the last result, every code bounded around its rounded value
+                packed[still], _ = search_zh3_codes(packed[still], radiance_sh[still], companding, radius=radius,
+                                                    dc_radius=DC_RADIUS, origin=rounded[still])
                 still[still] = negative_part(decoded_zh3_sh3(packed[still], companding)) > 0
                 if not still.any():
                     break
-            if still.any():
-                packed[still] = _window_quantized(packed[still], companding)
+            if still.any():  # window to a non-negative start, then search again from there (never negative)
+                windowed = _window_quantized(packed[still], companding)
+                origin = windowed.copy()
+                origin[:, :4] = rounded[still, :4]  # the ratios around the window's, the DC around the rounded DC
+                packed[still], _ = search_zh3_codes(windowed, radiance_sh[still], companding,
+                                                    radius=SEARCH_RADII[-1], dc_radius=DC_RADIUS, origin=origin)
                 warnings.warn(f"{self.name}: {int(still.sum())} probes stayed negative after the code search and "
                               "were windowed instead", ClampWarning, stacklevel=2)
         return {"packed": packed}
