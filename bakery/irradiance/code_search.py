@@ -176,8 +176,8 @@ def search_zh3_codes(
         a, m, _ = moves.shape
         within = np.all(np.abs(moves[:, :, 4:16].view(np.int8).astype(np.int16) - start_codes[rows, None]) <= radius,
                         axis=-1)
-        within &= np.all(np.abs(dc_fields(moves) - start_dc[rows, None]) <= (radius if dc_radius is None else dc_radius),
-                         axis=-1)
+        dc_steps = radius if dc_radius is None else dc_radius
+        within &= np.all(np.abs(dc_fields(moves) - start_dc[rows, None]) <= dc_steps, axis=-1)
         flat_sh3 = decoded_zh3_sh3(moves.reshape(-1, 16), sqrt_companding)
         move_error = _error(flat_sh3, np.repeat(target[rows], m, axis=0)).reshape(a, m)
         move_error = np.where(within, move_error, np.inf)
