@@ -374,7 +374,8 @@ class ProbeStore:
     def evaluate_irradiance(self, encoding: str, normals: np.ndarray, probes: str | list[str] | None = None,
                             ) -> np.ndarray:
         """Irradiance (P, N, 3) of the given probes (a name or a list; default: all of the encoding's) at unit
-        normals (N, 3) or one normal (3,) (not normalised: finite and non-zero, else EvaluationError)."""
+        normals (N, 3) or one normal (3,) (finite and non-zero, else EvaluationError; normalised: only the direction
+        counts)."""
         evaluator = self._evaluator(encoding, "irradiance")
         normals = check_directions(normals, "normals")
         rows = self.rows(encoding, probes)

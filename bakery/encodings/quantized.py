@@ -62,7 +62,8 @@ def _warn_clamps(name: str, stats: dict) -> None:
     """Warn (counted in the store's ``warnings``) when packing clamped the DC or ratios to the layout's range."""
     if stats["dc_clamped"] or stats["ratios_clamped"]:
         warnings.warn(
-            f"{name}: {stats['dc_clamped']} DC values above the R11G11B10F maximum (65024) and "
+            f"{name}: {stats['dc_clamped']} probes with a DC above the R11G11B10F maximum (65024) scaled down "
+            f"to fit (colour and shape kept) and "
             f"{stats['ratios_clamped']} ratios outside the App. A bounds were clamped", ClampWarning, stacklevel=3,
         )
 
@@ -115,13 +116,13 @@ class ZH3Quantized(Encoding):
 
     def encode(self, batch: ProbeBatch):
         companding, dering = self.params.sqrt_companding, self.params.dering
-        radiance_sh = batch.radiance_sh(2)
+        radiance_sh, scaled = quantize.fit_to_dc_range(batch.radiance_sh(2))  # also the search's target
         linear, zonal = fit_zh3_luminance(radiance_sh)
         if dering:
             linear, zonal, _ = dering_zh3(linear, zonal)
         band2 = expand_zh3_to_sh3(linear, zonal, luminance_axis(linear))[:, 4:9]
         first, stats = quantize.pack_zh3(linear, zonal, companding)
-        _warn_clamps(self.name, stats)
+        _warn_clamps(self.name, {**stats, "dc_clamped": scaled})
         decoded_linear, _ = quantize.unpack_zh3(first, companding)
         decoded_axis = luminance_axis(decoded_linear)
         zonal = solve_zonal_l2(band2, decoded_axis)

@@ -47,10 +47,15 @@ FLOAT16_MAX = 65504.0
 
 
 def store_float16(values: np.ndarray, out: np.ndarray) -> int:
-    """Write float32 ``values`` into the float16 array ``out`` (same shape) clamped to :data:`FLOAT16_MAX`, without
-    a full-size temporary; returns how many values were clamped."""
+    """Write float32 ``values`` into the float16 array ``out`` (same shape) clamped to [0, :data:`FLOAT16_MAX`],
+    without a full-size temporary; returns how many values were clamped above.
+
+    Below: prefiltered radiance is ≥ 0, but an SH-domain level rings around a sun (the kernel's bands are cut where
+    |λ_l| < tolerance: lobes of about that fraction of the peak; 25 % of the texels of the rough levels of a sun
+    map, down to −1e-3 of the peak). Clamping them to 0 is the projection onto the non-negative values, so it never
+    increases any texel's error, and no lobe of a bright sun can overflow to −inf."""
     values = np.asarray(values)
-    np.minimum(values, np.float32(FLOAT16_MAX), out=out, casting="same_kind")
+    np.clip(values, np.float32(0.0), np.float32(FLOAT16_MAX), out=out, casting="same_kind")
     return int(np.count_nonzero(values > FLOAT16_MAX))
 
 

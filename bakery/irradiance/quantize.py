@@ -127,10 +127,25 @@ def ratio_error_bound(lower: np.ndarray, upper: np.ndarray, sqrt_companding: boo
     return np.stack([np.abs(lower) * per_unit, np.abs(upper) * per_unit], axis=-1)
 
 
-def _dc_and_ratios(radiance_sh: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
-    """DC codes (P,), decoded DC (P, C), DC clamp count, ratios (P, K−1, C) relative to the decoded DC."""
+def fit_to_dc_range(radiance_sh: np.ndarray) -> tuple[np.ndarray, int]:
+    """Radiance SH (P, K, 3) with every probe whose DC exceeds the format's largest value in some channel (65024 in
+    R and G, 64512 in B) scaled as a whole, every coefficient of every channel by the same factor, until it fits;
+    and how many probes were scaled. Their colour and shape are kept, only their brightness is capped (clamping the
+    DC alone and dividing by it inflated the ratios: E(up)/E(down) of a 2:1 sky became 3.35)."""
     f0 = np.maximum(radiance_sh[:, 0], 0.0)
-    dc_code, clamped = encode_r11g11b10(f0)
+    largest = np.array([_small_to_float(np.array([(30 << m) | ((1 << m) - 1)]), m)[0] for m in _MANTISSA_BITS])
+    fit = np.min(np.where(f0 > largest, largest / np.maximum(f0, np.finfo(np.float64).tiny), 1.0), axis=-1)  # (P,)
+    if np.all(fit == 1.0):
+        return radiance_sh, 0
+    return radiance_sh * fit[:, None, None], int(np.count_nonzero(fit < 1.0))
+
+
+def _dc_and_ratios(radiance_sh: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
+    """DC codes (P,), decoded DC (P, C), how many probes were scaled to fit (:func:`fit_to_dc_range`), ratios
+    (P, K−1, C) relative to the decoded DC."""
+    radiance_sh, clamped = fit_to_dc_range(radiance_sh)
+    f0 = np.maximum(radiance_sh[:, 0], 0.0)
+    dc_code, _ = encode_r11g11b10(f0)
     f0_decoded = decode_r11g11b10(dc_code)
     safe = np.where(f0_decoded > 0, f0_decoded, 1.0)
     ratios = np.where(f0_decoded[:, None, :] > 0, radiance_sh[:, 1:] / safe[:, None, :], 0.0)

@@ -3,8 +3,9 @@
 Arguments (:func:`check_reflection_inputs`, applied by every reflection encoding's ``evaluate_reflection`` through
 :class:`bakery.encodings.base.Encoding`; every violation raises :class:`bakery.errors.EvaluationError`, a ValueError,
 naming the argument)
-    view, normal  (N, 3), or (3,) for one row; the same N; finite and of non-zero length. Not normalised here (n is
-                  normalised where the horizon clamp needs it, below).
+    view, normal  (N, 3), or (3,) for one row; the same N; finite and of non-zero length; normalised here
+                  (directions: a length other than 1 is ignored, as a shader's normalize() would; scaled by the
+                  largest component first, so that no finite input overflows).
     alpha         one value (a scalar or shape (1,)) for every row, or (N,) one per row.
     f0            one value (a scalar or (1,)) for every row, (N,) one scalar F0 per row, (N, 3) one RGB F0 per row or
                   (1, 3) one RGB F0 for every row; finite and in [0, 1]. A 1-D f0 is always per-row scalar F0: an RGB
@@ -44,6 +45,8 @@ def _numbers(value: object, name: str) -> np.ndarray:
     try:
         if value is None:  # numpy would make it NaN
             raise TypeError
+        if np.asarray(value).dtype.kind not in "iuf":  # complex (numpy drops the imaginary part), bool, object
+            raise TypeError
         return np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
         shown = repr(value)
@@ -52,8 +55,8 @@ def _numbers(value: object, name: str) -> np.ndarray:
 
 
 def check_directions(value: object, name: str) -> np.ndarray:
-    """(N, 3) float64 directions from (N, 3) or (3,) (one row): finite and of non-zero length, else
-    EvaluationError naming ``name``. Not normalised."""
+    """(N, 3) float64 unit directions from (N, 3) or (3,) (one row): finite and of non-zero length, else
+    EvaluationError naming ``name``; normalised (module doc)."""
     d = _numbers(value, name)
     if d.shape == (3,):
         d = d[None]
@@ -69,7 +72,8 @@ def check_directions(value: object, name: str) -> np.ndarray:
         row = int(np.flatnonzero(zero)[0])
         raise EvaluationError(f"{name} must have non-zero length, got {d[row].tolist()} in row {row} "
                               f"({int(np.count_nonzero(zero))} of {len(d)} rows)")
-    return d
+    d = d / np.max(np.abs(d), axis=1, keepdims=True)  # largest component ±1: |d|² cannot overflow or underflow
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
 def check_alpha(alpha: np.ndarray, name: str = "alpha") -> np.ndarray:

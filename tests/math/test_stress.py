@@ -497,3 +497,42 @@ def test_exact_minimum_matches_dense_sampling_on_a_ringing_probe():
 
     dense = evaluate_sh_irradiance(sh, fibonacci_directions(20000))[0].min(axis=0)
     assert np.all(exact <= dense + 1e-9) and np.allclose(exact, dense, atol=1e-3 * abs(dense).max())
+
+
+@pytest.mark.parametrize("name", ["zh3_quantized", "sh3_quantized"])
+@pytest.mark.parametrize("scale", [1.0, 3e4, 1e30])
+def test_quantized_dc_beyond_its_range_scales_the_probe_and_keeps_its_shape(name, scale):
+    """L = s·(1 + ½ n_y): E(n) = π s + (2π/3)(½ s) n_y (Funk-Hecke), so E(up)/E(down) = 2 at any s. Where the DC
+    exceeds R11G11B10F's largest value the probe is scaled as a whole (a warning says so): the ratio stays 2 and
+    the colour stays neutral. Before: the DC alone was clamped and the ratios divided by it, 3.35 at s = 3e4 and
+    negative irradiance at s = 1e30."""
+    d = cube_texel_directions(16)
+    cube = (scale * (1.0 + 0.5 * d[..., 1:2]) * np.ones(3))[None]
+    encoding = get_encoding(name)()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        fields = encoding.encode(ProbeBatch(cube))
+    up, down = encoding.evaluate_irradiance(fields, np.array([[0.0, 1.0, 0.0], [0.0, -1.0, 0.0]]))[0]
+    assert np.all(up > 0) and np.all(down > 0)
+    np.testing.assert_allclose(up / down, 2.0, rtol=0.015)  # within the SNORM8 ratio step
+    np.testing.assert_allclose(up / up[1], 1.0, rtol=0.02)  # neutral: the blue field's coarser step only
+    dc_warnings = [w for w in caught if "scaled down to fit" in str(w.message) and str(w.message).startswith(
+        f"{name}: 1 probes")]
+    assert bool(dc_warnings) == (scale > 1e4), [str(w.message) for w in caught]
+
+
+@pytest.mark.parametrize("name", ["splitsum", "shexp_hybrid"])
+@pytest.mark.parametrize("sun", [1e6, 1e10])
+def test_cube_levels_of_a_sun_are_non_negative_and_finite(name, sun):
+    """Prefiltered radiance of a non-negative environment is ≥ 0 (a closed-form property of any non-negative
+    kernel). Before: the SH-domain levels rang around the sun (a quarter of their texels negative), and a sun of 1e10
+    made those lobes −inf in float16, which refused the whole probe ("the input radiance overflows float32")."""
+    d = cube_texel_directions(32)
+    cube = np.full((1, 6, 32, 32, 3), 0.1, np.float32)
+    sun_texel = np.unravel_index(np.argmax(d.reshape(-1, 3) @ np.array([0.3, 0.8, 0.52])), d.shape[:3])
+    cube[(0, *sun_texel)] = sun
+    probes = [Probe("/sunny", kinds=("reflection",))]
+    settings = BakeSettings(face_size=32, encodings=(name,))
+    result = encode_batch(probes, ProbeBatch(cube), settings, encodings={name: encoding(name)})
+    levels = [np.asarray(v, dtype=np.float32) for k, v in result.encoded[name].items() if k.startswith("level")]
+    assert levels and all(np.all(np.isfinite(level)) and level.min() >= 0.0 for level in levels)

@@ -206,9 +206,33 @@ def test_normals_of_one_row_and_many_rows(store):
     many = store.evaluate_irradiance("zh3_hallucinated_solved", n)
     assert many.shape == (3, 6, 3)
     np.testing.assert_array_equal(store.evaluate_irradiance("zh3_hallucinated_solved", n[2]), many[:, 2:3])
-    # documented: unit normals; they are not normalised (a float32 unit normal evaluates as given)
+    # a float32 unit normal evaluates as the same values in float64
     np.testing.assert_array_equal(store.evaluate_irradiance("sh2", n.astype(np.float32)),
                                   store.evaluate_irradiance("sh2", n.astype(np.float32).astype(np.float64)))
+
+
+@pytest.mark.parametrize("scale", [1e-200, 1e-3, 10.0, 1e200])
+def test_only_the_direction_of_normals_and_views_counts(store, scale):
+    """Directions are normalised by the reader, as a shader's normalize() would (before: sh2 irradiance 6x at
+    |n| = 10, shexp 0 at |n| = 10 and +inf at |v| = 10, NaN or an IndexError at components of 1e200)."""
+    v, n = rows(6)
+    for name in IRRADIANCE:
+        np.testing.assert_allclose(store.evaluate_irradiance(name, n * scale), store.evaluate_irradiance(name, n),
+                                   rtol=1e-12, atol=0, err_msg=name)
+    for name in REFLECTION:
+        unit = store.evaluate_reflection(name, v, n, 0.3, 0.04)
+        for view, normal in ((v * scale, n), (v, n * scale)):
+            np.testing.assert_allclose(store.evaluate_reflection(name, view, normal, 0.3, 0.04), unit, rtol=1e-9,
+                                       atol=0, err_msg=name)
+
+
+@pytest.mark.parametrize("normal", [np.array([0.0, 1.0, 0.0]) + 0.5j, np.array([False, True, False])])
+def test_complex_and_boolean_arguments_are_refused(store, normal):
+    """numpy would drop an imaginary part (with only a ComplexWarning) and read True as 1."""
+    with pytest.raises(EvaluationError, match="normals must be numbers"):
+        store.evaluate_irradiance("sh2", normal)
+    with pytest.raises(EvaluationError, match="alpha must be numbers"):
+        store.evaluate_reflection("shexp", [0.0, 1.0, 0.0], [0.0, 1.0, 0.0], normal.any(), 0.04)
 
 
 # ---------------------------------------------------------------------------------------------- reflection inputs (D13)
