@@ -38,6 +38,7 @@ import re
 import shutil
 import signal
 import socket
+import stat
 import sys
 import threading
 import time
@@ -385,11 +386,17 @@ class FileLock:
 
     def _acquire(self) -> None:
         for _attempt in range(20):
-            try:
-                fd = os.open(self.file, os.O_RDWR | os.O_CREAT, 0o644)
+            try:  # never through a symbolic link: the lock's JSON would overwrite whatever it points to
+                fd = os.open(self.file, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644)
             except OSError as error:
+                if error.errno == errno.ELOOP:
+                    raise OutputError(f"{self.path}: the lock file {self.file.name} is a symbolic link; bakery "
+                                      f"writes its locks only as regular files: remove the link") from None
                 raise OutputError(f"{self.path}: cannot create the lock file {self.file.name}: "
                                   f"{os_error_message(error)}") from None
+            if not stat.S_ISREG(os.fstat(fd).st_mode):
+                os.close(fd)
+                raise OutputError(f"{self.path}: the lock file {self.file.name} is not a regular file; remove it")
             try:
                 fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except OSError as error:

@@ -58,16 +58,53 @@ DEFAULT_CALIBRATION = Path(__file__).with_name("calibration.json")
 CALIBRATION_VERSION = 1
 
 
+_SECONDS = {"type": "number", "minimum": 0}
+_PAIR = {"type": "array", "items": {"type": "number"}, "minItems": 2, "maxItems": 2}  # a + b·N² (:func:`_poly`)
+#: What the cost model reads from a calibration (JSON Schema); other keys (the bench's runs, the machine) are notes.
+CALIBRATION_SCHEMA = {
+    "type": "object",
+    "required": ["version", "capture_probe_seconds", "seconds_per_ray", "loaded_probe_seconds", "encodings",
+                 "unknown_encoding_seconds", "irradiance_diagnostics", "reference_seconds_per_texel",
+                 "per_probe_seconds", "process_seconds"],
+    "properties": {
+        "version": {"type": "integer"},
+        **{key: _SECONDS for key in ("capture_probe_seconds", "seconds_per_ray", "loaded_probe_seconds",
+                                     "unknown_encoding_seconds", "reference_seconds_per_texel", "per_probe_seconds",
+                                     "process_seconds", "merge_prim_squared_seconds", "pilot_seconds_per_ray",
+                                     "seconds_per_traced_ray")},
+        "irradiance_diagnostics": _PAIR,
+        "encodings": {"type": "object", "additionalProperties": {
+            "type": "object", "required": ["probe", "setup"], "properties": {"probe": _PAIR, "setup": _PAIR}}},
+        "effective_bounces": {"type": "object", "properties": {"measured": {"type": ["number", "null"]}}},
+        "merge_probe_seconds": {"type": "object", "additionalProperties": _SECONDS},
+    },
+    "dependentRequired": {"pilot_seconds_per_ray": ["seconds_per_traced_ray"]},
+}
+
+
 def load_calibration(path: str | os.PathLike[str] | None) -> dict[str, Any]:
-    """The calibration at ``path``, else ``$BAKERY_CALIBRATION``, else the one shipped with bakery."""
+    """The calibration at ``path``, else ``$BAKERY_CALIBRATION``, else the one shipped with bakery; ConfigError
+    naming the file and the first bad key unless it has the shape :data:`CALIBRATION_SCHEMA` describes."""
+    import jsonschema
+
     chosen = Path(path or os.environ.get("BAKERY_CALIBRATION") or DEFAULT_CALIBRATION)
     try:
         data = json.loads(chosen.read_text())
     except (OSError, ValueError) as error:
         raise ConfigError(f"{chosen}: cannot read the cost calibration: {error}") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"{chosen}: not a cost calibration (a JSON {type(data).__name__}, not an object); run "
+                          "`bakery farm calibrate` to write one")
     if data.get("version") != CALIBRATION_VERSION:
         raise ConfigError(f"{chosen}: calibration version {data.get('version')} (this bakery reads "
                           f"{CALIBRATION_VERSION}); run `bakery farm calibrate` again")
+    errors = sorted(jsonschema.Draft202012Validator(CALIBRATION_SCHEMA).iter_errors(data),
+                    key=lambda e: list(map(str, e.absolute_path)))
+    if errors:
+        where = ".".join(map(str, errors[0].absolute_path)) or "<root>"
+        raise ConfigError(f"{chosen}: not a valid cost calibration ({where}: {errors[0].message}"
+                          f"{f'; {len(errors) - 1} more' if len(errors) > 1 else ''}); run `bakery farm calibrate` "
+                          "again")
     data["path"] = str(chosen)
     return data
 

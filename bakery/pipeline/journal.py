@@ -16,9 +16,10 @@ from __future__ import annotations
 import os
 import pickle
 import shutil
+import stat
 from pathlib import Path
 
-from bakery.files import atomic_replace, sha256_bytes
+from bakery.files import OutputError, atomic_replace, os_error_message, sha256_bytes
 from bakery.pipeline.worker import BatchOutcome
 
 _MAGIC = b"bakery-journal 1 "
@@ -28,6 +29,26 @@ class Journal:
     def __init__(self, store_path: str | os.PathLike[str]) -> None:
         store_path = Path(store_path)
         self.directory = store_path.with_name(store_path.name + ".partial")
+        self._check_directory()
+
+    def _check_directory(self) -> None:
+        """OutputError unless the work folder is absent or a real folder of this user: workers unpickle its
+        checkpoints and read its snapshot, and the bake writes into it, so a symbolic link (to a user's folder) or a
+        folder another user planted is refused, never followed."""
+        try:
+            info = os.lstat(self.directory)
+        except FileNotFoundError:
+            return
+        except OSError as error:
+            raise OutputError(f"{self.directory}: cannot read the bake's work folder: {os_error_message(error)}"
+                              ) from None
+        if stat.S_ISLNK(info.st_mode) or not stat.S_ISDIR(info.st_mode):
+            what = "a symbolic link" if stat.S_ISLNK(info.st_mode) else "not a folder"
+            raise OutputError(f"{self.directory}: the bake's work folder is {what}; bakery uses only a real folder "
+                              f"of its own there: remove it")
+        if info.st_uid != os.geteuid():
+            raise OutputError(f"{self.directory}: the bake's work folder belongs to another user (uid "
+                              f"{info.st_uid}); bakery resumes only from its own checkpoints: remove it")
 
     def load(self, keys: set[str]) -> dict[str, BatchOutcome]:
         """Verified finished outcomes for the given batch keys (unverifiable entries are ignored and recomputed)."""

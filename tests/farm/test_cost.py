@@ -82,3 +82,51 @@ def test_the_pilot_changes_the_estimate_not_the_chunking(tmp_path):
     assert rho == pytest.approx(pilot_capture(request, source, plan).rays_per_camera_ray, rel=1e-4)
     assert set(rho) == {"irradiance", "reflection"}
 
+
+
+def _shipped() -> dict:
+    import json
+
+    from bakery.farm.cost import DEFAULT_CALIBRATION
+
+    return json.loads(Path(DEFAULT_CALIBRATION).read_text())
+
+
+@pytest.mark.parametrize("case, needle", [
+    ("list", "a JSON list, not an object"),
+    ("version_only", "'capture_probe_seconds' is a required property"),
+    ("encoding_not_an_object", "encodings.sh2"),
+    ("pair_of_strings", "irradiance_diagnostics.0"),
+    ("negative_seconds", "per_probe_seconds"),
+])
+def test_a_malformed_calibration_is_a_one_line_config_error(tmp_path, case, needle):
+    """`plan` and `farm openjd` read the calibration's numbers: a file of another shape is refused with the key
+    (before: AttributeError / KeyError tracebacks, exit 1)."""
+    import json
+    import subprocess
+    import sys
+
+    from bakery.errors import ConfigError
+
+    data = {"list": [1], "version_only": {"version": 1}}.get(case) or _shipped()
+    if case == "encoding_not_an_object":
+        data["encodings"]["sh2"] = "fast"
+    elif case == "pair_of_strings":
+        data["irradiance_diagnostics"] = ["a", "b"]
+    elif case == "negative_seconds":
+        data["per_probe_seconds"] = -1.0
+    path = tmp_path / "calibration.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(ConfigError, match=needle):
+        load_calibration(path)
+    for command in (["plan", INDOOR, "--calibration", path],
+                    ["farm", "openjd", INDOOR, "-o", tmp_path / "job.yaml", "--calibration", path]):
+        result = subprocess.run([sys.executable, "-m", "bakery.cli", *map(str, command)], capture_output=True,
+                                text=True, timeout=300)
+        assert result.returncode == 3 and "Traceback" not in result.stderr, result.stderr[-2000:]
+        assert str(path) in result.stderr and needle in result.stderr, result.stderr
+    assert not (tmp_path / "job.yaml").exists()
+
+
+def test_the_shipped_calibration_is_valid():
+    assert load_calibration(None)["encodings"].keys() == _shipped()["encodings"].keys()
