@@ -162,12 +162,15 @@ def bench_scene(path: Path, face_size: int = 32, samples: int = 4, bounces: int 
 
 
 def run_capture_bench(scenes: tuple[Path, ...] = (), output: Path | None = None, processes: int = 1,
-                      **options) -> dict:  # noqa: ANN003
-    """Benchmark every scene (the examples by default); write ``capture.json`` into ``output`` if given."""
+                      force: bool = False, **options) -> dict:  # noqa: ANN003
+    """Benchmark every scene (the examples by default); write ``capture.json`` into ``output`` if given
+    (:mod:`bakery.bench.output` policy, checked before the run)."""
+    from bakery.bench.output import check_bench_outputs, write_bench_file
+
+    if output is not None:
+        check_bench_outputs(output, ("capture.json",), force)
     results = [bench_scene(Path(s), processes=processes, **options) for s in (scenes or DEFAULT_SCENES)]
     report = {"benchmark": "capture", "processes": processes, "scenes": results}
     if output is not None:
-        output = Path(output)
-        output.mkdir(parents=True, exist_ok=True)
-        (output / "capture.json").write_text(json.dumps(report, indent=2))
+        write_bench_file(output, "capture.json", json.dumps(report, indent=2), force)
     return report

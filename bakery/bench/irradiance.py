@@ -263,9 +263,9 @@ def format_table(result: dict) -> str:
     return "\n".join(lines)
 
 
-def write_results(result: dict, out_dir: Path, stem: str = "irradiance") -> tuple[Path, Path]:
-    out_dir.mkdir(parents=True, exist_ok=True)
-    json_path, text_path = out_dir / f"{stem}.json", out_dir / f"{stem}.md"
-    json_path.write_text(json.dumps(result, indent=2))
-    text_path.write_text(format_table(result) + "\n")
-    return json_path, text_path
+def write_results(result: dict, out_dir: Path, stem: str = "irradiance", force: bool = False) -> tuple[Path, Path]:
+    """``stem``.json and ``stem``.md in ``out_dir`` (:mod:`bakery.bench.output` policy)."""
+    from bakery.bench.output import write_bench_file
+
+    return (write_bench_file(out_dir, f"{stem}.json", json.dumps(result, indent=2), force),
+            write_bench_file(out_dir, f"{stem}.md", format_table(result) + "\n", force))

@@ -100,10 +100,14 @@ def pareto_front(points: list[tuple[float, float]]) -> list[bool]:
 
 
 def run_pareto_bench(env_dir: str | os.PathLike[str], out_dir: str | os.PathLike[str], quick: bool = False,
-                     repeats: int = 2) -> dict[str, Any]:
+                     repeats: int = 2, force: bool = False) -> dict[str, Any]:
     """Run the benchmark (module doc) and write ``pareto.json``, ``pareto.md`` and one SVG plot per kind into
-    ``out_dir``. Returns the result dictionary (what ``pareto.json`` holds)."""
+    ``out_dir`` (refused before the run if one of them is a file bench did not write, unless ``force``). Returns
+    the result dictionary (what ``pareto.json`` holds)."""
+    from bakery.bench.output import check_bench_outputs
+
     env_dir, out = Path(env_dir), Path(out_dir)
+    check_bench_outputs(out, PARETO_FILES, force)
     paths = find_environments(env_dir)[: 2 if quick else None]
     if not paths:
         from bakery.errors import InputError
@@ -189,7 +193,7 @@ def run_pareto_bench(env_dir: str | os.PathLike[str], out_dir: str | os.PathLike
                                   "chrome + glass)"},
         "alphas": list(ALPHAS), "reference_s": reference_s, "rows": rows,
     }
-    write_pareto(result, out)
+    write_pareto(result, out, force)
     return result
 
 
@@ -234,13 +238,16 @@ def format_pareto_table(result: dict[str, Any]) -> str:
     return "\n".join(out)
 
 
-def write_pareto(result: dict[str, Any], out_dir: Path) -> dict[str, Path]:
+#: The files :func:`write_pareto` may write (checked before the run: :mod:`bakery.bench.output`).
+PARETO_FILES = ("pareto.json", "pareto.md", "pareto_irradiance.svg", "pareto_reflection.svg")
+
+
+def write_pareto(result: dict[str, Any], out_dir: Path, force: bool = False) -> dict[str, Path]:
+    from bakery.bench.output import write_bench_file
     from bakery.report.svg import scatter_plot
 
-    out_dir.mkdir(parents=True, exist_ok=True)
-    paths = {"json": out_dir / "pareto.json", "md": out_dir / "pareto.md"}
-    paths["json"].write_text(json.dumps(result, indent=1))
-    paths["md"].write_text(format_pareto_table(result))
+    paths = {"json": write_bench_file(out_dir, "pareto.json", json.dumps(result, indent=1), force),
+             "md": write_bench_file(out_dir, "pareto.md", format_pareto_table(result), force)}
     for kind in ("irradiance", "reflection"):
         ok = [r for r in result["rows"] if r["kind"] == kind and "error" in r]
         if not ok:
@@ -249,8 +256,7 @@ def write_pareto(result: dict[str, Any], out_dir: Path) -> dict[str, Path]:
                    "x": 1e3 * r["time_per_probe_s"]["warm"], "y": r["error"]["mean"]} for r in ok]
         svg = scatter_plot(f"pareto-{kind}", f"{kind}: time vs error (all face sizes)", points,
                            "ms per probe (warm)", "mean " + ("relative RMSE" if kind == "irradiance" else "relative MSE"))
-        paths[f"svg_{kind}"] = out_dir / f"pareto_{kind}.svg"
-        paths[f"svg_{kind}"].write_text(svg)
+        paths[f"svg_{kind}"] = write_bench_file(out_dir, f"pareto_{kind}.svg", svg, force)
     return paths
 
 

@@ -189,9 +189,14 @@ def _encoders(face_size: int) -> dict[str, object]:
 def run_reflection_bench(
     env_dir: Path, out_dir: Path, speed: bool = False, face_size: int = 128, sphere_resolution: int = 12,
     plain_splitsum: bool = True, cache_dir: Path | None = None, echo: Callable[[str], None] | None = print,
+    force: bool = False,
 ) -> dict:
-    """Run the protocol (module doc), write ``reflection.json`` and ``reflection.md`` to ``out_dir``, print the
-    headline table through ``echo`` (stdout by default; None: silent) and return the result dict."""
+    """Run the protocol (module doc), write ``reflection.json`` and ``reflection.md`` to ``out_dir`` (refused before
+    the run if one is a file bench did not write, unless ``force``: :mod:`bakery.bench.output`), print the headline
+    table through ``echo`` (stdout by default; None: silent) and return the result dict."""
+    from bakery.bench.output import check_bench_outputs
+
+    check_bench_outputs(out_dir, ("reflection.json", "reflection.md"), force)
     paths = find_environments(Path(env_dir))
     if not paths:
         raise FileNotFoundError(f"no .hdr/.exr environment images under {env_dir}")
@@ -274,7 +279,7 @@ def run_reflection_bench(
     if speed:
         cubes = np.stack([resample_to_cube(read_environment(p)[0], face_size) for p in paths])
         result["speed"] = run_speed(cubes, [p.stem for p in paths])
-    write_results(result, Path(out_dir))
+    write_results(result, Path(out_dir), force=force)
     if echo is not None:
         echo(format_headline(result))
     return result
@@ -387,12 +392,12 @@ def format_table(result: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_results(result: dict, out_dir: Path, stem: str = "reflection") -> tuple[Path, Path]:
-    out_dir.mkdir(parents=True, exist_ok=True)
-    json_path, text_path = out_dir / f"{stem}.json", out_dir / f"{stem}.md"
-    json_path.write_text(json.dumps(result, indent=1))
-    text_path.write_text(format_table(result))
-    return json_path, text_path
+def write_results(result: dict, out_dir: Path, stem: str = "reflection", force: bool = False) -> tuple[Path, Path]:
+    """``stem``.json and ``stem``.md in ``out_dir`` (:mod:`bakery.bench.output` policy)."""
+    from bakery.bench.output import write_bench_file
+
+    return (write_bench_file(out_dir, f"{stem}.json", json.dumps(result, indent=1), force),
+            write_bench_file(out_dir, f"{stem}.md", format_table(result), force))
 
 
 def _time(fn, repeat: int = 3) -> float:

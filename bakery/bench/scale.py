@@ -40,9 +40,10 @@ def _box(name: str, lo, hi, material: str) -> str:  # noqa: ANN001
 
 
 def generate_scene(folder: Path, volume_counts=(25, 16, 25), reflection: int = 1000,
-                   reflection_resolution: int = 0) -> Path:
+                   reflection_resolution: int = 0, force: bool = False) -> Path:
     """Write the benchmark scene (Y-up, metres) and return its path. ``reflection_resolution``: the reflection
-    probes' ``bakery:capture:resolution`` (0: the bake's face size)."""
+    probes' ``bakery:capture:resolution`` (0: the bake's face size); ``hall.usda`` replaces only a file a bench
+    wrote (:mod:`bakery.bench.output`) unless ``force``."""
     folder.mkdir(parents=True, exist_ok=True)
     meshes = [_box("Floor", (-20, -0.5, -20), (20, 0, 20), "/Hall/Grey")]
     for i, x in enumerate((-10, 0, 10)):
@@ -109,9 +110,9 @@ def Xform "Hall"
     }}
 }}
 """
-    path = folder / "hall.usda"
-    path.write_text(text)
-    return path
+    from bakery.bench.output import write_bench_file
+
+    return write_bench_file(folder, "hall.usda", text, force)
 
 
 #: Seconds between the memory sampler's looks at the process table while the workers run (module doc of
@@ -267,7 +268,7 @@ def _median_run(trials: list[dict[str, Any]]) -> dict[str, Any]:
 def run_scale_bench(out_dir: Path, volume_counts=(25, 16, 25), reflection: int = 1000, recipe: str = "console",
                     face_size: int = 16, jobs: tuple[int, ...] = (1, 2), reflection_resolution: int = 0,
                     encoding_settings: dict[str, dict] | None = None, exports: tuple[str, ...] = (),
-                    progress_bar: ProgressBar | None = None, repeats: int = 1) -> dict:
+                    progress_bar: ProgressBar | None = None, repeats: int = 1, force: bool = False) -> dict:
     """Bake the generated scene with each worker count (then export the last store in each of ``exports``);
     returns and writes ``scale.json``.
 
@@ -281,8 +282,11 @@ def run_scale_bench(out_dir: Path, volume_counts=(25, 16, 25), reflection: int =
     is then the ratio of the median walls, ``speedup_1_to_2_runs`` the ratio within each repetition and
     ``speedup_1_to_2_median_of_runs`` their median (the side-by-side statistic: it scatters less with the neighbours'
     load only when the machine's speed holds within a repetition)."""
-    out_dir.mkdir(parents=True, exist_ok=True)
-    scene = generate_scene(out_dir / "scene", volume_counts, reflection, reflection_resolution)
+    from bakery.bench.output import check_bench_outputs, write_bench_file
+
+    check_bench_outputs(out_dir, ("scale.json",), force)
+    check_bench_outputs(out_dir / "scene", ("hall.usda",), force)
+    scene = generate_scene(out_dir / "scene", volume_counts, reflection, reflection_resolution, force)
     if encoding_settings is None and reflection_resolution:
         encoding_settings = reflection_at_capture_size(recipe, reflection_resolution)
     trials: dict[int, list[dict[str, Any]]] = {n: [] for n in jobs}
@@ -314,7 +318,7 @@ def run_scale_bench(out_dir: Path, volume_counts=(25, 16, 25), reflection: int =
         result["speedup_1_to_2"] = runs[1]["wall_seconds"] / runs[2]["wall_seconds"]
         result["speedup_1_to_2_runs"] = [a["wall_seconds"] / b["wall_seconds"] for a, b in zip(trials[1], trials[2])]
         result["speedup_1_to_2_median_of_runs"] = float(np.median(result["speedup_1_to_2_runs"]))
-    (out_dir / "scale.json").write_text(json.dumps(result, indent=2))
+    write_bench_file(out_dir, "scale.json", json.dumps(result, indent=2), force)
     return result
 
 

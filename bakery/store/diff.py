@@ -10,8 +10,10 @@ from bakery.store.format import read_store
 
 
 def diff_stores(a: str | os.PathLike[str], b: str | os.PathLike[str], tolerance: float = 0.0) -> dict:
-    """Probes added/removed/changed from A to B. A probe changed if any stored field of an encoding both stores
-    have differs; the size of the change is ‖b − a‖ / max(‖a‖, tiny) per encoding (float64 of the stored values).
+    """Probes added/removed/changed from A to B, and encodings added/removed. A probe changed if any stored field
+    of an encoding both stores have differs, or if it has that encoding in one store only; the size of the change
+    is ‖b − a‖ / max(‖a‖, tiny) per encoding (float64 of the stored values; 1.0 when the shapes differ or the probe
+    has the encoding in one store only). Fields one store's encoding version lacks are not compared.
     """
     sa, sb = read_store(a), read_store(b)
     names_a, names_b = set(sa.probe_names), set(sb.probe_names)
@@ -33,7 +35,10 @@ def diff_stores(a: str | os.PathLike[str], b: str | os.PathLike[str], tolerance:
         for enc in sorted(set(sa.encodings) & set(sb.encodings)):
             ra = rows_a[enc].get(index_a[name])
             rb = rows_b[enc].get(index_b[name])
-            if ra is None or rb is None:
+            if ra is None and rb is None:
+                continue
+            if ra is None or rb is None:  # the probe has this encoding in one store only
+                change[enc] = 1.0
                 continue
             fa = sa.encodings[enc]["fields"]
             fb = sb.encodings[enc]["fields"]
@@ -56,4 +61,5 @@ def diff_stores(a: str | os.PathLike[str], b: str | os.PathLike[str], tolerance:
         else:
             unchanged += 1
     return {"added": sorted(names_b - names_a), "removed": sorted(names_a - names_b), "changed": changed,
-            "unchanged": unchanged}
+            "unchanged": unchanged, "encodings_added": sorted(set(sb.encodings) - set(sa.encodings)),
+            "encodings_removed": sorted(set(sa.encodings) - set(sb.encodings))}

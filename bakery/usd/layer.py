@@ -432,6 +432,21 @@ def open_export_layer(layer_path: str | os.PathLike[str], store_path: str | os.P
     return ExportLayer(path, given, store, layer, stamp, default)
 
 
+def recorded_store(layer_path: str | os.PathLike[str]) -> Path | None:
+    """The store a baked-results layer records (``customLayerData["bakery"]["store"]``, resolved against the
+    layer's folder), or None if the file cannot be read by USD or records none."""
+    path = Path(layer_path).resolve()
+    try:
+        layer = Sdf.Layer.OpenAsAnonymous(str(path))
+    except Exception as error:  # noqa: BLE001 - USD raises Tf errors for files it cannot parse
+        if not type(error).__module__.startswith("pxr"):
+            raise
+        return None
+    data = dict(layer.customLayerData or {}).get("bakery") if layer is not None else None
+    recorded = data.get("store") if isinstance(data, Mapping) else None
+    return path.parent / recorded if isinstance(recorded, str) and recorded else None
+
+
 def _with_export_attributes(layer: Sdf.Layer, suffix: str, assets: dict[str, dict[str, str]]) -> Sdf.Layer:
     """A copy of ``layer`` with the ``bakery:export:<key>`` attributes of ``assets`` (:func:`add_export_attributes`)."""
     copy = Sdf.Layer.CreateAnonymous(suffix)

@@ -152,6 +152,23 @@ def test_a_previous_store_and_layer_are_replaced(ws, tmp_path):
         assert incli("report", store, "-o", rep, "--no-previews").returncode == 0
 
 
+def test_another_stores_layer_is_refused_and_force_replaces_it(ws, tmp_path):
+    """A bakery layer that records another store that still exists is that bake's result: ``x.h5`` and ``x.hdf5``
+    share the default ``x.bake.usda``, and ``--layer`` may name another bake's layer (before: silently taken over,
+    and ``bakery export`` of the first store then refused its own layer)."""
+    scene = tmp_path / "scene.usda"
+    scene.write_text(scene_text(2))
+    assert incli("bake", scene, "-o", tmp_path / "scene.h5", *SCENE_FLAGS, "-j", "1").returncode == 0
+    before = snapshot(tmp_path)
+    result = incli("bake", scene, "-o", tmp_path / "scene.hdf5", *SCENE_FLAGS, "-j", "1")
+    assert_fails_cleanly(result, 2, "scene.bake.usda", "the store scene.h5, not of scene.hdf5", "--force")
+    assert snapshot(tmp_path) == before and not temporaries(tmp_path)
+    (tmp_path / "scene.h5").unlink()  # an orphan layer (its store is gone) is replaced without --force
+    assert incli("bake", scene, "-o", tmp_path / "scene.hdf5", *SCENE_FLAGS, "-j", "1").returncode == 0
+    assert incli("bake", scene, "-o", tmp_path / "scene.h5", *SCENE_FLAGS, "-j", "1").returncode == 2
+    assert incli("bake", scene, "-o", tmp_path / "scene.h5", *SCENE_FLAGS, "-j", "1", "--force").returncode == 0
+
+
 @given(data=st.binary(max_size=96), marker=st.binary(min_size=1, max_size=7), position=st.integers(0, 96),
        insert=st.booleans(), limit=st.integers(0, 110), chunk=st.integers(1, 9))
 def test_the_layer_marker_search_reads_in_chunks_and_finds_what_a_whole_read_finds(data, marker, position, insert,

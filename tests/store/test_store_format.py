@@ -77,6 +77,29 @@ def test_diff_reports_the_relative_change_of_one_probe(tmp_path):
     assert report["changed"]["/probes/p2"]["e"] == pytest.approx(0.5, rel=1e-12)
 
 
+def test_diff_names_encodings_in_one_store_only_and_probes_missing_from_an_encoding(tmp_path):
+    """Before: a 13-encoding store and an sh2-only store diffed "unchanged", and a probe present in an encoding of one
+    store only was skipped."""
+    import copy
+
+    a, b, c = tmp_path / "a.h5", tmp_path / "b.h5", tmp_path / "c.h5"
+    first = contents(np.random.default_rng(3), 4, "float64")
+    write_store(a, first)
+    extra = copy.deepcopy(first)
+    extra.encodings["f"] = copy.deepcopy(first.encodings["e"])
+    write_store(b, extra)
+    report = diff_stores(a, b)
+    assert report["encodings_added"] == ["f"] and report["encodings_removed"] == []
+    assert report["changed"] == {} and report["unchanged"] == 4  # "e" is equal; "f" is named, not compared
+    assert diff_stores(b, a)["encodings_removed"] == ["f"]
+    fewer = copy.deepcopy(first)  # probe p1 no longer has encoding "e"
+    keep = np.array([0, 2, 3])
+    fewer.encodings["e"]["fields"] = {k: v[keep] for k, v in fewer.encodings["e"]["fields"].items()}
+    write_store(c, fewer)
+    report = diff_stores(a, c)
+    assert report["changed"] == {"/probes/p1": {"e": 1.0}} and report["unchanged"] == 3
+
+
 def test_newer_major_is_refused_with_a_message(tmp_path):
     path = tmp_path / "s.h5"
     write_store(path, contents(np.random.default_rng(3), 2, "float32"))
