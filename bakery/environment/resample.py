@@ -25,8 +25,8 @@ Gather (mirrored ball)
     radially over degrees (the last pixel ring of a 1024² ball spans 7°), so splatted sub-texels leave stripes of
     cube texels empty. There each cube texel instead averages the image at g × g stratified directions inside it
     (nearest source pixel, g = 4), which is exact for the image's piecewise-constant radiance up to the strata.
-    The source's texel solid angles count each rim pixel's part inside the disc (sub-sampled), so the flux the
-    final scale matches is the image's own.
+    The source's texel solid angles count each rim pixel's part inside the disc (sub-sampled) and sum to 4π, so
+    the flux the final scale matches is the image's own (a constant image stays that constant at every size).
 """
 
 from __future__ import annotations
@@ -38,8 +38,10 @@ import numpy as np
 
 from bakery.conventions import LUMINANCE_WEIGHTS
 from bakery.environment.layouts import (
+    DISC_LAYOUTS,
     EnvironmentImage,
     direction_to_disc,
+    disc_texel_solid_angles,
     equirect_texel_solid_angles,
     layout_directions_and_density,
     layout_inside,
@@ -50,50 +52,32 @@ from bakery.sphere.grid import SphericalSamples
 
 _MAX_SUBSAMPLES = 16
 #: Bumped whenever the resampling of an unchanged image changes its result; image probes and non-latlong domes
-#: hash it, so their stores re-bake once (2: peaks splatted as flux, the mirrored ball's gather).
-RESAMPLE_MODEL_VERSION = 2
+#: hash it, so their stores re-bake once (2: peaks splatted as flux, the mirrored ball's gather; 3: the disc maps'
+#: texel solid angles integrated and normalised to 4π, and integer files decoded by their transfer function,
+#: :func:`bakery.environment.io.read_environment`).
+RESAMPLE_MODEL_VERSION = 3
 #: Luminance above this multiple of the environment's mean is a peak, resampled as flux (module docstring).
 PEAK_RATIO = 50.0
 _PEAK_SUBSAMPLES = 16
 
 
 def source_texel_solid_angles(image: EnvironmentImage) -> np.ndarray:
-    """Solid angle (H, W) of every source texel: exact for equirect, cube and vertical cross (0 in its empty cells),
-    the angular map's density at the texel centre, the mirrored ball's uniform density times the texel's part
-    inside the disc (0 off the disc)."""
+    """Solid angle (H, W) of every source texel, summing to 4π: exact for equirect, cube and vertical cross (0 in
+    its empty cells); for the disc maps (angular, mirrored ball) the layout's Jacobian integrated over each texel's
+    part inside the disc and normalised to 4π (:func:`bakery.environment.layouts.disc_texel_solid_angles`; 0 off
+    the disc)."""
     h, w = image.height, image.width
     if image.layout == "equirect":
         return equirect_texel_solid_angles(h, w)
     if image.layout == "cube":
         n = w
         return cube_texel_solid_angles(n).reshape(6 * n, n)
+    if image.layout in DISC_LAYOUTS:
+        return disc_texel_solid_angles(image.layout, h, w)
     rows, cols = np.meshgrid(np.arange(h) + 0.5, np.arange(w) + 0.5, indexing="ij")
-    if image.layout == "vertical_cross":
-        n = vertical_cross_face_size(h, w)
-        face = np.tile(cube_texel_solid_angles(n)[0], (4, 3))  # every face has the same texel solid angles
-        return np.where(layout_inside("vertical_cross", rows, cols, h, w), face, 0.0)
-    if image.layout == "mirrored_ball":
-        return (16.0 / (h * w)) * _disc_coverage(h, w)  # uniform density 4 per unit disc area (layouts)
-    _, density = layout_directions_and_density(image.layout, rows, cols, h, w)
-    return density
-
-
-def _disc_coverage(height: int, width: int, sub: int = 16) -> np.ndarray:
-    """Fraction (H, W) of each pixel inside the unit disc: 1 or 0 away from the rim, sub × sub points on it."""
-    def radius2(r, c):  # noqa: ANN001, ANN202
-        return (2.0 * c / width - 1.0) ** 2 + (1.0 - 2.0 * r / height) ** 2
-
-    rows, cols = np.meshgrid(np.arange(height, dtype=np.float64), np.arange(width, dtype=np.float64), indexing="ij")
-    corners = np.stack([radius2(rows + dr, cols + dc) for dr in (0, 1) for dc in (0, 1)])
-    coverage = np.where(corners.max(axis=0) <= 1.0, 1.0, 0.0)
-    # a pixel is on the rim if the circle crosses it: corners on both sides, or the circle's extreme point inside
-    rim = (corners.min(axis=0) <= 1.0) & (corners.max(axis=0) > 1.0)
-    offsets = (np.arange(sub) + 0.5) / sub
-    r, c = np.nonzero(rim)
-    rr = r[:, None, None] + offsets[None, :, None]
-    cc = c[:, None, None] + offsets[None, None, :]
-    coverage[r, c] = (radius2(rr, cc) <= 1.0).mean(axis=(1, 2))
-    return coverage
+    n = vertical_cross_face_size(h, w)
+    face = np.tile(cube_texel_solid_angles(n)[0], (4, 3))  # every face has the same texel solid angles
+    return np.where(layout_inside("vertical_cross", rows, cols, h, w), face, 0.0)
 
 
 def environment_samples(image: EnvironmentImage) -> SphericalSamples:

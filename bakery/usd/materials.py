@@ -62,6 +62,7 @@ import numpy as np
 from pxr import Ar, Sdf, Sdr, Usd, UsdGeom, UsdShade
 
 from bakery.capture.scene import Material, Texture
+from bakery.environment.colour import srgb_to_linear
 from bakery.environment.io import read_image
 from bakery.errors import ImageError, SceneError
 from bakery.usd.assets import local_asset_path
@@ -542,12 +543,6 @@ def _range_notes(values: dict[str, object]) -> list[str]:
     if ior is not None and np.ndim(ior) == 0 and float(ior) <= 0.0:
         notes.append(f"ior = {float(ior):g} is not positive; the dielectric reflects nothing (F0 = 0)")
     return notes
-
-
-def srgb_to_linear(values: np.ndarray) -> np.ndarray:
-    """IEC 61966-2-1 sRGB decoding of values in [0, 1]."""
-    values = np.asarray(values)
-    return np.where(values <= 0.04045, values / 12.92, ((np.maximum(values, 0.0) + 0.055) / 1.055) ** 2.4)
 
 
 def _color(value) -> tuple[float, float, float]:  # noqa: ANN001

@@ -947,7 +947,7 @@ class SceneReader:
             self.domes.append(Dome(name, scale=tuple(scale), rotation=rotation, source=resolved, **response))
             return
         try:
-            image, report = read_environment(resolved, layouts[fmt])
+            image, report = read_environment(resolved, layouts[fmt], decode="raw")  # colour managed below
         except ImageError as exc:
             self.issue("error", prim, str(exc))
             return
