@@ -1,28 +1,67 @@
 """The ``bakery`` command line (click). Thin: parses arguments, calls the library, prints, maps errors to exit codes.
 
-Exit codes: 0 success; 1 unexpected failure; 2 bad input (missing/corrupt file, bad scene); 3 bad settings;
-4 an encoding failed; 5 ``check`` found errors; 6 the store was written but some probes failed.
+Exit codes: 0 success; 1 unexpected failure; 2 bad input (missing/corrupt file, bad scene) or usage; 3 bad settings;
+4 an encoding failed; 5 ``check`` found errors; 6 the store was written but some probes failed; 130 stopped by
+Ctrl-C (SIGINT) and 143 by SIGTERM, each with one line (``interrupted: …`` / ``terminated: …``) saying what was
+kept, and no traceback — from the first import of this module on.
 """
 
 from __future__ import annotations
 
-import json
 import sys
-import warnings
-from pathlib import Path
 
-import click
-import numpy as np
-from rich.console import Console
-from rich.markup import escape
-from rich.table import Table
+try:  # Ctrl-C while the command line loads (≈ 0.3 s): the same one line and exit code as later, not a traceback
+    import json
+    import math
+    import warnings
+    from pathlib import Path
+    from typing import NoReturn
 
-from bakery.conventions import SEED_RANGE
-from bakery.environment.layouts import LAYOUTS
-from bakery.errors import BakeryError, BakeryWarning
+    import click
+    import numpy as np
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.table import Table
+
+    from bakery.conventions import SEED_RANGE
+    from bakery.environment.layouts import LAYOUTS
+    from bakery.errors import BakeryError, BakeryWarning, ConfigError, SceneError
+except KeyboardInterrupt:
+    sys.stderr.write("interrupted: bakery was stopped while it started; nothing was written\n")
+    raise SystemExit(130) from None
 
 console = Console(stderr=True, soft_wrap=True)
 out = Console(soft_wrap=True)
+
+#: Exit statuses of a command stopped by a signal (128 + the signal's number, as a shell reports it).
+INTERRUPTED_EXIT_CODE, TERMINATED_EXIT_CODE = 130, 143
+
+
+class _Stopped(SystemExit):
+    """The exit of a command stopped by Ctrl-C or SIGTERM, its one-line message printed."""
+
+
+def _stopped(code: int, message: str) -> NoReturn:
+    """Print ``interrupted: message`` (Ctrl-C, exit 130) or ``terminated: message`` (SIGTERM, 143) and exit."""
+    word = "interrupted" if code == INTERRUPTED_EXIT_CODE else "terminated"
+    console.print(f"[red]{word}:[/red] {escape(message)}")
+    raise _Stopped(code)
+
+
+def _is_sigterm(exit: SystemExit) -> bool:
+    """Whether ``exit`` is SIGTERM turned into a clean unwind: ``SystemExit(143)`` from
+    :func:`bakery.files.terminate_as_exit` (bakes, merges, exports, ``farm calibrate``)."""
+    return not isinstance(exit, _Stopped) and exit.code == TERMINATED_EXIT_CODE
+
+
+def _journal_note(output: Path) -> str:
+    """"; the finished batches are kept in S.h5.partial and the next bake resumes from them", if there are some."""
+    from bakery.pipeline.journal import Journal
+
+    journal = Journal(output).directory
+    if journal.is_dir() and any(journal.glob("*.pkl")):
+        return f"; the finished batches are kept in {journal} and the next bake resumes from them"
+    return ""
 
 
 def _count(n: int, noun: str) -> str:
@@ -35,11 +74,27 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):  #
 
 
 class _Group(click.Group):
+    group_class = type  # ``bench`` and ``farm`` are _Groups too (their commands' names in the messages below)
+
+    def make_context(self, *args, **kwargs) -> click.Context:  # noqa: ANN002, ANN003
+        try:
+            return super().make_context(*args, **kwargs)
+        except KeyboardInterrupt:  # click would print "Aborted!" and exit 1
+            _stopped(INTERRUPTED_EXIT_CODE, "bakery was stopped while it started; nothing was written")
+
     def invoke(self, ctx: click.Context):
         warnings.showwarning = _show_warning
         warnings.simplefilter("always", BakeryWarning)
         try:
             return super().invoke(ctx)
+        except _Stopped:  # a command said what it kept
+            raise
+        except KeyboardInterrupt:  # anywhere else (imports, planning, …): click would print "Aborted!" and exit 1
+            _stopped(INTERRUPTED_EXIT_CODE, f"{self._command_name(ctx)} was stopped before it finished")
+        except SystemExit as exit:
+            if _is_sigterm(exit):
+                _stopped(TERMINATED_EXIT_CODE, f"{self._command_name(ctx)} was stopped before it finished")
+            raise
         except BakeryError as error:
             console.print(f"[red]error:[/red] {escape(str(error))}")
             sys.exit(error.exit_code)
@@ -48,6 +103,15 @@ class _Group(click.Group):
 
             console.print(f"[red]error:[/red] {escape(os_error_message(error))}")
             sys.exit(2)
+
+    @staticmethod
+    def _command_name(ctx: click.Context) -> str:
+        """``bakery farm calibrate`` (whatever the program was called: ``python -m bakery.cli``, …)."""
+        names = [ctx.invoked_subcommand] if ctx.invoked_subcommand else []
+        while ctx.parent is not None:
+            names.insert(0, ctx.info_name)
+            ctx = ctx.parent
+        return " ".join(["bakery", *names])
 
 
 @click.group(cls=_Group)
@@ -88,6 +152,25 @@ class _Progress:
             self.task = self.progress.add_task("bake", total=total, rate="")
         rate = done / max(time.perf_counter() - self.start, 1e-9)
         self.progress.update(self.task, completed=done, total=total, rate=f"{rate:.3g} probes/s")
+
+
+def _bake_left(request) -> str:  # noqa: ANN001 - a BakeRequest, or None before it was made
+    """What a bake stopped before it wrote its outputs leaves (it removed what it staged on the way out)."""
+    if request is None:
+        return "bakery bake was stopped before it started; nothing was written"
+    return f"{request.output}: the previous store and layer are unchanged" + _journal_note(request.output)
+
+
+def _check_executor_options(scheduler: str | None, dask_local: bool) -> None:
+    if scheduler and dask_local:
+        raise click.UsageError("--scheduler and --dask-local exclude each other: bake on the Dask scheduler at "
+                               f"{scheduler}, or on a local Dask cluster")
+
+
+def _check_time(time_code: float | None) -> None:
+    """``--time``: a finite USD time code (NaN is refused by the settings too, with the same message)."""
+    if time_code is not None and not math.isfinite(time_code):
+        raise ConfigError(f"capture time must be a finite number (a USD time code), got {time_code!r}")
 
 
 def _scheduler_address(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:  # noqa: ARG001
@@ -148,52 +231,53 @@ def bake(sources: tuple[Path, ...], output: Path | None, recipe: str | None, enc
     refused unless --force. Exit codes: 0 all probes baked; 6 the store was written but some probes failed
     (listed); 2/3 bad input, output or settings (nothing written).
     """
-    from dataclasses import replace
+    _check_executor_options(scheduler, dask_local)
+    _check_time(time_code)
+    request = executor = None
+    try:  # Ctrl-C or SIGTERM until the outputs are written: one line saying what is left (the bake cleaned up)
+        from dataclasses import replace
 
-    from bakery.pipeline.executors import make_executor
-    from bakery.pipeline.run import bake as run_bake
-    from bakery.pipeline.run import check_output_paths, load_previous, plan_bake
-    from bakery.pipeline.settings import request_from
-    from bakery.sources import source_for
+        from bakery.pipeline.executors import make_executor
+        from bakery.pipeline.run import bake as run_bake
+        from bakery.pipeline.run import check_output_paths, load_previous, plan_bake
+        from bakery.pipeline.settings import request_from
+        from bakery.sources import source_for
 
-    request = request_from(
-        sources, output, recipe=recipe, encodings=encodings, face_size=face_size, layer=layer, layout=layout,
-        samples=samples, bounces=bounces, seed=seed, resume=not no_resume,
-        reference_errors=False if no_reference else None, target_noise=target_noise, time=time_code,
-    )
-    request = replace(request, force=force)
-    source = source_for(request.sources, request.layout, request.capture)
-    check_output_paths(request, source)  # before any work (also before a Dask cluster starts)
-    if dry_run:
-        _, plan = plan_bake(request, source, load_previous(request.output) if request.resume else None)
-        info = {"store": str(request.output), "probes": len(plan.tasks), "reused": len(plan.reused),
-                "to_bake": plan.to_bake, "batches": len(plan.batches), "skipped": plan.skipped,
-                "settings_hash": request.settings.hash(),
-                "encodings": sorted({e for t in plan.tasks for e in t.encodings})}
-        if as_json:
-            out.print_json(json.dumps(info))
-        else:
-            out.print(f"plan for {request.output}: {_count(info['probes'], 'probe')}, {info['reused']} unchanged "
-                      f"(reused), {info['to_bake']} to bake in {_count(info['batches'], 'batch')}; encodings: "
-                      + ", ".join(info["encodings"]))
-            for skip in plan.skipped:
-                out.print(f"  skipped {escape(str(skip['probe']))}: {escape(str(skip['reason']))}")
-        return
-    executor = make_executor(jobs, scheduler, dask_local)
-    try:
+        request = request_from(
+            sources, output, recipe=recipe, encodings=encodings, face_size=face_size, layer=layer, layout=layout,
+            samples=samples, bounces=bounces, seed=seed, resume=not no_resume,
+            reference_errors=False if no_reference else None, target_noise=target_noise, time=time_code,
+        )
+        request = replace(request, force=force)
+        source = source_for(request.sources, request.layout, request.capture)
+        check_output_paths(request, source)  # before any work (also before a Dask cluster starts)
+        if dry_run:
+            _, plan = plan_bake(request, source, load_previous(request.output) if request.resume else None)
+            info = {"store": str(request.output), "probes": len(plan.tasks), "reused": len(plan.reused),
+                    "to_bake": plan.to_bake, "batches": len(plan.batches), "skipped": plan.skipped,
+                    "settings_hash": request.settings.hash(),
+                    "encodings": sorted({e for t in plan.tasks for e in t.encodings})}
+            if as_json:
+                out.print_json(json.dumps(info))
+            else:
+                out.print(f"plan for {request.output}: {_count(info['probes'], 'probe')}, {info['reused']} "
+                          f"unchanged (reused), {info['to_bake']} to bake in {_count(info['batches'], 'batch')}; "
+                          "encodings: " + ", ".join(info["encodings"]))
+                for skip in plan.skipped:
+                    out.print(f"  skipped {escape(str(skip['probe']))}: {escape(str(skip['reason']))}")
+            return
+        executor = make_executor(jobs, scheduler, dask_local)
         with _Progress(console.is_terminal and not as_json) as progress:
             summary = run_bake(request, executor, progress)
-    except KeyboardInterrupt:  # Ctrl-C: the bake removed what it staged on the way out; say what is left
-        from bakery.pipeline.journal import Journal
-
-        journal = Journal(request.output).directory
-        kept = any(journal.glob("*.pkl")) if journal.is_dir() else False
-        console.print(f"[red]interrupted:[/red] {request.output}: the previous store and layer are unchanged"
-                      + (f"; the finished batches are kept in {journal} and the next bake resumes from them"
-                         if kept else ""))
-        sys.exit(130)
+    except KeyboardInterrupt:
+        _stopped(INTERRUPTED_EXIT_CODE, _bake_left(request))
+    except SystemExit as exit:  # SIGTERM during the bake (turned into SystemExit(143)): the same unwind
+        if _is_sigterm(exit):
+            _stopped(TERMINATED_EXIT_CODE, _bake_left(request))
+        raise
     finally:
-        executor.close()
+        if executor is not None:
+            executor.close()
     # ---- recipe `exports` (bakery export after the bake; issue 13) -------------------------------------------
     if recipe:
         _run_recipe_exports(recipe, request.output, summary.layer)
@@ -229,6 +313,10 @@ def diff(a: Path, b: Path, as_json: bool) -> None:
         return
     out.print(f"added {len(report['added'])}, removed {len(report['removed'])}, changed {len(report['changed'])}, "
               f"unchanged {report['unchanged']}")
+    for key, sign in (("encodings_added", "+"), ("encodings_removed", "-")):
+        if report[key]:
+            out.print(f"{sign} encoding{'s' if len(report[key]) > 1 else ''} {', '.join(report[key])} (only in "
+                      f"{b if sign == '+' else a}: not compared)")
     for name in report["added"]:
         out.print(f"+ {name}")
     for name in report["removed"]:
@@ -258,7 +346,8 @@ def migrate(store: Path, output: Path | None, dry_run: bool, force: bool) -> Non
         with FileLock(target or store):  # the file being written (a bake of it waits for no one: it is refused)
             steps = migrate_store(store, target)
     if not steps:
-        out.print(f"{store} is already format {FORMAT_VERSION}")
+        out.print(f"{store} is already format {FORMAT_VERSION}"
+                  + (f"; {'would write' if dry_run else 'wrote'} it unchanged to {target}" if target else ""))
     for step in steps:
         out.print(("would migrate: " if dry_run else "migrated: ") + step)
 
@@ -379,12 +468,15 @@ def bench() -> None:
 @click.argument("folder", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=Path("bench-results"), show_default=True)
 @click.option("--face-size", type=int, default=64, show_default=True)
-def bench_irradiance(folder: Path, output: Path, face_size: int) -> None:
+@click.option("--force", is_flag=True, help="Replace result files in the folder that bench did not write.")
+def bench_irradiance(folder: Path, output: Path, face_size: int, force: bool) -> None:
     """Relative RMSE of every irradiance encoding against the exact irradiance, for every image in FOLDER."""
     from bakery.bench.irradiance import format_table, run_irradiance_bench, write_results
+    from bakery.bench.output import check_bench_outputs
 
+    check_bench_outputs(output, ("irradiance.json", "irradiance.md"), force)
     result = run_irradiance_bench(folder, face_size=face_size)
-    json_path, text_path = write_results(result, output)
+    json_path, text_path = write_results(result, output, force=force)
     out.print(format_table(result))
     console.print(f"wrote {json_path} and {text_path}")
 
@@ -395,11 +487,12 @@ def bench_irradiance(folder: Path, output: Path, face_size: int) -> None:
 @click.option("--speed", is_flag=True, help="Also measure probes/s of the fits and prefilters.")
 @click.option("--face-size", type=int, default=128, show_default=True)
 @click.option("--no-plain", is_flag=True, help="Do not score the plain 1024-sample split-sum chain (~20 s/probe).")
-def bench_reflection(folder: Path, output: Path, speed: bool, face_size: int, no_plain: bool) -> None:
+@click.option("--force", is_flag=True, help="Replace result files in the folder that bench did not write.")
+def bench_reflection(folder: Path, output: Path, speed: bool, face_size: int, no_plain: bool, force: bool) -> None:
     """SH-exponential vs split-sum reflection error against the reference (seed 000 Fig. 4–7 protocol)."""
     from bakery.bench.reflection import run_reflection_bench
 
-    run_reflection_bench(folder, output, speed=speed, face_size=face_size, plain_splitsum=not no_plain)
+    run_reflection_bench(folder, output, speed=speed, face_size=face_size, plain_splitsum=not no_plain, force=force)
     console.print(f"wrote results to {output}")
 
 
@@ -423,11 +516,12 @@ def report(store: Path, out_dir: Path, environment: Path | None, no_previews: bo
 @click.argument("folder", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=Path("bench-results"), show_default=True)
 @click.option("--quick", is_flag=True, help="Fewer parameters and environments.")
-def bench_pareto(folder: Path, output: Path, quick: bool) -> None:
+@click.option("--force", is_flag=True, help="Replace result files in the folder that bench did not write.")
+def bench_pareto(folder: Path, output: Path, quick: bool, force: bool) -> None:
     """Run time against error for every encoding and its parameters; Pareto table, plot and JSON."""
     from bakery.bench.pareto import format_pareto_table, run_pareto_bench
 
-    out.print(format_pareto_table(run_pareto_bench(folder, output, quick=quick)))
+    out.print(format_pareto_table(run_pareto_bench(folder, output, quick=quick, force=force)))
 
 
 @bench.command("shexp-fit")
@@ -438,17 +532,19 @@ def bench_pareto(folder: Path, output: Path, quick: bool) -> None:
 @click.option("--repeats", type=click.IntRange(min=5), default=7, show_default=True)
 @click.option("--processes", type=click.IntRange(min=1), default=2, show_default=True,
               help="Single-threaded processes of the bake-configuration throughput (1: skip it).")
+@click.option("--force", is_flag=True, help="Replace result files in the folder that bench did not write.")
 def bench_shexp(folder: Path | None, output: Path, batch_size: int, face_size: int, repeats: int,
-                processes: int) -> None:
+                processes: int, force: bool) -> None:
     """SH-exponential fit speed per probe: the fused fit against the step-by-step one, side by side, and the
     throughput of bake-like single-threaded workers (FOLDER: HDR environments; default synthetic sky-and-sun
     captures)."""
+    from bakery.bench.output import check_bench_outputs, write_bench_file
     from bakery.bench.shexp_fit import run_shexp_fit_bench
 
+    check_bench_outputs(output, ("shexp.json",), force)
     result = run_shexp_fit_bench(folder, batch_size=batch_size, face_size=face_size, repeats=repeats, echo=click.echo,
                                  processes=processes)
-    output.mkdir(parents=True, exist_ok=True)
-    (output / "shexp.json").write_text(json.dumps(result, indent=2, default=str))
+    write_bench_file(output, "shexp.json", json.dumps(result, indent=2, default=str), force)
 
 
 @bench.command("split-sum")
@@ -457,16 +553,19 @@ def bench_shexp(folder: Path | None, output: Path, batch_size: int, face_size: i
 @click.option("--face-size", type=click.IntRange(min=8), default=128, show_default=True)
 @click.option("--repeats", type=click.IntRange(min=1), default=5, show_default=True)
 @click.option("--no-fis", is_flag=True, help="Skip the (slow) filtered-importance-sampling formulation.")
-def bench_splitsum(environments: tuple[Path, ...], output: Path, face_size: int, repeats: int, no_fis: bool) -> None:
+@click.option("--force", is_flag=True, help="Replace result files in the folder that bench did not write.")
+def bench_splitsum(environments: tuple[Path, ...], output: Path, face_size: int, repeats: int, no_fis: bool,
+                   force: bool) -> None:
     """Split-sum and hybrid chain prefilter per probe: cached sparse operators against filtered importance sampling,
     side by side, with each level's error against the exact prefilter (ENVIRONMENTS: HDR images; default the
     shipped examples')."""
+    from bakery.bench.output import check_bench_outputs, write_bench_file
     from bakery.bench.splitsum import run_splitsum_bench
 
+    check_bench_outputs(output, ("splitsum.json",), force)
     result = run_splitsum_bench(face_size=face_size, env_paths=list(environments) or None, repeats=repeats,
                                 fis_batch_sizes=() if no_fis else (1,), echo=click.echo)
-    output.mkdir(parents=True, exist_ok=True)
-    (output / "splitsum.json").write_text(json.dumps(result, indent=2, default=str))
+    write_bench_file(output, "splitsum.json", json.dumps(result, indent=2, default=str), force)
 
 
 class IntList(click.ParamType):
@@ -505,8 +604,9 @@ class IntList(click.ParamType):
 @click.option("--production", is_flag=True,
               help="Issue 14's production scene: 10,000 irradiance probes at 32², 1,000 reflection probes at 128² "
                    "(console recipe), 2 workers, KTX2 export; overrides the other options.")
+@click.option("--force", is_flag=True, help="Replace result files in the folder that bench did not write.")
 def bench_scale(output: Path, volume: tuple[int, ...], reflection: int, recipe: str, face_size: int,
-                jobs: tuple[int, ...], repeats: int, production: bool) -> None:
+                jobs: tuple[int, ...], repeats: int, production: bool, force: bool) -> None:
     """Wall time, per-stage timings, peak memory and store size of a generated large scene."""
     from bakery.bench.scale import PRODUCTION, run_scale_bench
 
@@ -514,10 +614,10 @@ def bench_scale(output: Path, volume: tuple[int, ...], reflection: int, recipe: 
         return _Progress(console.is_terminal)
 
     if production:
-        result = run_scale_bench(output, **PRODUCTION, progress_bar=progress_bar, repeats=repeats)
+        result = run_scale_bench(output, **PRODUCTION, progress_bar=progress_bar, repeats=repeats, force=force)
     else:
         result = run_scale_bench(output, volume, reflection, recipe, face_size, jobs=jobs, progress_bar=progress_bar,
-                                 repeats=repeats)
+                                 repeats=repeats, force=force)
     out.print_json(json.dumps(result))
 
 
@@ -531,20 +631,30 @@ def bench_scale(output: Path, volume: tuple[int, ...], reflection: int, recipe: 
 @click.option("--probes", type=int, default=None, help="Render only the first N probes of each scene.")
 @click.option("--processes", type=click.IntRange(min=1), default=1, show_default=True,
               help="Render in this many worker processes (aggregate rays/s).")
+@click.option("--force", is_flag=True, help="Replace result files in the folder that bench did not write.")
 def bench_capture(scenes: tuple[Path, ...], output: Path, face_size: int, samples: int, bounces: int | None,
-                  target_noise: float, probes: int | None, processes: int) -> None:
+                  target_noise: float, probes: int | None, processes: int, force: bool) -> None:
     """Capture speed (rays/s, probes/s) and achieved SH noise of the examples (or SCENES)."""
     from bakery.bench.capture import run_capture_bench
 
     result = run_capture_bench(scenes, output, face_size=face_size, samples=samples, bounces=bounces,
-                               target_noise=target_noise, probes=probes, processes=processes)
+                               target_noise=target_noise, probes=probes, processes=processes, force=force)
     out.print_json(json.dumps(result))
 
 
 @main.command()
 @click.argument("scene", type=click.Path(path_type=Path))
 def check(scene: Path) -> None:
-    """Check a USD scene for problems, per prim; exit 5 if any error."""
+    """Check a USD scene for problems, per prim; exit 5 if any error (also a file USD cannot parse); exit 2 if SCENE
+    is missing, a folder or not a USD file."""
+    from bakery.sources.usd_scene import SCENE_SUFFIXES
+
+    if scene.is_dir():
+        raise SceneError(f"{scene}: is a directory, not a USD scene file")
+    if not scene.is_file():
+        raise SceneError(f"{scene}: scene not found")
+    if scene.suffix.lower() not in SCENE_SUFFIXES:
+        raise SceneError(f"{scene}: not a USD scene (expected {', '.join(SCENE_SUFFIXES)})")
     from bakery.usd.check import check_exit_code, check_scene
 
     issues = check_scene(scene)
@@ -598,6 +708,7 @@ def _request(params: dict, output: Path | None):  # noqa: ANN202
         face_size=params.get("face_size"), layer=params.get("layer"), layout=params.get("layout"),
         samples=params.get("samples"), bounces=params.get("bounces"), seed=params.get("seed"),
         resume=not params.get("no_resume", False), reference_errors=False if params.get("no_reference") else None,
+        target_noise=params.get("target_noise"), time=params.get("time_code"),  # shards: the bake's own options
     )
     if params.get("force") and "force" in request.__dataclass_fields__:
         request = replace(request, force=True)
@@ -608,6 +719,8 @@ def _bake_shard(params: dict, probes: str | None, shard: str | None, base: Path 
     from bakery.pipeline.executors import make_executor
     from bakery.pipeline.shards import ShardSpec, bake_shard, parse_probe_range, parse_shard, plan_shard
 
+    _check_executor_options(params.get("scheduler"), params.get("dask_local", False))
+    _check_time(params.get("time_code"))
     if params.get("output") is None:
         raise click.UsageError("a shard needs -o SHARD.h5 (its own store, merged later by `bakery merge`)")
     if params.get("layer") is not None:
@@ -629,6 +742,14 @@ def _bake_shard(params: dict, probes: str | None, shard: str | None, base: Path 
     try:
         with _Progress(console.is_terminal and not params.get("as_json")) as progress:
             summary = bake_shard(request, spec, executor, progress)
+    except KeyboardInterrupt:
+        _stopped(INTERRUPTED_EXIT_CODE, f"{request.output}: the previous shard store is unchanged"
+                 + _journal_note(request.output))
+    except SystemExit as exit:
+        if _is_sigterm(exit):
+            _stopped(TERMINATED_EXIT_CODE, f"{request.output}: the previous shard store is unchanged"
+                     + _journal_note(request.output))
+        raise
     finally:
         executor.close()
     console.print(summary.log_line())  # the task log: range, rays/s, time
@@ -735,7 +856,14 @@ def merge(shards: tuple[Path, ...], output: Path, layer: Path | None, sources: t
     ranges are named) or belong to different plans; 6 if some probes failed (the store is written)."""
     from bakery.pipeline.shards import merge_shards
 
-    summary = merge_shards(list(shards), output, layer, tuple(sources) or None)
+    try:
+        summary = merge_shards(list(shards), output, layer, tuple(sources) or None)
+    except KeyboardInterrupt:
+        _stopped(INTERRUPTED_EXIT_CODE, f"{output}: the previous store and layer are unchanged")
+    except SystemExit as exit:
+        if _is_sigterm(exit):
+            _stopped(TERMINATED_EXIT_CODE, f"{output}: the previous store and layer are unchanged")
+        raise
     if as_json:
         out.print_json(json.dumps(summary.as_dict(), default=str))
     else:
@@ -829,7 +957,16 @@ def farm_calibrate(output: Path, force: bool) -> None:
     """Measure the cost model's constants on this machine (five bakes of the scale bench's generated hall, ~1 min)."""
     from bakery.farm.calibrate import calibrate
 
-    data = calibrate(output, force=force)
+    try:
+        data = calibrate(output, force=force)
+    except KeyboardInterrupt:  # calibrate removed its temporary bakes on the way out
+        _stopped(INTERRUPTED_EXIT_CODE, f"{output}: not written (a previous file is unchanged); the calibration's "
+                                        "temporary bakes were removed")
+    except SystemExit as exit:
+        if _is_sigterm(exit):
+            _stopped(TERMINATED_EXIT_CODE, f"{output}: not written (a previous file is unchanged); the calibration's "
+                                           "temporary bakes were removed")
+        raise
     console.print(f"wrote {output} ({len(data['encodings'])} encodings; process {data['process_seconds']:.2f} s, "
                   f"{data['seconds_per_ray'] * 1e9:.1f} ns per modelled ray)")
 

@@ -16,6 +16,10 @@ Staged commits (several files that must change together, e.g. a store and its US
     record exists nothing has changed (the staged files are stale and removed); once it exists the commit is
     completed.
 
+Signals
+    ``with terminate_as_exit():`` turns SIGTERM into ``SystemExit(143)`` for the writers (``bakery bake``,
+    ``bakery export``), so the cleanup above runs on the way out instead of being skipped by the default action.
+
 Locks
     :class:`FileLock` is an ``fcntl`` advisory lock on ``<path>.lock`` holding the owner's pid, host and start time.
     A second writer fails at once with a message naming the holder; a lock file left by a process that died is
@@ -76,6 +80,26 @@ def atomic_replace(path: str | os.PathLike[str], suffix: str = "") -> Iterator[P
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+@contextmanager
+def terminate_as_exit() -> Iterator[None]:
+    """SIGTERM raises ``SystemExit(143)`` in the main thread while a writer runs (a bake, an export), so that every
+    temporary file is removed on the way out (the default action would kill the process without running any
+    cleanup). Nested uses, other threads and a handler someone else installed are left alone."""
+    if threading.current_thread() is not threading.main_thread() or \
+            signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+        yield
+        return
+
+    def handler(signum: int, frame: object) -> None:
+        raise SystemExit(128 + signum)
+
+    signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def with_filename(error: OSError, path: str | os.PathLike[str]) -> OSError:
@@ -340,9 +364,10 @@ class FileLock:
     ``acquire`` raises :class:`OutputError` if another process (or another bake in this process) holds it; a lock
     file left by a dead process is taken over and described in :attr:`stale` (the caller warns)."""
 
-    def __init__(self, path: str | os.PathLike[str], what: str = "store") -> None:
+    def __init__(self, path: str | os.PathLike[str], what: str = "store", writer: str = "bake") -> None:
         self.path = Path(path)
         self.what = what
+        self.writer = writer  # who holds such a lock, for the message: "another <writer> is writing this <what>"
         self.file = lock_path(self.path)
         self._key = str(self.path.resolve())
         self._fd: int | None = None
@@ -404,7 +429,8 @@ class FileLock:
                 os.close(fd)
                 if error.errno in (errno.EACCES, errno.EAGAIN):
                     raise OutputError(
-                        f"{self.path}: another bake is writing this {self.what} ({self.describe(info)}); wait for it "
+                        f"{self.path}: another {self.writer} is writing this {self.what} ({self.describe(info)}); wait "
+                        f"for it "
                         f"to finish or write to another path") from None
                 raise OutputError(f"{self.path}: cannot lock {self.file.name}: {os_error_message(error)}") from None
             try:

@@ -132,13 +132,23 @@ def calibration_refusal(path: Path) -> str | None:
 
 def calibrate(output: Path, work: Path | None = None, force: bool = False) -> dict[str, Any]:
     """Measure and write the calibration JSON to ``output`` (atomically; the output policy is checked before any
-    measurement: a new path or a calibration bakery wrote, ``force``: any file); returns it."""
-    from bakery.bench.scale import generate_scene
-    from bakery.files import check_output_file, write_bytes_atomic
+    measurement and before anything is created: its folder must exist; a new path or a calibration bakery wrote,
+    ``force``: any file); returns it.
+
+    SIGTERM unwinds like Ctrl-C for the whole run (``SystemExit(143)``, as during a bake): the running bake process
+    is killed and the temporary folder of the bakes (MBs) removed — its default action left it behind."""
+    from bakery.files import check_output_file, terminate_as_exit
 
     output = Path(output)
-    output.parent.mkdir(parents=True, exist_ok=True)
     check_output_file(output, "calibration", refusal=calibration_refusal, force=force)
+    with terminate_as_exit():  # the in-process merges' own (a bake's) then leave this one in place
+        return _calibrate(output, work)
+
+
+def _calibrate(output: Path, work: Path | None) -> dict[str, Any]:
+    from bakery.bench.scale import generate_scene
+    from bakery.files import write_bytes_atomic
+
     runs = []
     load = os.getloadavg()  # other jobs on the machine slow every measurement; recorded with the result
     with tempfile.TemporaryDirectory(dir=work) as folder:

@@ -14,7 +14,9 @@ do not depend on the executor or the number of workers.
 
 Workers die with the bake: pool workers get the parent-death signal (Linux ``PR_SET_PDEATHSIG``) and, like the
 workers of a ``LocalCluster``, watch the parent's pid (:func:`bakery.pipeline.worker.watch_parent`), so killing
-only the parent (even with SIGKILL) leaves no worker running. A scheduler that cannot be reached is a
+only the parent (even with SIGKILL) leaves no worker running. Ctrl-C reaches the whole process group: every worker
+(also of a rebuilt pool) starts with SIGINT blocked and ignores it from its initializer on, and only the parent acts
+on it (:func:`_workers_start_shielded`). A scheduler that cannot be reached is a
 :class:`SchedulerError` (exit 2) after a short connect timeout, not a traceback.
 """
 
@@ -99,11 +101,47 @@ def _children_ignore_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGINT, previous)
 
 
+@contextmanager
+def _workers_start_shielded() -> Iterator[None]:
+    """While pool workers are started (spawn: fork and exec of a new interpreter, which then imports bakery for
+    ≈ 1 s): SIGINT is blocked in this thread, so that each worker starts with it blocked — the signal mask survives
+    fork and exec — until :func:`_worker_init` ignores it (which discards one that arrived meanwhile) and unblocks
+    it; and a Ctrl-C that reaches this process meanwhile is held and raised as ``KeyboardInterrupt`` once the workers
+    have started, not lost. Ctrl-C reaches the whole process group: before, a worker still importing was killed by
+    it with a traceback, the pool was rebuilt and the bake could go on. (Ignoring SIGINT, as for a ``LocalCluster``
+    (:func:`_children_ignore_interrupt`), would also drop a Ctrl-C meant for this process.) A no-op outside the main
+    thread."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    from multiprocessing import resource_tracker
+
+    # Started now if it is not running: it blocks and then unblocks SIGINT around its own start, which inside this
+    # block would unblock it for the workers too.
+    resource_tracker.ensure_running()
+    held: list[int] = []
+    previous = signal.getsignal(signal.SIGINT)
+    hold = callable(previous)  # a Python handler (Ctrl-C → KeyboardInterrupt); SIG_IGN / SIG_DFL are left as they are
+    if hold:
+        signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)  # a SIGINT pending meanwhile is handled here: held
+        if hold:
+            signal.signal(signal.SIGINT, previous)
+            if held:
+                previous(signal.SIGINT, None)  # the Ctrl-C, now that the workers are started (shielded)
+
+
 def _worker_init(parent: int | None = None, modules: tuple[str, ...] = ()) -> None:
-    watch_parent(parent, death_signal=True)
     # Ctrl-C reaches the whole process group: the parent stops the bake and its workers; a worker interrupted
-    # mid-batch would only print a traceback of its own.
+    # mid-batch would only print a traceback of its own. The worker started with SIGINT blocked
+    # (:func:`_workers_start_shielded`): ignoring it discards a Ctrl-C that arrived since, then it is unblocked.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    watch_parent(parent, death_signal=True)
     for module in modules:  # e.g. the source's (USD, Embree): imported before the first batch arrives
         try:
             importlib.import_module(module)
@@ -153,9 +191,10 @@ class ProcessExecutor:
         parent reads and plans the bake; ``modules`` are imported in each worker as it starts. The first
         :meth:`run` uses this pool."""
         if self._pool is None:
-            self._pool = self._new_pool(modules)
             try:
-                with _single_threaded_children():  # a spawn pool starts a worker per submit while none is idle
+                # a spawn pool starts a worker per submit while none is idle
+                with _workers_start_shielded(), _single_threaded_children():
+                    self._pool = self._new_pool(modules)
                     for _ in range(self.workers):
                         self._pool.submit(_started)
             except BrokenProcessPool:  # a worker died at once: :meth:`run` starts a new pool
@@ -171,9 +210,10 @@ class ProcessExecutor:
         attempts = {t.key: 0 for t in pending}
         restarts = 0  # pools found broken before they were given the batches (a worker killed while starting)
         while pending:
-            self._pool = self._pool or self._new_pool()  # the pool :meth:`start` started, else a new one
             try:
-                with _single_threaded_children():  # a spawn pool starts its workers as the tasks are submitted
+                # a spawn pool starts its workers as the tasks are submitted (also a pool rebuilt after a worker died)
+                with _workers_start_shielded(), _single_threaded_children():
+                    self._pool = self._pool or self._new_pool()  # the pool :meth:`start` started, else a new one
                     futures: dict[Future, BatchTask] = {self._pool.submit(run_batch, t): t for t in pending}
             except BrokenProcessPool:  # no batch ran in it: a new pool, the batches not counted as attempted
                 self._drop_pool()

@@ -32,8 +32,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
-import threading
 import time
 import warnings
 from collections.abc import Callable, Iterator
@@ -55,7 +53,9 @@ from bakery.files import (
     recover_staged,
     remove_stale_temporaries,
     remove_temporaries_under,
+    same_file,
     staged_path,
+    terminate_as_exit as _terminate_as_exit,
     with_filename,
 )
 from bakery.pipeline.background import BackgroundCall
@@ -224,10 +224,23 @@ def check_output_paths(request: BakeRequest, source: Source) -> None:
         if layer.resolve() == output.resolve():
             raise LayerOutputError(f"{layer}: the layer and the store must be different files")
         try:
-            check_output_file(layer, "layer", inputs=[*inputs, output], refusal=layer_overwrite_refusal,
+            check_output_file(layer, "layer", inputs=[*inputs, output],
+                              refusal=lambda path: layer_overwrite_refusal(path) or _other_store_layer(path, output),
                               force=request.force)
         except OutputError as error:
             raise LayerOutputError(str(error)) from None
+
+
+def _other_store_layer(layer: Path, store: Path) -> str | None:
+    """Why a bakery layer must not be replaced by this store's: it records another store that still exists
+    (``--layer`` naming another bake's layer, or ``x.h5`` and ``x.hdf5`` sharing ``x.bake.usda``)."""
+    from bakery.usd.layer import recorded_store
+
+    recorded = recorded_store(layer)
+    if recorded is None or not recorded.exists() or same_file(recorded, Path(store)):
+        return None
+    return (f"is the baked-results layer of the store {recorded.name}, not of {Path(store).name} (another bake's "
+            f"results; choose another --layer)")
 
 
 class LayerOutputError(OutputError, bakery.errors.SceneError):
@@ -379,25 +392,6 @@ def recover_outputs(request: BakeRequest, source: Source) -> list[str]:
         notes.append(f"removed {len(removed)} temporary file(s) of an interrupted run "
                      f"({', '.join(p.name for p in removed[:3])}{' …' if len(removed) > 3 else ''})")
     return notes
-
-
-@contextmanager
-def _terminate_as_exit() -> Iterator[None]:
-    """SIGTERM raises ``SystemExit(143)`` in the main thread during a bake, so that every temporary file is
-    removed on the way out (the default action would kill the process without running any cleanup)."""
-    if threading.current_thread() is not threading.main_thread() or \
-            signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
-        yield
-        return
-
-    def handler(signum: int, frame: object) -> None:
-        raise SystemExit(128 + signum)
-
-    signal.signal(signal.SIGTERM, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def _is_usd_error(error: BaseException) -> bool:

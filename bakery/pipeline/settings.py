@@ -64,8 +64,8 @@ class CaptureSettings:
         if isinstance(self.max_samples, bool) or not isinstance(self.max_samples, int) or self.max_samples < 0:
             raise ConfigError(f"capture max_samples must be an integer >= 0, got {self.max_samples!r}")
         if self.time is not None:
-            if isinstance(self.time, bool) or not isinstance(self.time, (int, float)) or self.time != self.time:
-                raise ConfigError(f"capture time must be a number (a USD time code), got {self.time!r}")
+            if isinstance(self.time, bool) or not isinstance(self.time, (int, float)) or not math.isfinite(self.time):
+                raise ConfigError(f"capture time must be a finite number (a USD time code), got {self.time!r}")
             object.__setattr__(self, "time", float(self.time))
         if isinstance(self.subdivision, bool) or not isinstance(self.subdivision, int) or not (
                 0 <= self.subdivision <= 4):

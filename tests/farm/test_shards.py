@@ -173,3 +173,15 @@ def test_an_incremental_farm_bake_reuses_the_base_store(tmp_path, monkeypatch):
     assert (result.baked, result.reused) == (1, 5)
     assert store.read_bytes() == one.read_bytes()
     assert len(read_store(store).history) == 2
+
+
+def test_a_shard_bake_uses_its_time_and_noise_options(tmp_path):
+    """`bake --shard` read neither --time nor --target-noise (the shard baked the authored defaults without a word);
+    they are the bake's options, so they change the shard's plan like any setting."""
+    def plan_id(*extra):
+        return cli_json("bake", INDOOR, "--shard", "1/1", "-o", tmp_path / "s.h5", "--face-size", "8", "--dry-run",
+                        *extra)["plan_id"]
+
+    plain = plan_id()
+    assert plan_id("--time", "5") != plain
+    assert plan_id("--target-noise", "0.05") != plain

@@ -106,11 +106,21 @@ def test_wrongly_typed_material_input_is_an_error_on_its_prim(tmp_path, case):
     assert f"{name} is authored as {authored}" in message and f"expected {expected}" in message, message
 
 
+def mtlx_validate(document: str) -> tuple[bool, str]:
+    """MaterialX's own verdict on a document (with its standard library): (valid, messages)."""
+    import MaterialX as mx
+
+    parsed = mx.createDocument()
+    mx.readFromXmlString(parsed, document)
+    library = mx.createDocument()
+    mx.loadLibraries(mx.getDefaultDataLibraryFolders(), mx.getDefaultDataSearchPath(), library)
+    parsed.importLibrary(library)
+    return parsed.validate()
+
+
 def test_wrongly_typed_input_in_a_mtlx_document_is_an_error_on_the_material(tmp_path):
     """The same check for a ``.mtlx`` document (read with the MaterialX package): the types MaterialX's own
     validation calls an interface error."""
-    import MaterialX as mx
-
     document = """<?xml version="1.0"?>
 <materialx version="1.39">
   <standard_surface name="SR" type="surfaceshader">
@@ -123,12 +133,7 @@ def test_wrongly_typed_input_in_a_mtlx_document_is_an_error_on_the_material(tmp_
 </materialx>
 """
     write(tmp_path / "looks.mtlx", document)
-    parsed = mx.createDocument()
-    mx.readFromXmlString(parsed, document)
-    library = mx.createDocument()
-    mx.loadLibraries(mx.getDefaultDataLibraryFolders(), mx.getDefaultDataSearchPath(), library)
-    parsed.importLibrary(library)
-    valid, why = parsed.validate()
+    valid, why = mtlx_validate(document)
     assert not valid and "base_color" in why  # MaterialX agrees that the document is wrong
     text = (header() + LAMP + 'def Scope "Looks" (\n    references = @./looks.mtlx@</MaterialX>\n)\n{\n}\n'
             + plane_mesh("Floor", 2.0, "/Looks/Materials/Doc") + probe("P", (0, 1, 0)))
@@ -177,17 +182,10 @@ def test_a_mtlx_graph_node_matching_no_definition_is_an_error_on_the_material(tm
     types, and a node that matches none is what its validate() reports; it is an error on the material, naming
     the node and the input, not a numpy error on the mesh (before: "/Floor: cannot be read: could not convert
     string to float: 'abc'")."""
-    import MaterialX as mx
-
     node, expected = GRAPH_NODES[case]
     document = GRAPH_DOCUMENT.replace("{node}", node)
     write(tmp_path / "looks.mtlx", document)
-    parsed = mx.createDocument()
-    mx.readFromXmlString(parsed, document)
-    library = mx.createDocument()
-    mx.loadLibraries(mx.getDefaultDataLibraryFolders(), mx.getDefaultDataSearchPath(), library)
-    parsed.importLibrary(library)
-    assert not parsed.validate()[0]  # MaterialX agrees that the document is wrong
+    assert not mtlx_validate(document)[0]  # MaterialX agrees that the document is wrong
     text = (header() + LAMP + 'def Scope "Looks" (\n    references = @./looks.mtlx@</MaterialX>\n)\n{\n}\n'
             + plane_mesh("Floor", 2.0, "/Looks/Materials/Doc") + probe("P", (0, 1, 0)))
     errors = [i for i in check_scene(write(tmp_path / "scene.usda", text)) if i.severity == "error"]
