@@ -318,6 +318,11 @@ def json_output_refusal(path: str | os.PathLike[str], keys: Any, what: str) -> s
     return f"exists and is not {what}"
 
 
+#: Bytes bakery adds to an output's file name for the files beside it (``..<name>.tmp-<pid>.tmp-<pid>.usda``,
+#: ``<name>.partial``, ``<name>.lock``): an output name must leave this much room below the file system's limit.
+NAME_MARGIN = 32
+
+
 def check_output_file(path: str | os.PathLike[str], what: str, *, inputs: Any = (), refusal: Any = None,
                       force: bool = False) -> None:
     """The output policy for one file a command is about to write (:class:`OutputError` if refused):
@@ -335,6 +340,14 @@ def check_output_file(path: str | os.PathLike[str], what: str, *, inputs: Any = 
     problem = folder_problem(folder)
     if problem:
         raise OutputError(f"{path}: the {what} folder {folder} {problem}")
+    try:
+        longest = os.pathconf(folder, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        longest = 255
+    if len(os.fsencode(path.name)) + NAME_MARGIN > longest:  # found before the work, not when it is written
+        raise OutputError(f"{path}: the {what}'s file name is too long ({len(os.fsencode(path.name))} bytes): the "
+                          f"temporary and lock files bakery writes beside it add up to {NAME_MARGIN} bytes to names "
+                          f"of at most {longest}")
     for item in inputs:
         if same_file(path, Path(item)):
             raise OutputError(f"{path}: is an input of this command; refusing to overwrite it (also with --force); "

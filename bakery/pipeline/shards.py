@@ -55,7 +55,7 @@ from bakery.pipeline.settings import (
     CaptureSettings,
     build_encodings,
 )
-from bakery.store.format import StoreContents, read_store, write_store
+from bakery.store.format import StoreContents, overwrite_refusal, read_store, write_store
 
 #: /diagnostics prefix of per-probe arrays a shard keeps for the merge that a final store does not hold.
 TRANSIENT_PREFIX = "shard/transient/"
@@ -274,6 +274,11 @@ def plan_against(request: BakeRequest, base: Path | None):
     request_to_json(request)  # file sources only
     source = source_for(request.sources, request.layout, request.capture)
     check_output_paths(request, source)
+    if base is not None and (Path(base).exists() or Path(base).is_symlink()):  # missing: the farm's first bake
+        reason = overwrite_refusal(base)
+        if reason is not None:  # a text file, a foreign HDF5 file, …: planning against nothing would be silent
+            raise InputError(f"{base}: the base store {reason.removeprefix('exists and ')}; give the farm's final "
+                             "store (or the path it will be merged to)")
     previous = load_previous(base) if base is not None else None
     source, plan = plan_bake(request, source, previous)
     return source, plan, plan_id(request, source.kind, plan), previous
@@ -491,12 +496,15 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     return runs
 
 
-def shard_paths(items: list[str | Path]) -> list[Path]:
-    """Shard files from arguments: files as given, folders expanded to their ``*.h5`` files (sorted)."""
+def shard_paths(items: list[str | Path], output: str | Path | None = None) -> list[Path]:
+    """Shard files from arguments: files as given, folders expanded to their ``*.h5`` files (sorted) except
+    ``output`` (a merged store written into the shards' folder is not a shard of the next merge)."""
     paths: list[Path] = []
+    merged = Path(output).resolve() if output is not None else None
     for item in map(Path, items):
         if item.is_dir():
-            paths.extend(sorted(p for p in item.iterdir() if p.suffix.lower() in (".h5", ".hdf5")))
+            paths.extend(sorted(p for p in item.iterdir() if p.suffix.lower() in (".h5", ".hdf5")
+                                and p.resolve() != merged))
         else:
             paths.append(item)
     if not paths:
@@ -535,7 +543,7 @@ def merge_shards(items: list[str | Path], output: str | Path, layer: str | Path 
     from bakery.sources import source_for
 
     start = time.perf_counter()
-    paths = shard_paths(list(items))
+    paths = shard_paths(list(items), output)
     output = Path(output)
     if any(p.resolve() == output.resolve() for p in paths):
         raise ShardError(f"{output}: is one of the shards; choose another -o")

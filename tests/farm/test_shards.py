@@ -185,3 +185,24 @@ def test_a_shard_bake_uses_its_time_and_noise_options(tmp_path):
     plain = plan_id()
     assert plan_id("--time", "5") != plain
     assert plan_id("--target-noise", "0.05") != plain
+
+
+def test_a_base_that_is_not_a_store_is_refused_and_a_merged_store_beside_the_shards_is_no_shard(tmp_path):
+    """``--base garbage.h5`` planned against nothing without a word (a missing base is a farm's first bake and
+    stays allowed); ``merge FOLDER -o FOLDER/m.h5`` counted its own earlier output as a shard the second time."""
+    from bakery.errors import InputError
+
+    garbage = tmp_path / "garbage.h5"
+    garbage.write_text("not a store\n")
+    images = [tmp_path / f"env{i}.hdr" for i in range(2)]
+    for i, image in enumerate(images):
+        _write_hdr(image, i)
+    options = {"face_size": 8, "encodings": ("sh2",)}
+    folder = tmp_path / "shards"
+    folder.mkdir()
+    with pytest.raises(InputError, match="garbage.h5: the base store is not an HDF5 file"):
+        bake_shard(request_from(images, folder / "s1.h5", **options), ShardSpec(shard=(1, 1), base=garbage))
+    assert sorted(p.name for p in folder.iterdir()) == []
+    bake_shard(request_from(images, folder / "s1.h5", **options), ShardSpec(shard=(1, 1), base=tmp_path / "m.h5"))
+    for _ in range(2):  # the second merge finds m.h5 in the folder: not a shard
+        assert merge_shards([folder], folder / "m.h5").baked == 2

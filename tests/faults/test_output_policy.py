@@ -117,6 +117,8 @@ CASES = {
                                                  "--calibration", "{d}/cal.json", "--force", *OPENJD_FLAGS],
                                                 ["cal.json", "input"]),
     "calibrate -o onto a text file": (["farm", "calibrate", "-o", "{d}/notes.h5"], ["notes.h5", "not a calibration"]),
+    # a name the temporary files beside it cannot extend (failed after the whole bake until 2026-12-06)
+    "store name too long": (["bake", "{d}/city.exr", "-o", "{d}/" + "n" * 236 + ".h5"], ["file name is too long"]),
 }
 
 
