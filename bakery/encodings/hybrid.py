@@ -108,7 +108,8 @@ class SHExpHybrid(SHExpLights):
 
     name = "shexp_hybrid"
     kind = "reflection"
-    version = "1.0.1"  # 1.0.1: the SH-exp splat of shexp 1.2.1, the chain's SH projection of splitsum 1.0.1
+    version = "1.0.2"  # 1.0.1: the SH-exp splat of shexp 1.2.1, the chain's SH projection of splitsum 1.0.1;
+    # 1.0.2: the chain's SH levels and clamp of splitsum 1.0.2
     description = ("hybrid: bandwidth split-sum chain (float16 cube levels, sharp alpha) blended in log alpha with SH "
                    "exponentials + directional lights (rough alpha); E0 and the Fresnel tail E1 cross over separately")
     accepts_alpha_range = True

@@ -100,7 +100,8 @@ class SplitSum(Encoding):
 
     name = "splitsum"
     kind = "reflection"
-    version = "1.0.1"  # 1.0.1: SH-domain levels projected through the cube's reflection symmetry (float32 rounding)
+    version = "1.0.2"  # 1.0.1: SH-domain levels projected through the cube's reflection symmetry (float32 rounding);
+    # 1.0.2: SH-domain levels with the suns added exactly (no ringing), every level clamped to [0, 65504]
     description = "split-sum GGX prefiltered cube-map chain (v = n), float16 RGB, + DFG scale/bias table"
     follows_bake_face_size = True
 
