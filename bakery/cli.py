@@ -56,9 +56,13 @@ def _is_sigterm(exit: SystemExit) -> bool:
 
 def _journal_note(output: Path) -> str:
     """"; the finished batches are kept in S.h5.partial and the next bake resumes from them", if there are some."""
+    from bakery.files import OutputError
     from bakery.pipeline.journal import Journal
 
-    journal = Journal(output).directory
+    try:
+        journal = Journal(output).directory
+    except OutputError:  # a work folder the bake refused: nothing of ours is in it
+        return ""
     if journal.is_dir() and any(journal.glob("*.pkl")):
         return f"; the finished batches are kept in {journal} and the next bake resumes from them"
     return ""

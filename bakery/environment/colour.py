@@ -45,6 +45,8 @@ def transfer_of(color_space: str, gamma: float | None = None) -> tuple[str, floa
     if match:
         parsed = float(f"{match[1]}.{match[2]}") if match[1] else float(match[4])
         value = float(gamma) if gamma and gamma > 0 else parsed
+        if not value > 0.0:  # "g00_rec709", "gamma 0": no transfer function (c⁰ = 1 would make every texel white)
+            return None
         return ("linear", 0.0) if value == 1.0 else ("gamma", value)
     return None
 

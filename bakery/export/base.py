@@ -590,8 +590,9 @@ def _complete(folder: Path, journal: dict[str, Any]) -> int:
 
 def _remove_temporaries(folder: Path, owned: set[str], pids: set[int] = frozenset()) -> list[Path]:  # noqa: B006
     """Remove staged files (``.<name>.tmp-<pid>``) in ``folder``: anywhere under it those of ``pids`` (the dead export
-    whose journal or lock names them), and beside each file of ``owned`` (paths relative to the folder) those of
-    processes that are no longer running. Returns what was removed."""
+    whose journal or lock names them, unless a process of that pid runs again: a reused pid), and beside each file of
+    ``owned`` (paths relative to the folder) those of processes that are no longer running. Returns what was
+    removed."""
     if pids:
         candidates = list(folder.rglob(".*.tmp-*"))
     else:
@@ -608,7 +609,8 @@ def _remove_temporaries(folder: Path, owned: set[str], pids: set[int] = frozense
             continue
         pid = int(match["pid"])
         relative = (candidate.parent / match["name"]).relative_to(folder).as_posix()
-        if pid in pids or (relative in owned and pid != os.getpid() and not pid_alive(pid)):
+        ours = pid == os.getpid()  # a commit of this process that failed: its own staged files
+        if (pid in pids and (ours or not pid_alive(pid))) or (relative in owned and not ours and not pid_alive(pid)):
             try:
                 candidate.unlink()
             except FileNotFoundError:

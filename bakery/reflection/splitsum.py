@@ -379,14 +379,13 @@ def _prefilter_chain_fis(cube: np.ndarray, settings: SplitSumSettings) -> list[n
     mips = build_mips(cube)
     kinds = [level_formulation(settings, float(a)) for a in settings.level_alphas()]
     bands = [sh_band_limit(float(a), settings.sh_tolerance) for a, k in zip(settings.level_alphas(), kinds) if k == "sh"]
-    coeffs = _project_sh(cube, max(bands)) if bands else None  # one projection for every SH level
+    sh_levels = _SHLevels(cube[None], max(bands), settings) if bands else None  # one projection, the suns apart
     levels = []
     for alpha, size, kind in zip(settings.level_alphas(), settings.level_sizes(), kinds, strict=True):
         if kind == "copy":
             level = resample_cube(cube, size)
         elif kind == "sh":
-            band = sh_band_limit(float(alpha), settings.sh_tolerance)
-            level = _prefilter_sh(cube, float(alpha), size, band, coeffs)
+            level = sh_levels.level(float(alpha), size, sh_band_limit(float(alpha), settings.sh_tolerance))[0]
         else:
             level = _prefilter_fis(mips, float(alpha), size, settings.fis_samples)
         levels.append(np.asarray(level, dtype=np.float32))

@@ -218,3 +218,12 @@ def test_the_command_line_refuses_a_1x1_image_cleanly(tmp_path):
     assert result.returncode == 2, result.stderr
     assert "Traceback" not in result.stderr
     assert "one.exr" in result.stderr and "at least 8x8" in result.stderr
+
+
+@pytest.mark.parametrize("name", ["g00_rec709", "Gamma0", "gamma 0.0"])
+def test_a_gamma_of_zero_is_no_transfer_function(name):
+    """c⁰ = 1 would turn every texel white: a zero gamma is not interpreted (the bit depth decides, with a note)."""
+    from bakery.environment.colour import transfer_of
+
+    assert transfer_of(name) is None
+    assert transfer_of(name, gamma=2.2) == ("gamma", 2.2)  # OpenImageIO's oiio:Gamma, when positive, is the value
