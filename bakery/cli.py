@@ -939,6 +939,7 @@ def farm_openjd(sources: tuple[Path, ...], template: Path, store: Path | None, l
     if len(sources) != 1:
         raise click.UsageError("farm templates bake one scene or one image (the Scene job parameter)")
     check_template_outputs(template, [*protected, *map(Path, info["inputs"]), store, layer], force_template)
+    _check_farm_outputs(layer, shard_dir, [*sources, *map(Path, info["inputs"]), store])
     body = job_template(name=f"bakery {sources[0].name}", scene=sources[0], store=store, layer=layer,
                         shard_dir=shard_dir, ranges=info["chunking"]["ranges"], plan_id=info["plan_id"],
                         bake_args=_settings_args(params), command=bakery_command,
@@ -951,6 +952,20 @@ def farm_openjd(sources: tuple[Path, ...], template: Path, store: Path | None, l
                   f"({', '.join(info['chunking']['ranges'])}) and a merge into {store} (plan {info['plan_id']}); "
                   f"estimated makespan {info['chunking']['makespan_seconds']:.0f} s; job parameters in {parameters} "
                   f"(openjd run {template} --job-param file://{parameters})")
+
+
+def _check_farm_outputs(layer: Path, shard_dir: Path, inputs: list[Path]) -> None:
+    """What the job's merge and shard tasks will write, checked now rather than on the farm after every bake task
+    ran: the layer by a bake's policy (a new path or a bakery layer; never an input such as one of the scene's
+    layers) and the shard folder (a folder, or a path where one can be made)."""
+    from bakery.files import OutputError, check_output_file
+    from bakery.pipeline.run import layer_overwrite_refusal
+
+    if shard_dir.exists() and not shard_dir.is_dir():
+        raise OutputError(f"{shard_dir}: --shard-dir exists and is not a folder; the shard tasks write their stores "
+                          "into it")
+    if layer.parent.is_dir():  # a missing folder is made by the merge task, on the farm's file system
+        check_output_file(layer, "layer", inputs=inputs, refusal=layer_overwrite_refusal)
 
 
 @farm.command("calibrate")

@@ -116,6 +116,11 @@ CASES = {
     "--force: openjd -o onto its calibration": (["farm", "openjd", "{d}/scene.usda", "-o", "{d}/cal.json",
                                                  "--calibration", "{d}/cal.json", "--force", *OPENJD_FLAGS],
                                                 ["cal.json", "input"]),
+    # what the farm job's tasks will write, checked when the template is written, not after the bake tasks ran
+    "openjd --shard-dir onto a file": (["farm", "openjd", "{d}/scene.usda", "-o", "{d}/j1.yaml", "--shard-dir",
+                                        "{d}/notes.h5", *OPENJD_FLAGS], ["notes.h5", "not a folder"]),
+    "openjd --layer onto a sublayer": (["farm", "openjd", "{d}/scene.usda", "-o", "{d}/j2.yaml", "--layer",
+                                        "{d}/sub.usda", *OPENJD_FLAGS], ["sub.usda", "input"]),
     "calibrate -o onto a text file": (["farm", "calibrate", "-o", "{d}/notes.h5"], ["notes.h5", "not a calibration"]),
     # a name the temporary files beside it cannot extend (failed after the whole bake until 2026-12-06)
     "store name too long": (["bake", "{d}/city.exr", "-o", "{d}/" + "n" * 236 + ".h5"], ["file name is too long"]),
