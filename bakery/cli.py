@@ -12,7 +12,6 @@ import sys
 
 try:  # Ctrl-C while the command line loads (≈ 0.3 s): the same one line and exit code as later, not a traceback
     import json
-    import math
     import warnings
     from pathlib import Path
     from typing import NoReturn
@@ -171,12 +170,6 @@ def _check_executor_options(scheduler: str | None, dask_local: bool) -> None:
                                f"{scheduler}, or on a local Dask cluster")
 
 
-def _check_time(time_code: float | None) -> None:
-    """``--time``: a finite USD time code (NaN is refused by the settings too, with the same message)."""
-    if time_code is not None and not math.isfinite(time_code):
-        raise ConfigError(f"capture time must be a finite number (a USD time code), got {time_code!r}")
-
-
 def _scheduler_address(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:  # noqa: ARG001
     """``--scheduler``: ``tcp://HOST:PORT`` (or ``tls://``, ``ucx://``, ``inproc://…``); a bare ``HOST:PORT`` is tcp."""
     if value is None:
@@ -236,7 +229,6 @@ def bake(sources: tuple[Path, ...], output: Path | None, recipe: str | None, enc
     (listed); 2/3 bad input, output or settings (nothing written).
     """
     _check_executor_options(scheduler, dask_local)
-    _check_time(time_code)
     request = executor = None
     try:  # Ctrl-C or SIGTERM until the outputs are written: one line saying what is left (the bake cleaned up)
         from dataclasses import replace
@@ -724,7 +716,6 @@ def _bake_shard(params: dict, probes: str | None, shard: str | None, base: Path 
     from bakery.pipeline.shards import ShardSpec, bake_shard, parse_probe_range, parse_shard, plan_shard
 
     _check_executor_options(params.get("scheduler"), params.get("dask_local", False))
-    _check_time(params.get("time_code"))
     if params.get("output") is None:
         raise click.UsageError("a shard needs -o SHARD.h5 (its own store, merged later by `bakery merge`)")
     if params.get("layer") is not None:

@@ -127,13 +127,17 @@ def ratio_error_bound(lower: np.ndarray, upper: np.ndarray, sqrt_companding: boo
     return np.stack([np.abs(lower) * per_unit, np.abs(upper) * per_unit], axis=-1)
 
 
+#: Largest finite R, G, B values of R11G11B10F (exponent 30, all mantissa bits set): 65024, 65024, 64512.
+_DC_LARGEST = np.array([_small_to_float(np.array([(30 << m) | ((1 << m) - 1)]), m)[0] for m in _MANTISSA_BITS])
+
+
 def fit_to_dc_range(radiance_sh: np.ndarray) -> tuple[np.ndarray, int]:
     """Radiance SH (P, K, 3) with every probe whose DC exceeds the format's largest value in some channel (65024 in
     R and G, 64512 in B) scaled as a whole, every coefficient of every channel by the same factor, until it fits;
     and how many probes were scaled. Their colour and shape are kept, only their brightness is capped (clamping the
     DC alone and dividing by it inflated the ratios: E(up)/E(down) of a 2:1 sky became 3.35)."""
     f0 = np.maximum(radiance_sh[:, 0], 0.0)
-    largest = np.array([_small_to_float(np.array([(30 << m) | ((1 << m) - 1)]), m)[0] for m in _MANTISSA_BITS])
+    largest = _DC_LARGEST
     fit = np.min(np.where(f0 > largest, largest / np.maximum(f0, np.finfo(np.float64).tiny), 1.0), axis=-1)  # (P,)
     if np.all(fit == 1.0):
         return radiance_sh, 0

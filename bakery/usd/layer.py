@@ -436,8 +436,8 @@ def recorded_store(layer_path: str | os.PathLike[str]) -> Path | None:
     """The store a baked-results layer records (``customLayerData["bakery"]["store"]``, resolved against the
     layer's folder), or None if the file cannot be read by USD or records none."""
     path = Path(layer_path).resolve()
-    try:
-        layer = Sdf.Layer.OpenAsAnonymous(str(path))
+    try:  # metadata only: a re-bake checks its previous layer before any work, whatever the layer's size
+        layer = Sdf.Layer.OpenAsAnonymous(str(path), metadataOnly=True)
     except Exception as error:  # noqa: BLE001 - USD raises Tf errors for files it cannot parse
         if not type(error).__module__.startswith("pxr"):
             raise
