@@ -658,7 +658,8 @@ def check(scene: Path) -> None:
     for issue in issues:
         colour = "red" if issue.severity == "error" else "yellow"
         errors += issue.severity == "error"
-        out.print(f"[{colour}]{issue.severity}[/{colour}] {escape(str(issue.prim))}: {escape(issue.message)}")
+        out.print(f"{escape(str(scene))}: [{colour}]{issue.severity}[/{colour}]: {escape(str(issue.prim))}: "
+                  f"{escape(issue.message)}")  # file: severity: prim: message, as compilers print them
     out.print(f"{_count(len(issues), 'issue')}, {_count(errors, 'error')}")
     if check_exit_code(issues):
         sys.exit(check_exit_code(issues))

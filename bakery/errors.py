@@ -7,6 +7,8 @@ count and record in the store.
 
 from __future__ import annotations
 
+import warnings
+
 
 #: Exit status of ``bakery check`` when the scene has errors.
 CHECK_FAILED_EXIT_CODE = 5
@@ -86,6 +88,15 @@ class UnknownProbeError(_NamedLookupError):
 
 class BakeryWarning(UserWarning):
     """Base of bakery's warnings: a documented clamp, fallback or suspicious input."""
+
+
+def warn_about_probes(message: str, category: type[BakeryWarning], rows, stacklevel: int = 2) -> None:
+    """Warn about some probes of the batch an encoding was given: ``rows`` (indices into that batch) ride on the
+    warning as ``probe_rows``, and the bake names those probes at the end of the message
+    (:func:`bakery.pipeline.encode.encode_batch`); called outside a bake, the message stands alone."""
+    warning = category(message)
+    warning.probe_rows = tuple(int(row) for row in rows)
+    warnings.warn(warning, stacklevel=stacklevel + 1)
 
 
 class SanitizedInputWarning(BakeryWarning):

@@ -5,13 +5,17 @@ and with the user's own files (the default ``bench-results``, or any ``-o``). It
 wrote it and nobody changed it since: every write is recorded with its sha256 in the folder's
 :data:`MANIFEST`; any other existing file is refused (:class:`~bakery.files.OutputError` naming it) unless
 ``force``. :func:`check_bench_outputs` applies the policy to the files a bench will write before it runs (a long
-run is not wasted on a refusal), :func:`write_bench_file` again at each write (atomically).
+run is not wasted on a refusal), :func:`write_bench_file` again at each write (atomically; the manifest's update
+holds a lock on the folder, so benches writing into one folder at once keep each other's records).
 """
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from bakery.files import OutputError, check_output_file, sha256_bytes, write_bytes_atomic
@@ -60,7 +64,20 @@ def write_bench_file(folder: str | os.PathLike[str], name: str, data: str | byte
     folder = check_bench_outputs(folder, [name], force)
     payload = data.encode() if isinstance(data, str) else bytes(data)
     path = write_bytes_atomic(folder / name, payload)
-    recorded = _recorded(folder)
-    recorded[name] = sha256_bytes(payload)
-    write_bytes_atomic(folder / MANIFEST, json.dumps({"files": dict(sorted(recorded.items()))}, indent=1).encode())
+    with _folder_locked(folder):  # two benches writing into one folder: neither loses the other's record
+        recorded = _recorded(folder)
+        recorded[name] = sha256_bytes(payload)
+        write_bytes_atomic(folder / MANIFEST, json.dumps({"files": dict(sorted(recorded.items()))}, indent=1).encode())
     return path
+
+
+@contextmanager
+def _folder_locked(folder: Path) -> Iterator[None]:
+    """An exclusive ``flock`` on the folder itself for the manifest's read-modify-write (held for milliseconds, so
+    waited for; no lock file is left in the user's folder)."""
+    fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # releases the lock

@@ -34,7 +34,7 @@ import numpy as np
 
 from bakery.encodings.base import Encoding, EncodingParams, FieldSpec
 from bakery.encodings.registry import register
-from bakery.errors import ClampWarning
+from bakery.errors import ClampWarning, warn_about_probes
 from bakery.irradiance import quantize
 from bakery.irradiance.code_search import decoded_zh3_sh3, negative_part, search_zh3_codes
 from bakery.irradiance.dering import clamp_zonal_l2, dering_zh3
@@ -147,8 +147,8 @@ class ZH3Quantized(Encoding):
                 origin[:, :4] = rounded[still, :4]  # the ratios around the window's, the DC around the rounded DC
                 packed[still], _ = search_zh3_codes(windowed, radiance_sh[still], companding,
                                                     radius=SEARCH_RADII[-1], dc_radius=DC_RADIUS, origin=origin)
-                warnings.warn(f"{self.name}: {int(still.sum())} probes stayed negative after the code search and "
-                              "were windowed instead", ClampWarning, stacklevel=2)
+                warn_about_probes(f"{self.name}: {int(still.sum())} probes stayed negative after the code search "
+                                  "and were windowed instead", ClampWarning, np.flatnonzero(still))
         return {"packed": packed}
 
     def evaluate_irradiance(self, fields, normals):

@@ -73,6 +73,8 @@ class ImagePixels:
         integer_bits: bits per channel of an integer file (8, 16, 32), 0 for float files.
         color_space: OpenImageIO's ``oiio:ColorSpace`` metadata ("" when absent), e.g. ``srgb_rec709_scene``.
         gamma: OpenImageIO's ``oiio:Gamma`` metadata (0 when absent).
+        alpha_channel: index of the alpha channel among ``pixels``' channels (OpenImageIO's ``alpha_channel``), −1
+            when there is none or it was not read. OpenImageIO returns colour associated with alpha (premultiplied).
     """
 
     pixels: np.ndarray
@@ -81,7 +83,11 @@ class ImagePixels:
     integer_bits: int = 0
     color_space: str = ""
     gamma: float = 0.0
+    alpha_channel: int = -1
 
+
+#: Alpha at or above this counts as opaque (an 8-bit 254/255 = 0.996 does not).
+ALPHA_OPAQUE = 0.999
 
 _INTEGER_BITS = {oiio.UINT8: 8, oiio.INT8: 8, oiio.UINT16: 16, oiio.INT16: 16, oiio.UINT32: 32, oiio.INT32: 32}
 
@@ -125,7 +131,8 @@ def read_image(path: str | os.PathLike[str], channels: int = 4) -> ImagePixels:
     if not path.is_file():
         raise ImageError(f"{path}: image not found")
     with _opened(path) as (image_input, spec):
-        pixels = image_input.read_image(0, 0, 0, min(spec.nchannels, channels), oiio.FLOAT)
+        count = min(spec.nchannels, channels)
+        pixels = image_input.read_image(0, 0, 0, count, oiio.FLOAT)
         if pixels is None:
             raise ImageError(f"{path}: reading pixels failed (truncated or corrupt file?): {image_input.geterror()}")
         gamma = spec.getattribute("oiio:Gamma")
@@ -136,6 +143,7 @@ def read_image(path: str | os.PathLike[str], channels: int = 4) -> ImagePixels:
             integer_bits=_integer_bits(spec),
             color_space=str(spec.getattribute("oiio:ColorSpace") or ""),
             gamma=float(gamma) if isinstance(gamma, (int, float)) else 0.0,
+            alpha_channel=spec.alpha_channel if 0 <= spec.alpha_channel < count else -1,
         )
 
 
@@ -200,8 +208,10 @@ def read_environment(
         raise ImageError(f"{path}: unknown layout {layout!r}; expected one of {LAYOUTS}")
     if decode not in ("auto", "raw"):
         raise ArgumentError(f"decode must be 'auto' or 'raw', got {decode!r}")
-    image = read_image(path, channels=3)
-    pixels = image.pixels
+    image = read_image(path, channels=4)
+    pixels, alpha = image.pixels[..., :3], None
+    if image.alpha_channel > 0:  # RGBA → RGB, YA → Y; the colour is premultiplied (OpenImageIO associates alpha)
+        pixels, alpha = image.pixels[..., :image.alpha_channel], image.pixels[..., image.alpha_channel]
     height, width = pixels.shape[:2]
     try:
         chosen = layout or detect_layout(width, height, image.texture_format)
@@ -214,6 +224,11 @@ def read_environment(
         pixels = np.repeat(pixels, 3, axis=2)
     elif pixels.shape[2] == 2:
         raise ImageError(f"{path}: two-channel images are not radiance; expected RGB or luminance")
+    transparent = 0 if alpha is None else int(np.count_nonzero(alpha < ALPHA_OPAQUE))
+    if transparent:
+        warnings.warn(f"{path}: {transparent:,} of {alpha.size:,} texels are not opaque (alpha < 1); an environment "
+                      f"has nothing behind it, so alpha is ignored and the colour used as stored (associated alpha: "
+                      f"as if over black)", BakeryWarning, stacklevel=2)
     if decode == "auto" and image.integer_bits:
         transfer, gamma, why = environment_transfer(image)
         pixels = decode_to_linear(pixels, transfer, gamma)

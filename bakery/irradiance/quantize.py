@@ -138,7 +138,8 @@ def fit_to_dc_range(radiance_sh: np.ndarray) -> tuple[np.ndarray, int]:
     DC alone and dividing by it inflated the ratios: E(up)/E(down) of a 2:1 sky became 3.35)."""
     f0 = np.maximum(radiance_sh[:, 0], 0.0)
     largest = _DC_LARGEST
-    fit = np.min(np.where(f0 > largest, largest / np.maximum(f0, np.finfo(np.float64).tiny), 1.0), axis=-1)  # (P,)
+    over = f0 > largest
+    fit = np.min(np.where(over, largest / np.where(over, f0, 1.0), 1.0), axis=-1)  # (P,); no division by ~0
     if np.all(fit == 1.0):
         return radiance_sh, 0
     return radiance_sh * fit[:, None, None], int(np.count_nonzero(fit < 1.0))

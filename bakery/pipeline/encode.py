@@ -75,6 +75,13 @@ DILATION_SETTING = "dilation"
 CAPTURED_SH_KEY = "dilation/radiance_sh"
 
 
+def _probe_names(probes: list[Probe], rows: np.ndarray, batch_rows: tuple[int, ...], shown: int = 3) -> str:
+    """``/A, /B, /C and 4 more``: the probes at ``batch_rows`` of the sub-batch whose probes are ``probes[rows]``."""
+    names = [probes[rows[row]].name for row in batch_rows]
+    more = f" and {len(names) - shown} more" if len(names) > shown else ""
+    return ", ".join(names[:shown]) + more
+
+
 def aux_key(encoding: str, field_name: str) -> str:
     """Diagnostics path of a finalize input."""
     return f"finalize/{encoding}/{field_name}"
@@ -171,9 +178,12 @@ def encode_batch(
                 batch.cubes[rows], None if batch.reference_samples is None else [batch.reference_samples[i] for i in rows]
             )
             for name, encoding in chosen.items():
-                start = time.perf_counter()
+                start, before = time.perf_counter(), len(recorded)
                 fields = encoding.encode(sub)
                 timings[f"encode/{name}"] = time.perf_counter() - start
+                for record in recorded[before:]:  # bakery.errors.warn_about_probes: name the probes it is about
+                    if getattr(record.message, "probe_rows", None):
+                        record.message = f"{record.message} ({_probe_names(probes, rows, record.message.probe_rows)})"
                 for spec in (*encoding.field_specs(), *encoding.aux_specs()):
                     array = fields[spec.name]
                     if array.shape != (rows.size, *spec.shape) or array.dtype != np.dtype(spec.dtype):

@@ -227,3 +227,42 @@ def test_a_gamma_of_zero_is_no_transfer_function(name):
 
     assert transfer_of(name) is None
     assert transfer_of(name, gamma=2.2) == ("gamma", 2.2)  # OpenImageIO's oiio:Gamma, when positive, is the value
+
+
+def _write_with_alpha(path, colour, alpha, fmt):
+    """Write (H, W, C) colour plus an (H, W) alpha channel, declared as alpha (OpenImageIO ``alpha_channel``)."""
+    h, w, c = colour.shape
+    spec = oiio.ImageSpec(w, h, c + 1, fmt)
+    spec.alpha_channel = c
+    spec.channelnames = ("R", "G", "B", "A") if c == 3 else ("Y", "A")
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), spec)
+    assert out.write_image(np.ascontiguousarray(np.concatenate([colour, alpha[..., None]], axis=-1), np.float32))
+    out.close()
+
+
+def test_alpha_is_not_colour_and_transparency_is_named():
+    """An RGBA EXR reads as its RGB (the alpha channel is not a colour); one opaque everywhere reads silently, one
+    with transparent texels warns once, with their count (before: alpha was dropped without a word). A luminance +
+    alpha image is luminance, not a 'two-channel image'."""
+    import tempfile
+    from pathlib import Path
+
+    colour = np.broadcast_to(np.array([0.5, 1.0, 2.0], np.float32), (16, 32, 3)).copy()
+    for alpha_value, transparent in ((1.0, 0), (0.25, 16 * 32)):
+        with tempfile.TemporaryDirectory() as folder:
+            path = Path(folder) / "rgba.exr"
+            _write_with_alpha(path, colour, np.full((16, 32), alpha_value, np.float32), oiio.FLOAT)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                image, _ = read_environment(path)
+            said = [str(w.message) for w in caught if "opaque" in str(w.message)]
+            assert np.allclose(image.pixels, colour), "the colour is read as stored"
+            assert len(said) == (1 if transparent else 0), said
+            if transparent:
+                assert f"{transparent:,} of {16 * 32:,} texels" in said[0]
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "ya.exr"
+        _write_with_alpha(path, np.full((16, 32, 1), 0.75, np.float32), np.ones((16, 32), np.float32), oiio.FLOAT)
+        image, _ = read_environment(path)
+        assert image.pixels.shape == (16, 32, 3) and np.allclose(image.pixels, 0.75)

@@ -223,3 +223,33 @@ def test_every_probe_keeps_its_mean_irradiance_within_the_dc_format(captures):
                      _dc_step(captured_dc[:, 2], 5)], axis=-1)
     assert np.all(np.abs(decoded_dc - captured_dc) <= 1.5 * step + 1e-12), np.max(
         np.abs(decoded_dc - captured_dc) / step)
+
+
+def test_a_bake_names_the_probes_that_took_the_windowing_fallback():
+    """The fallback's warning names its probes (a bake's warning said only how many): the names are of irradiance
+    probes of the batch (reflection-only probes in between shift the rows), and each named probe, encoded alone,
+    takes the fallback too (the search is per probe)."""
+    import re
+    import warnings
+
+    from bakery.errors import ClampWarning
+    from bakery.pipeline.encode import encode_batch
+    from bakery.pipeline.settings import BakeSettings
+    from bakery.probe import Probe
+
+    lamps = lamp_cubes(np.random.default_rng(1), 12)
+    cubes = np.concatenate([lamps[:1] * 0 + 1, lamps])  # a reflection-only probe first
+    probes = [Probe("/mirror", kinds=("reflection",))] + [Probe(f"/lamp{i}", kinds=("irradiance",)) for i in range(12)]
+    result = encode_batch(probes, ProbeBatch(cubes), BakeSettings(face_size=16, encodings=("zh3_quantized",)))
+    messages = [w.message for w in result.warnings if "windowed instead" in w.message]
+    assert len(messages) == 1, result.warnings
+    count = int(re.search(r"(\d+) probes stayed negative", messages[0]).group(1))
+    named = re.search(r"\(([^)]*)\)$", messages[0]).group(1)
+    shown = named.split(" and ")[0].split(", ")
+    assert len(shown) == min(count, 3) and (count <= 3 or named.endswith(f"and {count - 3} more"))
+    for name in shown:
+        assert name.startswith("/lamp")
+        with warnings.catch_warnings(record=True) as alone:
+            warnings.simplefilter("always", ClampWarning)
+            ZH3Quantized().encode(ProbeBatch(lamps[int(name[5:])][None]))
+        assert any("windowed instead" in str(w.message) for w in alone), name

@@ -130,6 +130,9 @@ def test_cli_check_exit_codes(tmp_path):
     failed = subprocess.run([sys.executable, "-m", "bakery.cli", "check", str(bad)], capture_output=True, text=True)
     assert failed.returncode != 0
     assert "/Mystery" in failed.stdout
+    # each issue on a line of its own, file: severity: prim: message (grep- and editor-friendly, as compilers)
+    issue_lines = [line for line in failed.stdout.splitlines() if "/Mystery" in line]
+    assert issue_lines and all(line.startswith(f"{bad}: error: /Mystery: ") for line in issue_lines), failed.stdout
 
 
 def test_composition_errors_are_errors_in_check_and_bake(tmp_path):
