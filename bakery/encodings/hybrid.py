@@ -53,13 +53,13 @@ import numpy as np
 
 from bakery.encodings.base import FieldSpec
 from bakery.encodings.registry import register
-from bakery.encodings.shexp import SHExpLights
+from bakery.encodings.shexp import SHExpLights, fit_shexp_blocks
 from bakery.encodings.splitsum import DEFAULT_FACE_SIZE, FLOAT16_MAX, _cubes_at, probe_chunks, store_float16
 from bakery.errors import ClampWarning
 from bakery.probe import ProbeBatch
 from bakery.reflection import hybrid as hy
 from bakery.reflection.lights import evaluate_light_parts, extract_lights
-from bakery.reflection.shexp import SHExpSettings, clamped_pq, fit_shexp
+from bakery.reflection.shexp import SHExpSettings, clamped_pq
 from bakery.reflection.splitsum import (
     BandwidthChainSettings,
     prefilter_bandwidth_batch,
@@ -194,7 +194,7 @@ class SHExpHybrid(SHExpLights):
     def encode(self, batch: ProbeBatch) -> dict[str, np.ndarray]:
         p = self.params
         directions, flux, removed = extract_lights(batch.cubes, p.max_lights, p.light_threshold, p.light_radius_deg)
-        fields = self._coefficient_fields(fit_shexp(batch.cubes, self.model, removed))
+        fields = self._coefficient_fields(fit_shexp_blocks(batch.cubes, self.model, removed))
         fields.update(light_direction=directions, light_flux=flux)
         first = self.first_level
         cubes = _cubes_at(batch, self.chain.face_size)

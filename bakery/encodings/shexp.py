@@ -52,7 +52,7 @@ import numpy as np
 from bakery import operator_cache
 from bakery.encodings.base import Encoding, EncodingParams, FieldSpec
 from bakery.encodings.registry import register
-from bakery.probe import ProbeBatch
+from bakery.probe import ProbeBatch, padded_block, probe_blocks
 from bakery.reflection.lights import evaluate_lights, extract_lights
 from bakery.reflection.shexp import (
     TABLE_SAMPLES,
@@ -143,7 +143,7 @@ class SHExp(Encoding):
         return {"dfg": tables.dfg} if self.model.albedo_normalized else {"fresnel_tail": tables.fresnel_tail}
 
     def encode(self, batch: ProbeBatch) -> dict[str, np.ndarray]:
-        return self._coefficient_fields(fit_shexp(batch.cubes, self.model))
+        return self._coefficient_fields(fit_shexp_blocks(batch.cubes, self.model))
 
     def _coefficient_fields(self, coeffs: np.ndarray) -> dict[str, np.ndarray]:
         """(P, K_p + K_q, 3) → the stored ``p``, ``q`` and ``alpha_range`` fields."""
@@ -167,6 +167,23 @@ class SHExp(Encoding):
         coeffs = np.concatenate([np.asarray(fields["p"]), np.asarray(fields["q"])], axis=1)
         return evaluate_shexp(coeffs, self._table(shared), view, normal, alpha, f0, self.model,
                               self._alpha_range(fields))
+
+
+def fit_shexp_blocks(cubes: np.ndarray, model: SHExpSettings,
+                     removed: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """:func:`~bakery.reflection.shexp.fit_shexp` of P captures (P, 6, N, N, 3) in blocks of
+    :data:`~bakery.probe.PROBE_BLOCK` (the last padded with black captures): every fit has the same shapes, so a
+    probe's coefficients (P, K_p + K_q, 3) depend on its capture alone, not on its batch. ``removed``: (probe index,
+    flat texel index) of texels fitted as black."""
+    cubes = np.asarray(cubes, dtype=np.float32)
+    fitted = []
+    for part in probe_blocks(cubes.shape[0]):
+        in_part = None
+        if removed is not None:
+            keep = (removed[0] >= part.start) & (removed[0] < part.stop)
+            in_part = (removed[0][keep] - part.start, removed[1][keep])
+        fitted.append(fit_shexp(padded_block(cubes, part), model, in_part)[: part.stop - part.start])
+    return np.concatenate(fitted) if fitted else fit_shexp(cubes, model, removed)
 
 
 class SHExpLights(SHExp):
@@ -205,7 +222,7 @@ class SHExpLights(SHExp):
     def encode(self, batch: ProbeBatch) -> dict[str, np.ndarray]:
         p = self.params
         directions, flux, removed = extract_lights(batch.cubes, p.max_lights, p.light_threshold, p.light_radius_deg)
-        fields = self._coefficient_fields(fit_shexp(batch.cubes, self.model, removed))  # remainder, not copied
+        fields = self._coefficient_fields(fit_shexp_blocks(batch.cubes, self.model, removed))  # remainder, not copied
         return {**fields, "light_direction": directions, "light_flux": flux}
 
     def evaluate_reflection(self, fields, shared, view, normal, alpha, f0):

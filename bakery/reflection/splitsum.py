@@ -56,6 +56,7 @@ from scipy.special import eval_legendre, roots_legendre
 
 from bakery.brdf.ggx import ggx_distribution
 from bakery.brdf.sampling import sample_ggx_ndf, to_world
+from bakery.probe import in_column_blocks
 from bakery.sh.basis import evaluate_sh_basis, sh_bands
 from bakery.sh.projection import CubeSHProjector
 from bakery.sphere.cubemap import (
@@ -355,11 +356,13 @@ class _SHLevels:
         self.bright = [b for b, _ in splits]
         self.wide = _as_channels(np.stack([r for _, r in splits]).astype(np.float32)) if any(
             b.size for b in self.bright) else _as_channels(cubes)
-        self.coeffs = _project_sh(self.wide, band)
+        # fixed-width column blocks: a probe's levels depend on its capture alone, not on its batch (PROBE_BLOCK)
+        self.coeffs = in_column_blocks(lambda columns: _project_sh(columns, band), self.wide)
 
     def level(self, alpha: float, size: int, band: int) -> np.ndarray:
         """(P, 6, size, size, C) float32."""
-        smooth = _from_channels(_prefilter_sh(self.wide, alpha, size, band, self.coeffs), len(self.cubes))
+        scaled = in_column_blocks(lambda coeffs: _prefilter_sh(None, alpha, size, band, coeffs), self.coeffs)
+        smooth = _from_channels(scaled, len(self.cubes))
         for i, bright in enumerate(self.bright):
             if bright.size:
                 smooth[i] += _prefilter_bright_exact(self.cubes[i], bright, alpha, size).astype(np.float32)
