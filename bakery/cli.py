@@ -300,26 +300,41 @@ def bake(sources: tuple[Path, ...], output: Path | None, recipe: str | None, enc
 @click.argument("b", type=click.Path(path_type=Path))
 @click.option("--json", "as_json", is_flag=True)
 def diff(a: Path, b: Path, as_json: bool) -> None:
-    """Which probes differ between stores A and B, and by how much (per encoding, relative L2 of stored values)."""
+    """Which probes differ between stores A and B, and by how much (per encoding, relative L2 of stored values).
+
+    Says "identical" when both stores hold the same probes, encodings and stored values. Exit codes: 0 the stores
+    were compared (identical or not); 2 a store cannot be read."""
+    from bakery.report.build import jsonable
     from bakery.store.diff import diff_stores
 
     report = diff_stores(a, b)
     if as_json:
-        out.print_json(json.dumps(report, default=str))
+        out.print_json(json.dumps(jsonable(report), default=str, allow_nan=False))
+        return
+    if report["identical"]:
+        out.print(f"identical: {_count(report['unchanged'], 'probe')}, {_count(len(report['encodings']), 'encoding')}, "
+                  "same stored values")
         return
     out.print(f"added {len(report['added'])}, removed {len(report['removed'])}, changed {len(report['changed'])}, "
-              f"unchanged {report['unchanged']}")
+              f"unchanged {report['unchanged']}"
+              + (f", moved {len(report['moved'])}" if report["moved"] else "")
+              + (f", not compared {len(report['not_compared'])} (no encoding in common)" if report["not_compared"]
+                 else ""))
     for key, sign in (("encodings_added", "+"), ("encodings_removed", "-")):
         if report[key]:
             out.print(f"{sign} encoding{'s' if len(report[key]) > 1 else ''} {', '.join(report[key])} (only in "
                       f"{b if sign == '+' else a}: not compared)")
     for name in report["added"]:
-        out.print(f"+ {name}")
+        out.print(f"+ {escape(name)}")
     for name in report["removed"]:
-        out.print(f"- {name}")
+        out.print(f"- {escape(name)}")
     for name, change in report["changed"].items():
         worst = max(change.values()) if change else 0.0
-        out.print(f"~ {name}: max relative change {worst:.3g} " + ", ".join(f"{k}={v:.3g}" for k, v in change.items()))
+        out.print(f"~ {escape(name)}: max relative change {worst:.3g} " + ", ".join(f"{k}={v:.3g}" for k, v in change.items()))
+    for name, distance in report["moved"].items():
+        out.print(f"> {escape(name)}: moved " + (f"{distance:.3g} m" if distance is not None else "(non-finite position)"))
+    for name in report["not_compared"]:
+        out.print(f"? {escape(name)}: in both stores, with no encoding in common (not compared)")
 
 
 @main.command()
@@ -357,6 +372,8 @@ def inspect(store: Path, as_json: bool, pattern: str | None, region: str | None)
     """Print a store's format version, conventions, probes, encodings and bytes per probe; with --probes/--region,
     list the selected probes with their position and the bake that produced them."""
     from bakery.api import open_store
+    from bakery.report.build import jsonable
+    from bakery.store.format import failed_probes
 
     s = open_store(store)
     if pattern or region:
@@ -378,7 +395,8 @@ def inspect(store: Path, as_json: bool, pattern: str | None, region: str | None)
             if "capture/backface_fraction" in s.diagnostics:  # share of camera rays that saw back faces
                 rows[-1]["backface_fraction"] = float(np.asarray(s.diagnostics["capture/backface_fraction"])[i])
         if as_json:
-            out.print_json(json.dumps(rows))
+            # sh_noise is inf/NaN where it was not measured: null (strict JSON)
+            out.print_json(json.dumps(jsonable(rows), default=str, allow_nan=False))
             return
         table = Table("probe", "kinds", "position (m)", "baked", "content hash", title=f"{len(rows)} probes")
         for row in rows:
@@ -392,9 +410,10 @@ def inspect(store: Path, as_json: bool, pattern: str | None, region: str | None)
         "conventions": s.conventions, "probes": len(s.probe_names), "checksums_verified": s.verified,
         "encodings": {n: {"kind": e.kind, "version": e.version, "bytes_per_probe": e.bytes_per_probe,
                           "probes": e.probe_count, "settings": e.settings} for n, e in s.encodings.items()},
+        "failed_probes": failed_probes(s.attributes),
     }
     if as_json:
-        out.print_json(json.dumps(info, default=str))
+        out.print_json(json.dumps(jsonable(info), default=str, allow_nan=False))
         return
     out.print(f"[bold]{store}[/bold]: {info['format']} {info['format_version']} (bakery {info['bakery_version']})")
     out.print(f"settings hash {info['settings_hash']}")
@@ -414,6 +433,12 @@ def inspect(store: Path, as_json: bool, pattern: str | None, region: str | None)
         last = s.history[-1]
         out.print(f"last bake {last.get('time_utc')} (bakery {last.get('bakery_version')}); "
                   f"{_count(len(s.history), 'bake')} in the history")
+    failed = info["failed_probes"]
+    if failed:
+        out.print(f"[red]failed:[/red] {_count(len(failed), 'probe')} failed in the bake and "
+                  f"{'is' if len(failed) == 1 else 'are'} not in this store:")
+        for name, reason in failed.items():
+            out.print(f"  {escape(name)}: {escape(reason.removeprefix(name + ': '))}")
     skipped = s.json_attribute("skipped")
     for skip in skipped:
         out.print(f"skipped {escape(str(skip.get('encoding') or skip.get('probe')))}: {escape(str(skip['reason']))}")

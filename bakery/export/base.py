@@ -62,9 +62,11 @@ any point; what it leaves is repaired before the next export does anything else:
 from __future__ import annotations
 
 import fnmatch
+import hashlib
 import json
 import os
 import re
+import unicodedata
 import warnings
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Iterator
@@ -209,10 +211,26 @@ def get_format(name: str) -> type[ExportFormat]:
     return EXPORT_FORMATS[name]
 
 
+#: Longest stem :func:`slug` returns (ASCII, so bytes = characters): file systems cap one name at 255 bytes (ext4,
+#: APFS, NTFS), and the staged ``.<stem><suffix>.tmp-<pid>`` (:func:`bakery.files.staged_path`) must fit as well.
+SLUG_MAX = 160
+#: Hex digits of the probe name's sha256 appended where the stem alone would lose or shorten the name.
+SLUG_DIGEST = 12
+
+
 def slug(name: str) -> str:
-    """A file-name-safe form of a probe name: ``/Room/Probes/Volume[1,2,0]`` → ``Room_Probes_Volume_1_2_0``."""
-    s = re.sub(r"[^A-Za-z0-9_.-]+", "_", name.strip("/")).strip("_")
-    return s or "probe"
+    """A file-name-safe ASCII stem of a probe name: ``/Room/Probes/Volume[1,2,0]`` → ``Room_Probes_Volume_1_2_0``.
+
+    Accented letters keep their base letter (NFKD: ``Prüfung`` → ``Prufung``); a name that is not plain ASCII, or
+    whose stem would exceed :data:`SLUG_MAX` (a long USD prim path), ends in ``-`` + the first :data:`SLUG_DIGEST` hex
+    digits of the sha256 of the name (UTF-8), so such names stay distinct and every stem fits a file name. Plain-ASCII
+    names that differ only in punctuation still share a stem (``write_files`` refuses them by name)."""
+    ascii_name = unicodedata.normalize("NFKD", name).encode("ascii", "ignore").decode("ascii")
+    s = re.sub(r"[^A-Za-z0-9_.-]+", "_", ascii_name.strip("/")).strip("_") or "probe"
+    if len(s) > SLUG_MAX or not name.isascii():
+        digest = hashlib.sha256(name.encode("utf-8", "surrogatepass")).hexdigest()[:SLUG_DIGEST]
+        s = f"{s[:SLUG_MAX - SLUG_DIGEST - 1].rstrip('_.-')}-{digest}"
+    return s
 
 
 def select_probes(store, pattern: str | None) -> list[str]:  # noqa: ANN001
@@ -285,16 +303,22 @@ class WrittenFile:
     role: str
 
 
-def _foreign(folder: Path, f: ExportedFile, manifest: dict[str, Any]) -> str | None:
-    """Why ``f`` may not replace what is at its target (a folder, or a file bakery did not write or that changed
-    since), or None."""
+def _foreign(folder: Path, f: ExportedFile, manifest: dict[str, Any],
+             export_format: str | None = None) -> str | None:
+    """Why ``f`` may not replace what is at its target (a folder, a file bakery did not write or that changed since,
+    or another format's file: ``ktx2`` and ``three`` both write ``<probe>.ktx2``, at different profiles), or None."""
     target = folder / f.path
     if target.is_dir():
         return f"{f.path} (a folder)"
     if not target.exists():
         return None
     entry = manifest["files"].get(f.path)
-    return f.path if entry is None or entry.get("sha256") != sha256_file(target) else None
+    if entry is None or entry.get("sha256") != sha256_file(target):
+        return f.path
+    written_by = entry.get("format")
+    if export_format and written_by and written_by != export_format:
+        return f"{f.path} (written by the {written_by} export: export each format to its own folder)"
+    return None
 
 
 def _make_parents(target: Path, created: list[Path]) -> None:
@@ -370,7 +394,7 @@ def _write_locked(folder: Path, files: Iterable[ExportedFile], record: dict[str,
                                      f"names that differ only in punctuation?); export them to separate folders "
                                      f"with --probes")
                 seen[f.path] = tuple(f.probes)
-                reason = _foreign(folder, f, manifest)
+                reason = _foreign(folder, f, manifest, record.get("format"))
                 if reason:
                     foreign.append(reason)
                     continue

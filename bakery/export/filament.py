@@ -8,8 +8,8 @@ KTX 1.1 layout written ([KTX1] §2; little-endian, ``endianness`` = 0x04030201)
     top-down, bakery's = OpenGL's cube orientation), each padded to 4 bytes (cubePadding).
 
 Formats: ``R11F_G11F_B10F`` (GL_R11F_G11F_B10F 0x8C3A, type GL_UNSIGNED_INT_10F_11F_11F_REV 0x8C3B, format GL_RGB;
-cmgen's IBL format, what ``Engine.createIblFromKtx1`` expects) or ``RGBA16F`` (GL_RGBA16F 0x881A, GL_HALF_FLOAT,
-GL_RGBA).
+cmgen's IBL format, what ``Engine.createIblFromKtx1`` expects; clamped to 65024) or ``RGBA16F`` (GL_RGBA16F 0x881A,
+GL_HALF_FLOAT, GL_RGBA; saturated at 65504, never inf).
 
 ``sh`` key: 27 floats as text, one "r g b" line per coefficient (what ``Filament._createIblFromKtx1`` parses with
 ``split(/\\s/, 27)``): Filament's **pre-scaled irradiance** convention (``CubemapSH::computeIrradianceSH3Bands``):
@@ -32,7 +32,7 @@ import numpy as np
 
 from bakery.encodings.base import EncodingParams
 from bakery.export.base import ExportContext, ExportedFile, ExportFormat, register_format, slug
-from bakery.export.ktx2 import pack_b10g11r11, unpack_b10g11r11
+from bakery.export.ktx2 import pack_b10g11r11, to_float16, unpack_b10g11r11
 from bakery.export.source import COSINE_BANDS, profile_chains, radiance_sh
 from bakery.sh.basis import sh_bands
 
@@ -73,7 +73,7 @@ def _face_bytes(face: np.ndarray, gl_format: str) -> bytes:
     if gl_format == "R11F_G11F_B10F":
         return pack_b10g11r11(face[..., :3]).astype("<u4").tobytes()
     rgba = np.concatenate([face[..., :3], np.ones_like(face[..., :1])], axis=-1)
-    return np.ascontiguousarray(rgba, dtype="<f2").tobytes()
+    return np.ascontiguousarray(to_float16(rgba)).tobytes()  # saturated at 65504: no inf texels
 
 
 def write_ktx1(cube: Ktx1Cube) -> bytes:
@@ -146,6 +146,12 @@ class FilamentExport(ExportFormat):
         gl_format: Literal["R11F_G11F_B10F", "RGBA16F"] = "R11F_G11F_B10F"
         levels: int | None = None
         face_size: int | None = None
+
+        def validate(self) -> None:
+            if self.levels is not None and self.levels < 1:
+                raise ValueError(f"levels must be >= 1 (or unset: full chain), got {self.levels}")
+            if self.face_size is not None and self.face_size < 1:
+                raise ValueError(f"face_size must be >= 1 (or unset: the kept capture's), got {self.face_size}")
 
     def build(self, context: ExportContext) -> Iterator[ExportedFile]:
         """One .ktx per probe, streamed."""

@@ -9,7 +9,8 @@ referencing the light, and the light [EXT]:
                             ``convertIrradianceToLambertianRadiance``, i.e. ÷π, itself). The radiance SH come from the
                             probe's irradiance encoding when it has one (:mod:`bakery.export.source`), else from the
                             kept capture.
-``specularImageSize``       face size of mip 0
+``specularImageSize``       face size of mip 0: a power of two (Babylon loads no other), by default the largest
+                            ≤ the kept capture's (an N = 12 bake exports 8², resampled preserving flux)
 ``specularImages``          M × 6 image indices, mips of halving sizes, faces +X −X +Y −Y +Z −Z, each a 4-channel PNG
                             in Babylon's RGBD packing (below), re-prefiltered at the profile's α per mip (default
                             profile ``babylon``: the loader sets lodGenerationScale = (M − 1)/log2 N)
@@ -97,11 +98,16 @@ class GltfExport(ExportFormat):
         def validate(self) -> None:
             if self.levels is not None and self.levels < 1:
                 raise ValueError(f"levels must be >= 1 (or unset: full chain), got {self.levels}")
+            if self.face_size is not None and self.face_size < 1:
+                raise ValueError(f"face_size must be >= 1 (or unset: the kept capture's), got {self.face_size}")
 
     def build(self, context: ExportContext) -> Iterator[ExportedFile]:
         """Per probe (streamed): its specular PNGs, then its .gltf."""
         p = context.params
-        chains = profile_chains(context.store, context.probes, context.profile, p.levels, p.face_size)
+        # Babylon.js refuses cube faces that are not a power of two ("Texture size must be a power of two"): an
+        # N = 12, 24 or 100 bake exports 8², 16² or 64² faces (flux-preserving resample of the kept capture)
+        chains = profile_chains(context.store, context.probes, context.profile, p.levels, p.face_size,
+                                power_of_two=True)
         record = chains.record
         for name, chain, capture in chains:
             base = slug(name)

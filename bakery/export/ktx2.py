@@ -25,7 +25,7 @@ convention, which is bakery's ([KTX2] §4.3 "Cubemaps"; ``bakery.conventions``).
 the number of cubes (> 0); a plain texture has ``layerCount`` 0. ``pixelDepth`` 0 for 2-D/cube, > 0 for 3-D.
 
 Formats written (``vkFormat`` values of the Vulkan specification, DFDs per [KDFS] and libktx's ``vk2dfd``)
-    R16G16B16A16_SFLOAT      97   typeSize 2, alpha = 1
+    R16G16B16A16_SFLOAT      97   typeSize 2, alpha = 1; saturated at ±65504 (the largest finite float16, never inf)
     R32G32B32A32_SFLOAT     109   typeSize 4
     B10G11R11_UFLOAT_PACK32 122   typeSize 4: R bits 0–10, G 11–21 (6-bit mantissa, 5-bit exponent), B 22–31 (5/5);
                                   unsigned, rounded to nearest, clamped to the largest finite value 65024
@@ -73,6 +73,8 @@ _ONE_F, _MINUS_ONE_F = 0x3F800000, 0xBF800000
 UFLOAT11_MAX = 65024.0
 #: Largest value of E5B9G9R9: (511/512)·2¹⁶.
 E5B9G9R9_MAX = 65408.0
+#: Largest finite float16 (binary16): (2 − 2⁻¹⁰)·2¹⁵. Casting anything from 65520 up gives +inf (round to nearest).
+FLOAT16_MAX = 65504.0
 
 
 class Ktx2Error(ValueError):
@@ -133,15 +135,25 @@ def unpack_e5b9g9r9(packed: np.ndarray) -> np.ndarray:
     return (np.stack([p & 0x1FF, (p >> 9) & 0x1FF, (p >> 18) & 0x1FF], axis=-1) * scale[..., None]).astype(np.float32)
 
 
+def to_float16(values: np.ndarray) -> np.ndarray:
+    """float16 of ``values`` saturated to ±:data:`FLOAT16_MAX` (never ±inf; NaN → 0), as the packed formats clamp to
+    their largest finite value. A re-prefiltered level of a capture at the float16 ceiling (a bake clamps radiance to
+    65504) can exceed it by rounding or ringing, and a plain cast would write +inf texels that poison every filtered
+    fetch and mip blend around them."""
+    v = np.nan_to_num(np.asarray(values, dtype=np.float32), nan=0.0, posinf=FLOAT16_MAX, neginf=-FLOAT16_MAX)
+    return np.clip(v, -FLOAT16_MAX, FLOAT16_MAX).astype("<f2")
+
+
 def encode_texels(rgb: np.ndarray, vk_format: int) -> bytes:
     """Texel bytes of (..., 3) or (..., 4) float data in ``vk_format`` (alpha = 1 where the format has alpha and the
-    input has none)."""
+    input has none; ``R16G16B16A16_SFLOAT`` saturates at ±65504, :func:`to_float16`)."""
     rgb = np.asarray(rgb, dtype=np.float32)
     if vk_format in (VK_FORMAT_R16G16B16A16_SFLOAT, VK_FORMAT_R32G32B32A32_SFLOAT):
         if rgb.shape[-1] == 3:
             rgb = np.concatenate([rgb, np.ones_like(rgb[..., :1])], axis=-1)
-        dtype = "<f2" if vk_format == VK_FORMAT_R16G16B16A16_SFLOAT else "<f4"
-        return np.ascontiguousarray(rgb, dtype=dtype).tobytes()
+        if vk_format == VK_FORMAT_R16G16B16A16_SFLOAT:
+            return np.ascontiguousarray(to_float16(rgb)).tobytes()
+        return np.ascontiguousarray(rgb, dtype="<f4").tobytes()
     if vk_format == VK_FORMAT_B10G11R11_UFLOAT_PACK32:
         return pack_b10g11r11(rgb[..., :3]).astype("<u4").tobytes()
     if vk_format == VK_FORMAT_E5B9G9R9_UFLOAT_PACK32:
@@ -384,14 +396,20 @@ def bakery_key_values(context: ExportContext, record: dict, probes: list[str], o
     }
 
 
-def cube_texture(chains: list[list[np.ndarray]], vk_format: int, key_values: dict) -> Ktx2Texture:
-    """A cube map (one chain) or cube array (several) from chains of (6, N_i, N_i, 3) levels."""
+def cube_texture(chains: list[list[np.ndarray]], vk_format: int, key_values: dict,
+                 array: bool | None = None) -> Ktx2Texture:
+    """A cube map or a cube array from chains of (6, N_i, N_i, 3) levels. ``array``: a cube array (``layerCount`` =
+    len(chains), also for one chain: an engine that binds the file as a cube array needs ``layerCount`` ≥ 1, [KTX2]
+    §4.3) or a single cube (``layerCount`` 0, one chain); None: an array exactly when there are several chains."""
+    array = len(chains) > 1 if array is None else bool(array)
+    if not array and len(chains) != 1:
+        raise Ktx2Error(f"a cube map holds one chain, got {len(chains)}: write a cube array")
     levels = []
     for i in range(len(chains[0])):
-        stacked = np.stack([chain[i] for chain in chains]) if len(chains) > 1 else chains[0][i]
+        stacked = np.stack([chain[i] for chain in chains]) if array else chains[0][i]
         levels.append(encode_texels(stacked, vk_format))
     n = chains[0][0].shape[1]
-    return Ktx2Texture(vk_format, n, n, 0, len(chains) if len(chains) > 1 else 0, 6, levels, key_values)
+    return Ktx2Texture(vk_format, n, n, 0, len(chains) if array else 0, 6, levels, key_values)
 
 
 @register_format
@@ -426,7 +444,7 @@ class Ktx2Export(ExportFormat):
         vk = VK_FORMATS[p.vk_format][0]
         if p.layout == "array":
             texture = cube_texture([chain for _, chain, _ in chains], vk,
-                                   bakery_key_values(context, chains.record, chains.probes))
+                                   bakery_key_values(context, chains.record, chains.probes), array=True)
             yield ExportedFile("reflection_probes.ktx2", write_ktx2(texture), tuple(chains.probes), "")
             return
         for name, chain, _ in chains:

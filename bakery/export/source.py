@@ -227,10 +227,15 @@ class ProfileChains:
 
 
 def profile_chains(store, probes: list[str], profile, levels: int | None, face_size: int | None,  # noqa: ANN001
-                   ) -> ProfileChains:
+                   power_of_two: bool = False) -> ProfileChains:
     """The reflection probes among ``probes`` with their chains at ``profile``'s α (:class:`ProfileChains`),
     everything checked before any is prefiltered: an :class:`InputError` if none is a reflection probe with a
-    kept capture, one keeps no capture, or ``face_size`` / ``levels`` do not fit the kept capture."""
+    kept capture, one keeps no capture, or ``face_size`` / ``levels`` do not fit the kept capture.
+
+    ``face_size`` must divide the kept capture's N (None: N). ``power_of_two``, for consumers that accept only
+    power-of-two cube faces (Babylon.js: "Texture size must be a power of two"): None means the largest power of two
+    ≤ N, an explicit ``face_size`` must be a power of two ≤ N, and a size that does not divide N is reached by the
+    flux-preserving :func:`~bakery.sphere.cubemap.resample_cube` (an N = 12 bake exports 8² faces)."""
     from bakery.export.profiles import full_chain_levels, level_sizes
 
     encoding = require_capture_encoding(store)
@@ -240,8 +245,15 @@ def profile_chains(store, probes: list[str], profile, levels: int | None, face_s
                          f"({encoding})")
     rows = _kept_capture_rows(store, encoding, selected)
     n = int(store.fields(encoding)["level0"].shape[2])
-    size = n if face_size is None else int(face_size)
-    if size > n or n % size:
+    if face_size is None:
+        size = 1 << (n.bit_length() - 1) if power_of_two else n
+    else:
+        size = int(face_size)
+    if power_of_two:
+        if size < 1 or size > n or size & (size - 1):
+            raise InputError(f"face_size {size} must be a power of two <= the kept capture's face size {n} (this "
+                             f"format's consumer loads only power-of-two cube faces)")
+    elif size < 1 or size > n or n % size:
         raise InputError(f"face_size {size} must divide the kept capture's face size {n}")
     count = full_chain_levels(size) if levels is None else int(levels)
     if not 1 <= count <= full_chain_levels(size):

@@ -125,6 +125,10 @@ class ThreeExport(ExportFormat):
         reflection: bool = True  # KTX2 cubes for reflection probes with a kept capture
         levels: int | None = None
 
+        def validate(self) -> None:
+            if self.levels is not None and self.levels < 1:
+                raise ValueError(f"levels must be >= 1 (or unset: full chain), got {self.levels}")
+
     def build(self, context: ExportContext) -> Iterator[ExportedFile]:
         """The irradiance files (grid atlases, light probes), then one KTX2 per reflection probe, streamed."""
         store, files = context.store, []

@@ -30,18 +30,20 @@ from bakery.files import (
 from bakery.report import quality, render, svg
 from bakery.report.memory import memory_summary
 from bakery.report.page import render_page
+from bakery.store.format import failed_probes
 
 #: Preview material roughness (GGX α) of the chrome and glass spheres.
 PREVIEW_ALPHAS = (0.25, 0.6)
 
 
-def _jsonable(x: Any) -> Any:
+def jsonable(x: Any) -> Any:
+    """``x`` with numpy values as Python ones and non-finite floats as None (strict JSON: unmeasured = null)."""
     if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
+        return {str(k): jsonable(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
+        return [jsonable(v) for v in x]
     if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
+        return jsonable(x.tolist())
     if isinstance(x, (np.floating, float)):
         return float(x) if math.isfinite(float(x)) else None
     if isinstance(x, np.integer):
@@ -78,11 +80,7 @@ def build_report(store_path: str | os.PathLike[str], environment: str | os.PathL
                        "summary": quality.summarise(v), "per_probe": v} for n, v in errors.items()},
         "worst_probes": quality.worst_probes(store, errors),
         "negative_share": {n: {"summary": quality.summarise(v), "per_probe": v} for n, v in negatives.items()},
-        "deringing": {n: {"before": base, "mean_before": float(np.mean(negatives[base])),
-                          "mean_after": float(np.mean(negatives[n])), "max_before": float(np.max(negatives[base])),
-                          "max_after": float(np.max(negatives[n]))}
-                      for n in negatives for base in [n.removesuffix("_deringed")]
-                      if n.endswith("_deringed") and base in negatives and len(negatives[base]) == len(negatives[n])},
+        "deringing": _deringing(store, negatives),
         "quantization": {n: {"source": q["source"], "summary": quality.summarise(q["relative_rmse"]),
                              "per_probe": q["relative_rmse"]} for n, q in quantization.items()},
         "reflection_alpha_curves": curves,
@@ -92,6 +90,8 @@ def build_report(store_path: str | os.PathLike[str], environment: str | os.PathL
         "capture_sh_noise": _capture_noise(store),
         "capture_validity": _capture_validity(store),
         "warnings": store.json_attribute("warnings"),
+        # probes the bake could not store (root attribute failed_probes: probe → reason; absent from the store)
+        "failed_probes": failed_probes(store.attributes),
         # encodings of a newer bakery: in the memory table, not in the quality figures (quality.evaluable)
         "not_evaluated": {n: reason for n in store.encodings for reason in [store.unsupported_reason(n)] if reason},
     }
@@ -132,8 +132,28 @@ def build_report(store_path: str | os.PathLike[str], environment: str | os.PathL
         previews_out = _previews(store, errors, references, sphere_size)
     data["previews"] = {kind: {role: {"probe": p["probe"]} for role, p in v.items()} for kind, v in previews_out.items()}
     data["seconds"] = time.perf_counter() - start
-    data = _jsonable(data)
+    data = jsonable(data)
     return data, render_page(data, plots, previews_out)
+
+
+def _deringing(store: Any, negatives: dict[str, np.ndarray]) -> dict[str, dict[str, Any]]:
+    """Negative share before (``<base>``) and after (``<base>_deringed``) deringing, over the probes both encodings
+    hold and measured (each probe of a scene may list its own encodings: rows are matched by probe, not position)."""
+    out = {}
+    for name, after in negatives.items():
+        base = name.removesuffix("_deringed")
+        if not name.endswith("_deringed") or base not in negatives:
+            continue
+        before = dict(zip(quality.probe_rows(store, base).tolist(), np.asarray(negatives[base]).tolist(), strict=True))
+        pairs = np.array([(before[i], a) for i, a in zip(quality.probe_rows(store, name).tolist(),
+                                                           np.asarray(after).tolist(), strict=True)
+                          if i in before and math.isfinite(before[i]) and math.isfinite(a)], dtype=np.float64)
+        if len(pairs) == 0:
+            continue
+        out[name] = {"before": base, "probes": len(pairs), "mean_before": float(pairs[:, 0].mean()),
+                     "mean_after": float(pairs[:, 1].mean()), "max_before": float(pairs[:, 0].max()),
+                     "max_after": float(pairs[:, 1].max())}
+    return out
 
 
 def _metric(store: Any, name: str, reflection_errors: dict[str, Any]) -> str:
@@ -223,6 +243,7 @@ def write_report(store: str | os.PathLike[str], out_dir: str | os.PathLike[str],
     check_report_output(out, inputs, force)
     data, page = build_report(store, environment=environment, previews=previews)
     html_path, json_path = out / "report.html", out / "report.json"
+    created = _missing_folders(out)
     try:
         out.mkdir(parents=True, exist_ok=True)
         # Both written before either replaces an existing file (the inner one, report.json, is renamed first).
@@ -230,8 +251,31 @@ def write_report(store: str | os.PathLike[str], out_dir: str | os.PathLike[str],
             json_tmp.write_text(json.dumps(data, indent=1, allow_nan=False), encoding="utf-8")
             html_tmp.write_text(page, encoding="utf-8")
     except OSError as error:
+        _remove_empty_folders(created)
         raise OutputError(f"{out}: cannot write the report: {os_error_message(error)}") from None
+    except BaseException:  # Ctrl-C, SIGTERM: the temporaries are gone (atomic_replace); so are the new folders
+        _remove_empty_folders(created)
+        raise
     return {"html": html_path, "json": json_path, "data": data}
+
+
+def _missing_folders(out: Path) -> list[Path]:
+    """The folders ``out.mkdir(parents=True)`` would create, deepest first."""
+    missing = []
+    folder = out
+    while not folder.exists() and folder != folder.parent:
+        missing.append(folder)
+        folder = folder.parent
+    return missing
+
+
+def _remove_empty_folders(folders: list[Path]) -> None:
+    """Remove the folders a failed report created (deepest first; only if empty: nothing of anyone else's)."""
+    for folder in folders:
+        try:
+            folder.rmdir()
+        except OSError:
+            return
 
 
 def _capture_validity(store: Any, listed: int = 20) -> dict[str, Any] | None:

@@ -3,6 +3,12 @@
 Per encoding: bytes per probe (the store's ``bytes_per_probe``: the sum of its per-probe fields, shared tables
 excluded) × its probe count. Per probe kind (``irradiance``, ``reflection``): the sum over that kind's encodings.
 
+Uploaded bytes per probe (what an engine uploads): ``bytes_per_probe`` for every encoding, except one that stores a
+per-probe ``first_level`` k0 and chain levels ``level{k}`` (``shexp_hybrid``; ``schemas/store-reflection.md``): its
+levels k < k0 are zero-filled in the store's fixed layout and not uploaded, so a probe uploads
+``bytes_per_probe`` − Σ_{k < k0} (bytes of a row of ``level{k}``) — a probe that needs no chain (k0 = L) uploads its
+SH exponential and lights only. Mean, min and max over the encoding's probes, from the stored fields.
+
 Comparisons (computed, not measured on a GPU)
     * SH3 floats: 9 coefficients × 3 channels × 4 bytes = 108 bytes per probe.
     * Split-sum chains ([Kar13]; seed 000 Sec. 3.2) with ``L`` levels, base face size ``N`` and a minimum level
@@ -22,6 +28,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import Any
+
+import numpy as np
 
 #: Bytes per probe of quadratic SH stored as float32 RGB.
 SH3_FLOAT_BYTES = 9 * 3 * 4
@@ -80,6 +88,23 @@ def chain_settings_for(store: Any) -> ChainSettings:
     return ChainSettings(face, default_levels, default_min)
 
 
+def upload_bytes(store: Any, name: str) -> np.ndarray:
+    """(P_k,) bytes an engine uploads for each probe of encoding ``name`` (module doc), from its stored fields."""
+    info = store.encodings[name]
+    fields = store.fields(name)
+    rows = info.probe_count
+    if "first_level" not in fields or rows == 0:
+        return np.full(rows, info.bytes_per_probe, dtype=np.int64)
+    first = np.asarray(fields["first_level"]).reshape(rows, -1)[:, 0].astype(np.int64)
+    levels = [(int(key[len("level"):]), np.asarray(values)) for key, values in fields.items()
+              if key.startswith("level") and key[len("level"):].isdigit()]
+    numbers = np.array([k for k, _ in levels], dtype=np.int64)  # (L,)
+    row_bytes = np.array([values.dtype.itemsize * int(np.prod(values.shape[1:], dtype=np.int64))
+                          for _, values in levels], dtype=np.int64)  # (L,)
+    skipped = (numbers[None, :] < first[:, None]).astype(np.int64) @ row_bytes  # (P_k,) levels below k0
+    return info.bytes_per_probe - skipped
+
+
 def memory_summary(store: Any) -> dict[str, Any]:
     """Memory table of a store (see module doc): per encoding, per kind, and the comparison sizes."""
     kinds = [k.split(",") for k in store.probe_kinds]
@@ -88,8 +113,12 @@ def memory_summary(store: Any) -> dict[str, Any]:
     per_kind: dict[str, int] = {}
     for name, info in store.encodings.items():
         total = info.bytes_per_probe * info.probe_count
+        uploads = upload_bytes(store, name)
         encodings[name] = {"kind": info.kind, "bytes_per_probe": info.bytes_per_probe,
-                           "probes": info.probe_count, "total_bytes": total}
+                           "probes": info.probe_count, "total_bytes": total,
+                           "upload_bytes_per_probe": ({"mean": float(uploads.mean()), "min": int(uploads.min()),
+                                                       "max": int(uploads.max())} if uploads.size else None),
+                           "upload_total_bytes": int(uploads.sum())}
         per_kind[info.kind] = per_kind.get(info.kind, 0) + total
     chain = chain_settings_for(store)
     per_probe_chain = chain_bytes(chain)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from html import escape
 from typing import Any
 
@@ -23,7 +24,7 @@ code{background:#eee;padding:0 3px}
 
 
 def _fmt(v: Any, digits: int = 4) -> str:
-    if v is None:
+    if v is None or isinstance(v, float) and not math.isfinite(v):  # unmeasured (null in the JSON)
         return "–"
     if isinstance(v, float):
         return f"{v:.{digits}g}"
@@ -41,10 +42,10 @@ def _table(header: list[str], rows: list[list[Any]], left: int = 1) -> str:
 
 def _memory_section(m: dict[str, Any]) -> str:
     chains = [k for k in m["comparisons"] if k.startswith("split_sum_")]
-    rows = [[n, e["kind"], e["bytes_per_probe"], e["probes"], e["total_bytes"],
+    rows = [[n, e["kind"], e["bytes_per_probe"], _upload(e), e["probes"], e["total_bytes"],
              m["ratios"][n]["vs_sh3_float"], *[m["ratios"][n][f"vs_{k}"] for k in chains]]
             for n, e in m["encodings"].items()]
-    out = [_table(["encoding", "kind", "bytes/probe", "probes", "total bytes", "× SH3 float",
+    out = [_table(["encoding", "kind", "bytes/probe", "uploaded bytes/probe", "probes", "total bytes", "× SH3 float",
                    *[f"× {k.removeprefix('split_sum_')}" for k in chains]], rows, left=2)]
     out.append(_table(["probe kind", "probes", "total bytes (stored encodings)"],
                       [[k, m["probes_of_kind"].get(k, 0), m["total_bytes_per_kind"].get(k, 0)]
@@ -56,8 +57,38 @@ def _memory_section(m: dict[str, Any]) -> str:
                        for k, v in m["comparisons"].items()]))
     out.append(f'<p class="note">Split-sum chains: {c["n_levels"]} levels, cube faces {c["cube_sizes"]}, octahedral '
                f'sides {c["octahedral_sizes"]}; RGBA16F = 8 B/texel, BC6H = 1 B/texel (computed). SH3 float = 108 B. '
-               f'Totals for split-sum count the store\'s reflection probes, SH3 its irradiance probes.</p>')
+               f'Totals for split-sum count the store\'s reflection probes, SH3 its irradiance probes. Ratios are of '
+               f'the stored bytes/probe. Uploaded bytes/probe: what an engine uploads (mean over the probes; '
+               f'<code>shexp_hybrid</code> probes do not upload the chain levels below their '
+               f'<code>first_level</code>, none for a probe that needs no chain).</p>')
     return "\n".join(out)
+
+
+def _upload(e: dict[str, Any]) -> Any:
+    """Uploaded bytes per probe of a memory-table entry: the value when every probe uploads the same, else the mean
+    with the range."""
+    u = e.get("upload_bytes_per_probe")
+    if not u:
+        return None
+    if u["min"] == u["max"]:
+        return u["min"]
+    return f'{u["mean"]:,.0f} ({u["min"]:,}–{u["max"]:,})'
+
+
+def _percent(b: float) -> str:
+    """A signed percentage with enough digits that a small bias does not print as "+0%" / "-0%"."""
+    if b == 0:
+        return "±0%"
+    return f"{100 * b:+.0f}%" if abs(b) >= 0.0995 else f"{100 * b:+.2g}%"
+
+
+def _alpha_cell(mse: float | None, bias: float | None) -> str:
+    """"0.12 (+3%)"; "–" for an unmeasured or unbounded value (a NaN/inf cell is null in the JSON)."""
+    if mse is None or not math.isfinite(mse):
+        return "–"
+    if bias is None or not math.isfinite(bias):
+        return f"{mse:.3g}"
+    return f"{mse:.3g} ({_percent(bias)})"
 
 
 def _alpha_table(curves: dict[str, Any]) -> str:
@@ -70,12 +101,12 @@ def _alpha_table(curves: dict[str, Any]) -> str:
     for row in alpha_table(curves):
         bias = row["bias"] or [None] * len(alphas)
         rows.append([row["encoding"], row["material"],
-                     *[f"{m:.3g} ({100 * b:+.0f}%)" if b is not None and m is not None else "–"
-                       for m, b in zip(row["relative_mse"], bias, strict=True)]])
+                     *[_alpha_cell(m, b) for m, b in zip(row["relative_mse"], bias, strict=True)]])
     table = _table(["encoding", "material", *[f"α={a:g}" for a in alphas]], rows, left=2)
     return (table + '<p class="note">Cells: relative MSE ΣΔE²/ΣE<sub>ref</sub>² over '
             f'{curves.get("rows_per_alpha", 0)} (v, n) rows (signed brightness bias ΣE/ΣE<sub>ref</sub> − 1), mean '
-            "over probes; reference: brute force over the full-resolution capture (α = 0: the mirror).</p>")
+            "over probes; reference: brute force over the full-resolution capture (α = 0: the mirror). "
+            "–: not measurable (the reference is black over every row).</p>")
 
 
 def _preview_section(title: str, previews: dict[str, Any]) -> str:
@@ -101,6 +132,11 @@ def render_page(data: dict[str, Any], plots: dict[str, str], previews: dict[str,
              f'baked by bakery {escape(str(data["store_bakery_version"]))}; report by bakery '
              f'{escape(str(data["bakery_version"]))}; settings hash <code>{escape(str(data["settings_hash"])[:16])}'
              f'</code>. Reference capture available: {"yes" if data["reference_available"] else "no"}.</p>']
+    if data.get("failed_probes"):
+        failed = data["failed_probes"]
+        parts.append(f"<h2>Failed probes</h2><p class=\"note\">{len(failed)} probe(s) failed in the bake and are "
+                     "<b>not in this store</b> (nor in the figures below); re-bake after fixing their input.</p>")
+        parts.append(_table(["probe (prim path)", "reason"], [[n, r.removeprefix(f"{n}: ")] for n, r in failed.items()]))
     parts.append("<h2>Memory</h2>")
     parts.append(_memory_section(data["memory"]))
     parts.append('<div class="plots">' + plots.get("memory", "") + "</div>")

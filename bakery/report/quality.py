@@ -15,6 +15,7 @@ Reference availability
 
 from __future__ import annotations
 
+import math
 import warnings
 import weakref
 from pathlib import Path
@@ -57,8 +58,10 @@ def evaluable(store: Any, name: str) -> bool:
 
 
 def encodings_of_kind(store: Any, kind: str) -> list[str]:
-    """The stored encodings of ``kind`` that this bakery can evaluate (:func:`evaluable`)."""
-    return [name for name, info in store.encodings.items() if info.kind == kind and evaluable(store, name)]
+    """The stored encodings of ``kind`` that this bakery can evaluate (:func:`evaluable`) and that hold at least one
+    probe (an encoding with no rows is legal: it is in the memory table, with nothing to measure)."""
+    return [name for name, info in store.encodings.items()
+            if info.kind == kind and info.probe_count > 0 and evaluable(store, name)]
 
 
 def probe_rows(store: Any, encoding: str) -> np.ndarray:
@@ -89,7 +92,15 @@ def load_reference_samples(store: Any, environment: str | Path | None = None) ->
     if source is None or str(store.attributes.get("source_kind", "image")) == "usd" and environment is None:
         return None
     path = Path(str(source))
-    if not path.is_file() or len(store.probe_names) != 1:
+    if len(store.probe_names) != 1:
+        if environment is not None:  # asked for, and not used: say so rather than report "no reference" silently
+            from bakery.errors import BakeryWarning
+
+            warnings.warn(f"{environment}: --environment gives the capture of a one-probe store; "
+                          f"{getattr(store, 'path', 'the store')} has {len(store.probe_names)} probes, so the report "
+                          "uses their stored diagnostics only", BakeryWarning, stacklevel=2)
+        return None
+    if not path.is_file():
         return None
     from bakery.environment.io import read_environment
     from bakery.environment.resample import environment_samples
@@ -108,10 +119,11 @@ def reference_irradiance_for(samples: Any, normals: np.ndarray) -> np.ndarray:
 
 
 def _relative_rmse(values: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """(P,) relative RMSE of (P, N, C) against (P, N, C); 0 where the reference is 0."""
+    """(P,) relative RMSE of (P, N, C) against (P, N, C); NaN (not measurable: null in the JSON) where the reference
+    is 0 everywhere (:func:`_ratio`)."""
     num = np.sqrt(np.sum((values - reference) ** 2, axis=(1, 2)))
     den = np.sqrt(np.sum(reference**2, axis=(1, 2)))
-    return np.where(den > 0, num / np.where(den > 0, den, 1.0), np.where(num > 0, np.inf, 0.0))
+    return np.where(den > 0, num / np.where(den > 0, den, 1.0), np.nan)
 
 
 def irradiance_errors(store: Any, references: list[Any] | None) -> dict[str, np.ndarray]:
@@ -121,8 +133,10 @@ def irradiance_errors(store: Any, references: list[Any] | None) -> dict[str, np.
     cache: dict[int, np.ndarray] = {}
     for name in encodings_of_kind(store, "irradiance"):
         stored = _per_probe(store, f"reference_error/{name}", name)
-        if stored is not None and np.all(np.isfinite(stored)):
-            out[name] = stored
+        if stored is not None and (references is None or np.all(np.isfinite(stored))):
+            # NaN rows (probes baked without a reference) stay NaN: unmeasured, not counted in the summary
+            if np.any(np.isfinite(stored)):
+                out[name] = stored
             continue
         if references is None:
             continue
@@ -155,7 +169,9 @@ def quantization_source(store: Any, name: str) -> str | None:
 
 
 def quantization_errors(store: Any) -> dict[str, dict[str, Any]]:
-    """{quantized: {"source", "relative_rmse": (P_k,)}} of quantized irradiance vs its float source."""
+    """{quantized: {"source", "relative_rmse": (P_k,)}} of quantized irradiance vs its float source, aligned with the
+    quantized encoding's rows; NaN for a probe the source does not hold (each probe of a scene may list its own
+    encodings)."""
     normals = fibonacci_directions(QUALITY_DIRECTIONS)
     out = {}
     for name in encodings_of_kind(store, "irradiance"):
@@ -163,10 +179,15 @@ def quantization_errors(store: Any) -> dict[str, dict[str, Any]]:
         if source is None:
             continue
         rows = probe_rows(store, name)
-        names = [store.probe_names[i] for i in rows]
+        shared = np.isin(rows, probe_rows(store, source))
+        if not np.any(shared):
+            continue
+        names = [store.probe_names[i] for i in rows[shared]]
         quantized = store.evaluate_irradiance(name, normals, probes=names)
         reference = store.evaluate_irradiance(source, normals, probes=names)
-        out[name] = {"source": source, "relative_rmse": _relative_rmse(quantized, reference)}
+        relative = np.full(len(rows), np.nan)
+        relative[shared] = _relative_rmse(quantized, reference)
+        out[name] = {"source": source, "relative_rmse": relative}
     return out
 
 
@@ -225,27 +246,41 @@ def reflection_alpha_curves(store: Any, references: list[Any] | None, rows_per_a
                     ref = reflected_radiance(e0, e1, np.full(len(v), f0))
                     est = store.evaluate_reflection(name, v, n, a, np.full(len(v), f0),
                                                     probes=[store.probe_names[i]])[0]
-                    den = float(np.sum(ref**2))
-                    per_material[material][r, j] = float(np.sum((est - ref) ** 2)) / den if den > 0 else 0.0
+                    per_material[material][r, j] = _ratio(float(np.sum((est - ref) ** 2)), float(np.sum(ref**2)))
                     total = float(np.sum(ref))
-                    bias[material][r, j] = float(np.sum(est)) / total - 1.0 if total > 0 else 0.0
+                    bias[material][r, j] = _ratio(float(np.sum(est)) - total, total)
         out["encodings"][name] = {m: per_material[m].tolist() for m in MATERIALS}
         out["bias"][name] = {m: bias[m].tolist() for m in MATERIALS}
     return out
 
 
+def _ratio(num: float, den: float) -> float:
+    """num / den of a relative figure; NaN (not measurable: null in the JSON, "–" on the page) when den = 0, i.e. the
+    reference is black over every row — never a made-up 0 (the SH-exponential fits leave ~1e-12 where the capture is
+    black, which would be an infinite relative error)."""
+    return num / den if den != 0 else math.nan
+
+
 def alpha_table(curves: dict[str, Any]) -> list[dict[str, Any]]:
-    """Rows of the report's per-α table: {"encoding", "material", "relative_mse": [per α, mean over probes],
-    "bias": [per α, mean over probes]}."""
+    """Rows of the report's per-α table: {"encoding", "material", "relative_mse": [per α, mean over the measured
+    probes], "bias": [per α, mean over the measured probes]}; NaN (null) where no probe was measurable."""
     rows = []
     for name, per_material in curves.get("encodings", {}).items():
         for material, values in per_material.items():
             bias = curves.get("bias", {}).get(name, {}).get(material)
-            rows.append({"encoding": name, "material": material,
-                         "relative_mse": np.mean(np.asarray(values, dtype=np.float64), axis=0).tolist(),
-                         "bias": (np.mean(np.asarray(bias, dtype=np.float64), axis=0).tolist()
-                                  if bias is not None else None)})
+            rows.append({"encoding": name, "material": material, "relative_mse": _measured_mean(values),
+                         "bias": _measured_mean(bias) if bias is not None else None})
     return rows
+
+
+def _measured_mean(values: Any) -> list[float]:
+    """Column means (probes × α → per α) over the finite entries: one black probe (NaN, not measurable) does not
+    blank its α for every other probe."""
+    v = np.asarray(values, dtype=np.float64)
+    finite = np.isfinite(v)
+    count = finite.sum(axis=0)
+    total = np.where(finite, v, 0.0).sum(axis=0)
+    return np.where(count > 0, total / np.maximum(count, 1), np.nan).tolist()
 
 
 def pick_probes(store: Any, errors: dict[str, np.ndarray], kind: str) -> dict[str, int]:
@@ -269,10 +304,14 @@ def pick_probes(store: Any, errors: dict[str, np.ndarray], kind: str) -> dict[st
 
 
 def worst_probes(store: Any, errors: dict[str, np.ndarray], count: int = 5) -> dict[str, list[dict[str, Any]]]:
+    """{encoding: up to ``count`` probes with the largest error, largest first}; unmeasured (NaN) probes are not
+    listed, unbounded (inf) ones first."""
     out = {}
     for name, values in errors.items():
         rows = probe_rows(store, name)
-        order = np.argsort(-np.nan_to_num(values, nan=-1.0), kind="stable")[:count]
+        values = np.asarray(values, dtype=np.float64)
+        measured = np.flatnonzero(~np.isnan(values))
+        order = measured[np.argsort(-values[measured], kind="stable")][:count]
         out[name] = [{"probe": store.probe_names[rows[k]], "error": float(values[k]),
                       "position": [float(x) for x in store.probe_positions[rows[k]]]} for k in order]
     return out

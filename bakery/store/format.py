@@ -595,6 +595,22 @@ def read_store(path: str | os.PathLike[str], load_fields: bool = True, *, strict
                          np.asarray(bake_ids, dtype=np.int32), history, integrity)
 
 
+def failed_probes(attributes: dict[str, Any]) -> dict[str, str]:
+    """{probe: reason} of the root attribute ``failed_probes`` (JSON object; probes a bake could not store, absent
+    from the store); {} when absent or empty. A value that is not a JSON object is returned as one entry rather than
+    dropped: the store says probes failed, even if it cannot say which."""
+    raw = attributes.get("failed_probes")
+    if raw is None or raw == "":
+        return {}
+    try:
+        value = json.loads(raw) if isinstance(raw, str) else None
+    except ValueError:
+        value = None
+    if not isinstance(value, dict):
+        return {"(unreadable failed_probes attribute)": str(raw)[:200]}
+    return {str(k): str(v) for k, v in value.items()}
+
+
 def store_path(path: Any) -> Path:
     """``path`` as a Path, or :class:`~bakery.errors.ArgumentError` naming the argument when it is not a file path
     (None, a number, …)."""
