@@ -129,10 +129,12 @@ def irradiance_diagnostics(
 
 
 def relative_rmse_per_probe(values: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """√Σ(E − E_ref)² / √ΣE_ref² per probe over directions and RGB: (P, N, 3) × 2 → (P,) float32 (0 if E_ref = 0)."""
+    """√Σ(E − E_ref)² / √ΣE_ref² per probe over directions and RGB: (P, N, 3) × 2 → (P,) float32. Against a black
+    reference (E_ref = 0 everywhere): 0 when the encoding is black too (exact), +inf when it is not (unbounded;
+    before: 0, which hid an encoding that lit a black probe)."""
     num = np.sqrt(np.sum((values - reference) ** 2, axis=(1, 2)))
     den = np.sqrt(np.sum(reference**2, axis=(1, 2)))
-    return np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0).astype(np.float32)
+    return np.where(den > 0, num / np.where(den > 0, den, 1.0), np.where(num > 0, np.inf, 0.0)).astype(np.float32)
 
 
 def sanitize_diagnostics(reports: list[SanitizeReport | None]) -> dict[str, np.ndarray]:
