@@ -32,12 +32,14 @@ above clamp); relative quantisation ≈ 2.2 · ½ / 255 / (c·D)^(1/2.2) per cha
 from __future__ import annotations
 
 import json
+import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
 
 from bakery.encodings.base import EncodingParams
+from bakery.errors import ClampWarning
 from bakery.export.base import (
     ExportContext,
     ExportedFile,
@@ -109,11 +111,17 @@ class GltfExport(ExportFormat):
         chains = profile_chains(context.store, context.probes, context.profile, p.levels, p.face_size,
                                 power_of_two=True)
         record = chains.record
+        clipped: dict[str, tuple[int, float]] = {}  # probe → (texels above RGBD's range, their largest value)
         for name, chain, capture in chains:
             base = slug(name)
             radiance, sh_source = radiance_sh(context.store, name, capture)
             images, grid = [], []
             for i, level in enumerate(chain):
+                brightest = np.max(level[..., :3], axis=-1)
+                if np.any(brightest > RGBD_MAX_RANGE):
+                    count, peak = clipped.get(name, (0, 0.0))
+                    clipped[name] = (count + int(np.count_nonzero(brightest > RGBD_MAX_RANGE)),
+                                     max(peak, float(brightest.max())))
                 row = []
                 for f, face in enumerate(FACE_TRANSFORM(level)):
                     path = f"{base}/specular_{i}_{f}.png"
@@ -142,4 +150,12 @@ class GltfExport(ExportFormat):
             }
             text = json.dumps(document, indent=1, sort_keys=True) + "\n"
             yield ExportedFile(f"{base}.gltf", text.encode(), (name,), "")
+        if clipped:  # RGBD holds at most 255: a sun's highlight in the sharp mips loses its energy there
+            names = sorted(clipped)
+            texels = sum(count for count, _ in clipped.values())
+            peak = max(p for _, p in clipped.values())
+            warnings.warn(f"gltf export: {texels:,} specular texels of {len(names)} probe(s) ({', '.join(names[:3])}"
+                          f"{' …' if len(names) > 3 else ''}) exceed Babylon's RGBD range {RGBD_MAX_RANGE:g} (up to "
+                          f"{peak:.3g}) and were clamped to it; export ktx2 or filament (float formats) to keep HDR "
+                          f"highlights such as a sun", ClampWarning, stacklevel=2)
 

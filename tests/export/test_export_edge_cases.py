@@ -225,6 +225,22 @@ def test_a_format_does_not_replace_another_formats_file(edge, tmp_path):
     export_store(edge["single"], out, "ktx2", layer=False)  # the same format again replaces its own file
 
 
+def test_gltf_says_when_rgbd_clips_and_is_silent_otherwise(edge, tmp_path):
+    """RGBD (8-bit, Babylon) holds radiance up to 255: the uniform 65504 store's every specular texel is above it
+    (6 faces × Σ_i N_i² over the 8² chain), and the export says so once, with the count; a sky below 255 exports
+    without a warning (before: clamped silently)."""
+    import warnings
+
+    with pytest.warns(ClampWarning, match="RGBD range 255") as caught:
+        export_store(edge["bright"], tmp_path / "bright", "gltf", layer=False)
+    texels = 6 * sum((8 >> i) ** 2 for i in range(4))  # 8², 4², 2², 1²
+    assert any(f"{texels:,} specular texels of 1 probe(s) (/bright)" in str(w.message) for w in caught), \
+        [str(w.message) for w in caught]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ClampWarning)
+        export_store(edge["single"], tmp_path / "sky", "gltf", layer=False)
+
+
 # ------------------------------------------------------------------------------------------------ face sizes
 def test_gltf_of_a_face_size_that_is_not_a_power_of_two(edge, tmp_path):
     """Babylon.js loads only power-of-two cube faces: a 12² bake exports 8² specular images (8, 4, 2, 1 per mip),
