@@ -52,7 +52,8 @@ import numpy as np
 from bakery import operator_cache
 from bakery.encodings.base import Encoding, EncodingParams, FieldSpec
 from bakery.encodings.registry import register
-from bakery.probe import ProbeBatch, padded_block, probe_blocks
+from bakery.probe import ProbeBatch
+from bakery.reflection.blocks import padded_block, probe_blocks
 from bakery.reflection.lights import evaluate_lights, extract_lights
 from bakery.reflection.shexp import (
     TABLE_SAMPLES,
@@ -172,7 +173,7 @@ class SHExp(Encoding):
 def fit_shexp_blocks(cubes: np.ndarray, model: SHExpSettings,
                      removed: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """:func:`~bakery.reflection.shexp.fit_shexp` of P captures (P, 6, N, N, 3) in blocks of
-    :data:`~bakery.probe.PROBE_BLOCK` (the last padded with black captures): every fit has the same shapes, so a
+    :data:`~bakery.reflection.blocks.PROBE_BLOCK` (the last padded with black captures): every fit has the same shapes, so a
     probe's coefficients (P, K_p + K_q, 3) depend on its capture alone, not on its batch. ``removed``: (probe index,
     flat texel index) of texels fitted as black."""
     cubes = np.asarray(cubes, dtype=np.float32)

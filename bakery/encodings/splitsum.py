@@ -65,7 +65,7 @@ DEFAULT_FACE_SIZE = 64
 
 #: Probes prefiltered together: the chain's temporaries (mip pyramid and levels of every probe as (texels, P·3)
 #: float32, ≈ 12 MB per probe at 128²) stay bounded whatever the recipe's batch size; results do not depend on it
-#: (the dense products run on fixed blocks of :data:`bakery.probe.PROBE_BLOCK` probes).
+#: (the dense products run on fixed blocks of :data:`bakery.reflection.blocks.PROBE_BLOCK` probes).
 PREFILTER_PROBES = 16
 
 

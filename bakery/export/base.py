@@ -62,7 +62,6 @@ any point; what it leaves is repaired before the next export does anything else:
 from __future__ import annotations
 
 import fnmatch
-import hashlib
 import json
 import os
 import re
@@ -228,7 +227,7 @@ def slug(name: str) -> str:
     ascii_name = unicodedata.normalize("NFKD", name).encode("ascii", "ignore").decode("ascii")
     s = re.sub(r"[^A-Za-z0-9_.-]+", "_", ascii_name.strip("/")).strip("_") or "probe"
     if len(s) > SLUG_MAX or not name.isascii():
-        digest = hashlib.sha256(name.encode("utf-8", "surrogatepass")).hexdigest()[:SLUG_DIGEST]
+        digest = sha256_bytes(name.encode("utf-8", "surrogatepass"))[:SLUG_DIGEST]
         s = f"{s[:SLUG_MAX - SLUG_DIGEST - 1].rstrip('_.-')}-{digest}"
     return s
 

@@ -56,7 +56,7 @@ from scipy.special import eval_legendre, roots_legendre
 
 from bakery.brdf.ggx import ggx_distribution
 from bakery.brdf.sampling import sample_ggx_ndf, to_world
-from bakery.probe import in_column_blocks
+from bakery.reflection.blocks import in_column_blocks
 from bakery.sh.basis import evaluate_sh_basis, sh_bands
 from bakery.sh.projection import CubeSHProjector
 from bakery.sphere.cubemap import (

@@ -145,7 +145,7 @@ def test_encoding_is_deterministic(name):
 @pytest.mark.parametrize("name", list(ENCODINGS))
 def test_a_probes_encoding_depends_on_its_capture_alone(name):
     """Bit for bit the same fields for a probe whatever it is encoded with: 18 captures at once (more than one
-    block of bakery.probe.PROBE_BLOCK) and in pieces of 1, 7 and 10. Before, the reflection fits and SH-domain
+    block of bakery.reflection.blocks.PROBE_BLOCK) and in pieces of 1, 7 and 10. Before, the reflection fits and SH-domain
     prefilters differed by 1e-6 relative (BLAS picks its kernels by the matrix shapes), so re-baking one probe, or
     another batch_size, changed the store's bits."""
     rng = np.random.default_rng(3)
