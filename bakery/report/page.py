@@ -128,7 +128,8 @@ def render_page(data: dict[str, Any], plots: dict[str, str], previews: dict[str,
              '<link rel="icon" href="data:,">',
              f"<title>bakery report: {escape(str(data['store']))}</title><style>{_CSS}</style></head><body>",
              f"<h1>bakery report — <code>{escape(str(data['store']))}</code></h1>",
-             f'<p class="note">{data["probes"]} probes; store format {escape(str(data["format_version"]))}, '
+             f'<p class="note">{data["probes"]} probe{"" if data["probes"] == 1 else "s"}; '
+             f'store format {escape(str(data["format_version"]))}, '
              f'baked by bakery {escape(str(data["store_bakery_version"]))}; report by bakery '
              f'{escape(str(data["bakery_version"]))}; settings hash <code>{escape(str(data["settings_hash"])[:16])}'
              f'</code>. Reference capture available: {"yes" if data["reference_available"] else "no"}.</p>']
