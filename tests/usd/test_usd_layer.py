@@ -87,6 +87,28 @@ def test_layer_round_trips_the_store_through_a_composed_stage(baked):
     assert json.loads(irr.GetAttribute("bakery:baked:conventions").Get())["frame"] == "right-handed, +Y up"
 
 
+def test_openusd_validation_finds_no_error_in_the_layer_or_the_composed_stage(baked):
+    """OpenUSD's own validation framework (UsdValidation, what ``usdchecker`` runs: every registered validator,
+    the codeless schema's included) reports nothing against the baked layer opened alone or sublayered above the
+    scene, as an engine's pipeline would import it."""
+    from pxr import UsdValidation
+
+    _, scene, _, summary = baked
+    validators = UsdValidation.ValidationRegistry().GetOrLoadAllValidators()
+    assert len(validators) >= 10  # the framework is there and loaded its core validators
+    context = UsdValidation.ValidationContext(validators)
+    session = Sdf.Layer.CreateAnonymous(".usda")  # the importer's root: the scene's stage metadata, both below
+    session.subLayerPaths = [summary.layer, str(scene)]
+    user = Sdf.Layer.FindOrOpen(str(scene))
+    session.defaultPrim = user.defaultPrim or Sdf.Layer.FindOrOpen(summary.layer).defaultPrim
+    for key in ("metersPerUnit", "upAxis"):
+        if user.pseudoRoot.HasInfo(key):
+            session.pseudoRoot.SetInfo(key, user.pseudoRoot.GetInfo(key))
+    for stage in (Usd.Stage.Open(summary.layer), Usd.Stage.Open(session)):
+        errors = [e for e in context.Validate(stage) if e.GetType() == UsdValidation.ValidationErrorType.Error]
+        assert not errors, [f"{e.GetName()}: {e.GetMessage()}" for e in errors]
+
+
 def test_content_hash_is_sha256_of_names_shapes_and_bytes():
     a = np.arange(6, dtype=np.float32).reshape(2, 3)
     digest = hashlib.sha256()
