@@ -713,9 +713,24 @@ def _export_locked(store_path: Path, output: str | os.PathLike[str], format: str
     manifest, files = write_files(output, cls().build(context), record, then=None if target is None else stage_layer)
     if not files:
         raise InputError(f"{store_path}: nothing to export as {format} (no selected probe of a kind it exports)")
+    if probes is None:  # a whole-store export: files this format wrote before for probes it no longer has
+        _warn_stale(output, format, {f.path for f in files})
     result = ExportResult(format, prof.name, output, [f.path for f in files], manifest)
     result.layer = None if target is None else target.path
     return result
+
+
+def _warn_stale(folder: Path, format: str, written: set[str]) -> None:  # noqa: A002
+    """Warn about files an earlier export of ``format`` wrote into ``folder`` (the manifest lists them) that this
+    whole-store export did not write: probes removed from the store or renamed since. They are left in place (a
+    manifest entry is not a licence to delete), but an engine that loads the folder would load them too."""
+    stale = sorted(path for path, entry in _read_manifest(folder)["files"].items()
+                   if entry.get("format") == format and path not in written and (folder / path).is_file())
+    if stale:
+        warnings.warn(f"{folder}: {len(stale)} file(s) of an earlier {format} export are not part of this one "
+                      f"(probes removed from the store or renamed since: {', '.join(stale[:3])}"
+                      f"{' …' if len(stale) > 3 else ''}); an engine loading the folder would load them too: remove "
+                      f"them, or export into an empty folder", BakeryWarning, stacklevel=4)
 
 
 def parse_options(pairs: tuple[str, ...] | list[str]) -> dict[str, Any]:

@@ -241,6 +241,28 @@ def test_gltf_says_when_rgbd_clips_and_is_silent_otherwise(edge, tmp_path):
         export_store(edge["single"], tmp_path / "sky", "gltf", layer=False)
 
 
+def test_a_whole_store_export_names_the_files_left_from_probes_no_longer_in_the_store(tmp_path):
+    """Export two probes, then a store holding only one of them into the same folder: the other probe's cube is
+    still there (bakery does not delete), and the export says so, naming it; a --probes export (a subset on
+    purpose) and a fresh folder say nothing."""
+    import warnings
+
+    from bakery.errors import BakeryWarning
+
+    both = bake_cubes(tmp_path / "both.h5", ["/keep", "/gone"], np.stack([sky_cube(4), sky_cube(4, 2.0)]),
+                      encodings=("splitsum",))
+    one = bake_cubes(tmp_path / "one.h5", ["/keep"], sky_cube(4)[None], encodings=("splitsum",))
+    out = tmp_path / "out"
+    export_store(both, out, "ktx2", layer=False)
+    with pytest.warns(BakeryWarning, match=r"1 file\(s\) of an earlier ktx2 export .*gone\.ktx2"):
+        export_store(one, out, "ktx2", layer=False)
+    assert (out / "gone.ktx2").is_file()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", BakeryWarning)
+        export_store(one, out, "ktx2", probes="/keep", layer=False)
+        export_store(one, tmp_path / "fresh", "ktx2", layer=False)
+
+
 # ------------------------------------------------------------------------------------------------ face sizes
 def test_gltf_of_a_face_size_that_is_not_a_power_of_two(edge, tmp_path):
     """Babylon.js loads only power-of-two cube faces: a 12² bake exports 8² specular images (8, 4, 2, 1 per mip),
