@@ -14,7 +14,7 @@ try:  # Ctrl-C while the command line loads (≈ 0.3 s): the same one line and e
     import json
     import warnings
     from pathlib import Path
-    from typing import NoReturn
+    from typing import Any, NoReturn
 
     import click
     import numpy as np
@@ -65,6 +65,14 @@ def _journal_note(output: Path) -> str:
     if journal.is_dir() and any(journal.glob("*.pkl")):
         return f"; the finished batches are kept in {journal} and the next bake resumes from them"
     return ""
+
+
+def _print_json(data: Any) -> None:
+    """Every ``--json`` output: strict JSON (numpy values as numbers, NaN/inf as null: ``jq`` and browsers refuse
+    ``NaN``/``Infinity``), other objects as text."""
+    from bakery.files import jsonable
+
+    out.print_json(json.dumps(jsonable(data), default=str, allow_nan=False))
 
 
 def _count(n: int, noun: str) -> str:
@@ -254,7 +262,7 @@ def bake(sources: tuple[Path, ...], output: Path | None, recipe: str | None, enc
                     "settings_hash": request.settings.hash(),
                     "encodings": sorted({e for t in plan.tasks for e in t.encodings})}
             if as_json:
-                out.print_json(json.dumps(info))
+                _print_json(info)
             else:
                 out.print(f"plan for {request.output}: {_count(info['probes'], 'probe')}, {info['reused']} "
                           f"unchanged (reused), {info['to_bake']} to bake in {_count(info['batches'], 'batch')}; "
@@ -279,7 +287,7 @@ def bake(sources: tuple[Path, ...], output: Path | None, recipe: str | None, enc
         _run_recipe_exports(recipe, request.output, summary.layer)
     # -----------------------------------------------------------------------------------------------------------
     if as_json:
-        out.print_json(json.dumps(summary.as_dict(), default=str))
+        _print_json(summary.as_dict())
     else:
         console.print(f"{request.output}: {summary.baked} probe{'s' if summary.baked != 1 else ''} baked, "
                       f"{summary.reused} unchanged, "
@@ -304,12 +312,11 @@ def diff(a: Path, b: Path, as_json: bool) -> None:
 
     Says "identical" when both stores hold the same probes, encodings and stored values. Exit codes: 0 the stores
     were compared (identical or not); 2 a store cannot be read."""
-    from bakery.report.build import jsonable
     from bakery.store.diff import diff_stores
 
     report = diff_stores(a, b)
     if as_json:
-        out.print_json(json.dumps(jsonable(report), default=str, allow_nan=False))
+        _print_json(report)
         return
     if report["identical"]:
         out.print(f"identical: {_count(report['unchanged'], 'probe')}, {_count(len(report['encodings']), 'encoding')}, "
@@ -372,7 +379,6 @@ def inspect(store: Path, as_json: bool, pattern: str | None, region: str | None)
     """Print a store's format version, conventions, probes, encodings and bytes per probe; with --probes/--region,
     list the selected probes with their position and the bake that produced them."""
     from bakery.api import open_store
-    from bakery.report.build import jsonable
     from bakery.store.format import failed_probes
 
     s = open_store(store)
@@ -396,7 +402,7 @@ def inspect(store: Path, as_json: bool, pattern: str | None, region: str | None)
                 rows[-1]["backface_fraction"] = float(np.asarray(s.diagnostics["capture/backface_fraction"])[i])
         if as_json:
             # sh_noise is inf/NaN where it was not measured: null (strict JSON)
-            out.print_json(json.dumps(jsonable(rows), default=str, allow_nan=False))
+            _print_json(rows)
             return
         table = Table("probe", "kinds", "position (m)", "baked", "content hash", title=f"{len(rows)} probes")
         for row in rows:
@@ -413,7 +419,7 @@ def inspect(store: Path, as_json: bool, pattern: str | None, region: str | None)
         "failed_probes": failed_probes(s.attributes),
     }
     if as_json:
-        out.print_json(json.dumps(jsonable(info), default=str, allow_nan=False))
+        _print_json(info)
         return
     out.print(f"[bold]{store}[/bold]: {info['format']} {info['format_version']} (bakery {info['bakery_version']})")
     out.print(f"settings hash {info['settings_hash']}")
@@ -639,7 +645,7 @@ def bench_scale(output: Path, volume: tuple[int, ...], reflection: int, recipe: 
     else:
         result = run_scale_bench(output, volume, reflection, recipe, face_size, jobs=jobs, progress_bar=progress_bar,
                                  repeats=repeats, force=force)
-    out.print_json(json.dumps(result))
+    _print_json(result)
 
 
 @bench.command("capture")
@@ -660,7 +666,7 @@ def bench_capture(scenes: tuple[Path, ...], output: Path, face_size: int, sample
 
     result = run_capture_bench(scenes, output, face_size=face_size, samples=samples, bounces=bounces,
                                target_noise=target_noise, probes=probes, processes=processes, force=force)
-    out.print_json(json.dumps(result))
+    _print_json(result)
 
 
 @main.command()
@@ -756,7 +762,7 @@ def _bake_shard(params: dict, probes: str | None, shard: str | None, base: Path 
         info = {"store": str(request.output), "plan_id": identity, "range": format_range(probe_range),
                 "work_probes": plan.to_bake,
                 "probes": work_order(plan)[probe_range[0]: probe_range[1] + 1] if probe_range else []}
-        out.print_json(json.dumps(info)) if params.get("as_json") else out.print(
+        _print_json(info) if params.get("as_json") else out.print(
             f"shard of plan {identity}: probes {info['range']} of {plan.to_bake} ({len(info['probes'])} probes)")
         return
     executor = make_executor(params.get("jobs"), params.get("scheduler"), params.get("dask_local", False))
@@ -775,7 +781,7 @@ def _bake_shard(params: dict, probes: str | None, shard: str | None, base: Path 
         executor.close()
     console.print(summary.log_line())  # the task log: range, rays/s, time
     if params.get("as_json"):
-        out.print_json(json.dumps(summary.as_dict(), default=str))
+        _print_json(summary.as_dict())
     for name, message in summary.failed.items():
         console.print(f"[red]failed[/red] {escape(name)}: {escape(message)}")
     if summary.failed:
@@ -837,7 +843,7 @@ def plan_command(sources: tuple[Path, ...], output: Path | None, tasks: int, cal
     request = _request({**params, "sources": sources}, output)
     info = plan_info(request, tasks, None if params.get("no_resume") else request.output, calibration)
     if as_json:
-        out.print_json(json.dumps(info, default=str))
+        _print_json(info)
         return
     probes, estimate, chunking = info["probes"], info["estimate"], info["chunking"]
     kinds = ", ".join(f"{v} {k}" for k, v in sorted(probes["by_kind"].items()))
@@ -886,7 +892,7 @@ def merge(shards: tuple[Path, ...], output: Path, layer: Path | None, sources: t
             _stopped(TERMINATED_EXIT_CODE, f"{output}: the previous store and layer are unchanged")
         raise
     if as_json:
-        out.print_json(json.dumps(summary.as_dict(), default=str))
+        _print_json(summary.as_dict())
     else:
         console.print(f"{output}: merged {summary.shards} shards of plan {summary.plan_id}: {summary.baked} probes "
                       f"baked, {summary.reused} reused, {len(summary.failed)} failed in {summary.seconds:.1f} s"
@@ -1033,7 +1039,7 @@ def export_command(store: Path, out_dir: Path, fmt: str, profile: str | None, pa
     result = export_store(store, out_dir, fmt, profile=profile, probes=pattern, options=parse_options(options),
                           layer=False if no_layer else layer)
     if as_json:
-        out.print_json(json.dumps(result.as_dict()))
+        _print_json(result.as_dict())
     else:
         console.print(f"{out_dir}: {_count(len(result.files), fmt + ' file')}, profile {result.profile}"
                       + (f"; layer {result.layer}" if result.layer else ""))

@@ -37,6 +37,7 @@ import errno
 import fcntl
 import hashlib
 import json
+import math
 import os
 import re
 import shutil
@@ -568,3 +569,19 @@ def stable_hash(*parts: Any) -> str:
     """sha256 hex of the canonical JSON of ``parts`` (dicts sorted by key; arrays by content, shape and dtype;
     dataclasses by their fields, except those declared with ``metadata={"content_hash": False}``)."""
     return sha256_bytes(json.dumps(_canonical(parts), sort_keys=True, default=str).encode())
+
+
+def jsonable(x: Any) -> Any:
+    """``x`` with numpy values as Python ones and non-finite floats as None: what ``json.dumps(..., allow_nan=False)``
+    accepts (strict JSON, which ``jq`` and browsers parse; an unmeasured value is null, never ``NaN``/``Infinity``)."""
+    if isinstance(x, dict):
+        return {str(k): jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return jsonable(x.tolist())
+    if isinstance(x, (np.floating, float)):
+        return float(x) if math.isfinite(float(x)) else None
+    if isinstance(x, np.integer):
+        return int(x)
+    return x

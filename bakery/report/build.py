@@ -25,6 +25,7 @@ from bakery.files import (
     check_output_file,
     folder_problem,
     json_output_refusal,
+    jsonable,
     os_error_message,
 )
 from bakery.report import quality, render, svg
@@ -34,21 +35,6 @@ from bakery.store.format import failed_probes
 
 #: Preview material roughness (GGX α) of the chrome and glass spheres.
 PREVIEW_ALPHAS = (0.25, 0.6)
-
-
-def jsonable(x: Any) -> Any:
-    """``x`` with numpy values as Python ones and non-finite floats as None (strict JSON: unmeasured = null)."""
-    if isinstance(x, dict):
-        return {str(k): jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return jsonable(x.tolist())
-    if isinstance(x, (np.floating, float)):
-        return float(x) if math.isfinite(float(x)) else None
-    if isinstance(x, np.integer):
-        return int(x)
-    return x
 
 
 def build_report(store_path: str | os.PathLike[str], environment: str | os.PathLike[str] | None = None,

@@ -156,3 +156,26 @@ def test_new_layouts_bake_from_the_command_line(tmp_path, layout, height, width,
     expected = np.pi + (2 * np.pi / 3) * (normals @ np.array([0.5, -0.25, 0.75]))
     values = bakery.open_store(store).evaluate_irradiance("sh2", normals)
     np.testing.assert_allclose(values[0], expected[:, None].repeat(3, axis=1), rtol=0.02)
+
+
+def _strict(text):
+    """json.loads that refuses NaN/Infinity, as jq and browsers do."""
+    def refuse(constant):
+        raise ValueError(f"non-standard JSON constant {constant}")
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_every_json_output_is_strict_json(tmp_path):
+    """--json of bake, inspect (store and probes), plan, diff and export parses as strict JSON, for a black
+    environment too, where the capture noise and relative errors are not measurable (before: ``NaN``/``Infinity``
+    in bake and inspect --probes)."""
+    black = tmp_path / "black.exr"
+    write_image(black, np.zeros((16, 32, 3), np.float32))
+    store = tmp_path / "black.h5"
+    for args in (("bake", black, "-o", store, "--face-size", "8", "-e", "sh2", "-e", "splitsum", "--json"),
+                 ("inspect", store, "--json"), ("inspect", store, "--probes", "*", "--json"),
+                 ("plan", black, "--face-size", "8", "--json"), ("diff", store, store, "--json"),
+                 ("export", store, "-o", tmp_path / "ktx2", "--format", "ktx2", "--no-layer", "--json")):
+        result = run(*args)
+        assert result.returncode == 0, (args[0], result.stderr)
+        _strict(result.stdout)
