@@ -21,7 +21,7 @@ View below the horizon (n·v < 0)
         t  = v − (n·v)·n, projected twice (in floating point the first pass leaves a component along n comparable
              to t near v = −n), or t(n) if |t| < 1e-9 |v| (v = −n; a fixed tangent, :func:`fixed_tangent`);
              n is normalised first (float32-unit normals have |n|² ≠ 1)
-        v' = normalize(normalize(t) + ε·n),  ε = HORIZON_EPSILON = 1e-6            if n·v < 0
+        v' = normalize(normalize(t) + ε·n),  ε = HORIZON_EPSILON = 1e-6            if n·v ≤ 0
     i.e. v turned onto the tangent plane, a hair above it so that every BRDF term takes its n·v → 0⁺ limit (the same
     value for a view that is already clamped). r = 2(n·v')n − v' lies on the horizon, n·r ≥ 0 and h_r =
     normalize(n + r) has |n + r| ≥ 1 (defined for every input, also n·v = −1). The DFG/Fresnel tables are read at
@@ -140,12 +140,12 @@ def fixed_tangent(normal: np.ndarray) -> np.ndarray:
 
 
 def clamp_view_to_horizon(view: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    """Views (M, 3) with n·v < 0 turned onto the horizon (module doc); others unchanged."""
+    """Views (M, 3) with n·v ≤ 0 turned onto the horizon (module doc); others unchanged."""
     v = np.asarray(view, dtype=np.float64)
     n = np.asarray(normal, dtype=np.float64)
     n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-300)  # float32-unit normals: |n|² ≠ 1
     nv = np.sum(v * n, axis=1, keepdims=True)
-    below = nv[:, 0] < 0.0
+    below = nv[:, 0] <= 0.0  # n·v = 0 too: on the horizon the lights' visibility is 0, their limit is not
     if not np.any(below):
         return v
     out = v.copy()

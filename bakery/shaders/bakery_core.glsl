@@ -290,19 +290,24 @@ BK_FLOAT3 bakery_sh3_quantized_irradiance(uint words[7], bool sqrt_companding, B
 // Height above the horizon of a clamped view (HORIZON_EPSILON).
 #define BAKERY_HORIZON_EPSILON 1e-6
 
-// Views below the horizon (n·v < 0) are clamped to it, as engines clamp n·v to 0: v turned onto the tangent plane,
+// Views below or on the horizon (n·v ≤ 0) are clamped to it, as engines clamp n·v to 0: v turned onto the tangent plane,
 // a hair (10⁻⁶) above it, t = v − (n·v)n or normalize(e × n) (e = +X, or +Z where |n_x| > 0.9) when |t| < 10⁻⁹.
 // Then r = 2(n·v)n − v lies on the horizon and h_r = normalize(n + r) is defined for every input. Views with
-// n·v ≥ 0 are returned unchanged (so the clamp is idempotent). Every reflection entry point applies it.
+// n·v > 0 are returned unchanged (so the clamp is idempotent). Every reflection entry point applies it.
 // float32: t is orthogonalised twice (the same t in exact arithmetic). For v near −n one pass leaves a component
 // along n of ~10⁻⁷/|t| from cancellation, which swamps the 10⁻⁶ lift (|t| = 0.045 at n·v = −0.999) and can put the
 // clamped view below the horizon, where the lights' visibility is 0.
+// t is taken from w = v + n (t = w − (n·w)n up to a multiple of n that the second pass removes): near v = −n the
+// sum is exact (Sterbenz), so t keeps its direction to float32 precision however small it is, and v = −n (bit for
+// bit) gives t = 0 and the fixed tangent, as the float64 reference does. v − (n·v)n instead leaves rounding noise
+// of ~10⁻⁷ in every component, a tangent in an arbitrary direction (above the 10⁻⁹ test) at v = −n.
 BK_FLOAT3 bakery_clamp_view_to_horizon(BK_FLOAT3 v, BK_FLOAT3 n)
 {
     float nv = dot(n, v);
-    if (!(nv < 0.0))
+    if (!(nv <= 0.0))
         return v;
-    BK_FLOAT3 t = v - nv * n;
+    BK_FLOAT3 w = v + n;
+    BK_FLOAT3 t = w - dot(n, w) * n;
     t -= dot(t, n) * n;
     float len = length(t);
     if (len < 1e-9)
