@@ -248,7 +248,7 @@ class SHExpHybrid(SHExpLights):
 
     def evaluate_reflection(self, fields, shared, view, normal, alpha, f0):
         """E (P, M, 3) as specified in ``schemas/store-reflection.md`` (``shexp_hybrid``): α ∈ [0, 1] or ValueError,
-        n·v < 0 clamped to the horizon, chain read no sharper than ``first_level``, P·Q at α clamped into the
+        n·v ≤ 0 clamped to the horizon, chain read no sharper than ``first_level``, P·Q at α clamped into the
         fitted range."""
         return self.evaluate_parts(fields, shared, view, normal, alpha, f0)["E"]
 

@@ -469,7 +469,7 @@ def evaluate_split_sum(
     from bakery.reflection.tables import lookup_table
     from bakery.reflection.validation import check_rows, clamp_view_to_horizon
 
-    v, n, a = check_rows(view, normal, alpha)  # α ∈ [0, 1] or ValueError; n·v < 0 → horizon
+    v, n, a = check_rows(view, normal, alpha)  # α ∈ [0, 1] or ValueError; n·v ≤ 0 → horizon
     v = clamp_view_to_horizon(v, n)
     r = reflect(v, n)
     nv = np.clip(np.sum(n * v, axis=-1), 0.0, 1.0)

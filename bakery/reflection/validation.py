@@ -16,7 +16,7 @@ naming the argument)
     then maps α into the range it stores (its own documented rule: clamp, or hand over to the chain), it never
     extrapolates.
 
-View below the horizon (n·v < 0)
+View below or on the horizon (n·v ≤ 0)
     Engines clamp n·v to 0 rather than shade a back-facing view; we do the same, explicitly and without NaN:
         t  = v − (n·v)·n, projected twice (in floating point the first pass leaves a component along n comparable
              to t near v = −n), or t(n) if |t| < 1e-9 |v| (v = −n; a fixed tangent, :func:`fixed_tangent`);
@@ -25,7 +25,7 @@ View below the horizon (n·v < 0)
     i.e. v turned onto the tangent plane, a hair above it so that every BRDF term takes its n·v → 0⁺ limit (the same
     value for a view that is already clamped). r = 2(n·v')n − v' lies on the horizon, n·r ≥ 0 and h_r =
     normalize(n + r) has |n + r| ≥ 1 (defined for every input, also n·v = −1). The DFG/Fresnel tables are read at
-    n·v ≈ 0. E at n·v < 0 therefore equals E at the horizon view v' (continuous at n·v = 0).
+    n·v ≈ 0. E at n·v ≤ 0 therefore equals E at the horizon view v' (continuous at n·v = 0).
 
 Notation: M rows (N in the argument rules and messages); view v (M, 3) points towards the viewer, normal n (M, 3) unit.
 """
