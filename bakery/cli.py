@@ -689,7 +689,8 @@ def check(scene: Path) -> None:
     for issue in issues:
         colour = "red" if issue.severity == "error" else "yellow"
         errors += issue.severity == "error"
-        out.print(f"{escape(str(scene))}: [{colour}]{issue.severity}[/{colour}]: {escape(str(issue.prim))}: "
+        where = issue.layer or str(scene)  # the sublayer or asset that defines the prim, else the scene
+        out.print(f"{escape(where)}: [{colour}]{issue.severity}[/{colour}]: {escape(str(issue.prim))}: "
                   f"{escape(issue.message)}")  # file: severity: prim: message, as compilers print them
     out.print(f"{_count(len(issues), 'issue')}, {_count(errors, 'error')}")
     if check_exit_code(issues):

@@ -76,11 +76,14 @@ _NO_SHADOW_API = {"shadow": True, "shadow_color": (0.0, 0.0, 0.0)}
 
 @dataclass(frozen=True)
 class Issue:
-    """A problem found in a scene: ``severity`` "error" (the bake cannot be trusted) or "warning"."""
+    """A problem found in a scene: ``severity`` "error" (the bake cannot be trusted) or "warning"; ``layer``: the
+    file that defines the prim when it is not the scene's root layer (a sublayer, a referenced asset; set by
+    :func:`bakery.usd.check.check_scene`), else ""."""
 
     severity: str
     prim: str
     message: str
+    layer: str = ""
 
     def __str__(self) -> str:
         return f"{self.severity}: {self.prim}: {self.message}"

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 from usd_scenes import box_mesh, header, material, probe, write
@@ -133,6 +134,20 @@ def test_cli_check_exit_codes(tmp_path):
     # each issue on a line of its own, file: severity: prim: message (grep- and editor-friendly, as compilers)
     issue_lines = [line for line in failed.stdout.splitlines() if "/Mystery" in line]
     assert issue_lines and all(line.startswith(f"{bad}: error: /Mystery: ") for line in issue_lines), failed.stdout
+
+
+def test_check_names_the_sublayer_that_defines_a_prim(tmp_path):
+    """A scene of sublayers: an issue on a prim defined in a sublayer names that file (the one to open), an issue on
+    a prim of the root layer names the scene; over-only opinions in the root do not move it."""
+    sub = write(tmp_path / "props.usda", header() + 'def LightProbe "Mystery"\n{\n}\n')
+    root = write(tmp_path / "shot.usda", header(extra=f"    subLayers = [@./{sub.name}@]\n") + probe("P")
+                 + 'def LightProbe "Local"\n{\n}\nover "Mystery"\n{\n}\n')
+    issues = {i.prim: i for i in check_scene(root)}
+    assert Path(issues["/Mystery"].layer).resolve() == sub.resolve() and issues["/Local"].layer == ""
+    result = subprocess.run([sys.executable, "-m", "bakery.cli", "check", str(root)], capture_output=True, text=True)
+    lines = result.stdout.splitlines()
+    assert any(line.startswith(f"{sub.resolve()}: error: /Mystery: ") for line in lines), result.stdout
+    assert any(line.startswith(f"{root}: error: /Local: ") for line in lines), result.stdout
 
 
 def test_composition_errors_are_errors_in_check_and_bake(tmp_path):
