@@ -34,6 +34,22 @@ CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-quic", "--no-first-ru
 SAMPLED_LOOKUP = {"bakery_dfg_fetch": "bakery_dfg_sample", "bakery_cube_fetch_bilinear": "bakery_cube_sample_bilinear"}
 #: BAKERY_HYBRID_MAX_LEVELS of bakery_core.glsl (the size of the level-α array).
 MAX_HYBRID_LEVELS = 16
+#: Tolerances of a GPU value against the API's (docs/engine-integration.md): exact lookups (texelFetch) to float32
+#: rounding of the peak (+ of the value for reflection), hardware-filtered ones to 8-bit filter weights.
+ULP_PEAK = 2.0**-19
+ULP_VALUE = 2.0**-16
+FILTERED = 2.0**-8
+
+
+def tolerance(kind: str, variant: str, reference: np.ndarray) -> np.ndarray:
+    """The bound on |GPU − API| for each value of ``reference`` (P, M, C) of an encoding of ``kind`` evaluated by the
+    ``variant`` lookup ("fetch": exact; else filtered), per probe relative to its peak."""
+    peak = np.max(np.abs(reference), axis=(1, 2), keepdims=True) + 1e-30
+    if variant != "fetch":
+        return FILTERED * peak
+    if kind == "irradiance":
+        return ULP_PEAK * peak
+    return ULP_PEAK * peak + ULP_VALUE * np.abs(reference)
 
 
 def chromium_binary() -> str | None:

@@ -36,11 +36,8 @@ from bakery.encodings import ENCODINGS
 from bakery.probe import ProbeBatch
 from bakery.reflection.validation import check_directions
 from bakery.sphere.cubemap import cube_texel_directions
-from shader_pipeline import build_jobs, chromium_binary, run_jobs
+from shader_pipeline import ULP_PEAK, build_jobs, chromium_binary, run_jobs, tolerance
 
-ULP_PEAK = 2.0**-19
-ULP_VALUE = 2.0**-16
-FILTERED = 2.0**-8
 #: Chain face size of the synthetic `shexp_hybrid` probes (levels α = 0, 0.144, 0.273, 0.496, 0.991).
 HYBRID_FACE = 16
 #: Stored `alpha_range`s other than the settings' (the SH-exp clamp must use the probe's own range).
@@ -256,13 +253,7 @@ def _row_labels(kind: str) -> np.ndarray:
 
 def _failures(job, gpu: np.ndarray) -> list[str]:
     ref = job.reference
-    peak = np.max(np.abs(ref), axis=(1, 2), keepdims=True) + 1e-30
-    if job.variant != "fetch":
-        bound = FILTERED * peak
-    elif ENCODINGS[job.encoding].kind == "irradiance":
-        bound = ULP_PEAK * peak
-    else:
-        bound = ULP_PEAK * peak + ULP_VALUE * np.abs(ref)
+    bound = tolerance(ENCODINGS[job.encoding].kind, job.variant, ref)
     bad = ~(np.abs(gpu - ref) <= bound)  # NaN fails
     labels = _row_labels(ENCODINGS[job.encoding].kind)
     return [f"{job.id} probe {p} {labels[m]}: GPU {gpu[p, m].tolist()} API {ref[p, m].tolist()}"

@@ -36,7 +36,7 @@ import bakery
 from bakery.encodings import ENCODINGS
 from bakery.shaders import SHADER_DIR, manifest
 from shader_pipeline import (build_jobs, chromium_binary, glslang_binary, hlsl_include_dir, hlsl_test_entry,
-                             reflection_inputs, run_jobs, validate)
+                             reflection_inputs, run_jobs, tolerance, validate)
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 SOURCES = {
@@ -57,9 +57,6 @@ HYBRID_VARIANTS = {
     "hybrid_glossy": (16, {"alpha_min": 0.3}),
     "hybrid_rough": (8, {"alpha_min": 0.9}),
 }
-ULP_PEAK = 2.0**-19
-ULP_VALUE = 2.0**-16
-FILTERED = 2.0**-8
 #: Budget of the browser part (page load, 100+ shader compiles, draws and read-backs).
 BROWSER_SECONDS = 60.0
 
@@ -105,12 +102,7 @@ def _errors(job, gpu: np.ndarray) -> tuple[float, float, bool]:
     delta = np.abs(gpu - ref)
     if job.mask is not None:
         delta = np.where(job.mask[..., None], delta, 0.0)
-    if job.variant != "fetch":
-        bound = FILTERED * peak
-    elif ENCODINGS[job.encoding].kind == "irradiance":
-        bound = ULP_PEAK * peak
-    else:
-        bound = ULP_PEAK * peak + ULP_VALUE * np.abs(ref)
+    bound = tolerance(ENCODINGS[job.encoding].kind, job.variant, ref)
     relative = np.where(np.abs(ref) > 1e-3 * peak, delta / np.maximum(np.abs(ref), 1e-30), 0.0)
     return float(np.max(delta / peak)), float(np.max(relative)), bool(np.all(delta <= bound))
 
