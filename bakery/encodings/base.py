@@ -395,6 +395,13 @@ class Encoding(ABC):
         """Bytes an engine stores per probe: the sum of the per-probe fields (shared tables excluded)."""
         return sum(spec.nbytes for spec in self.field_specs())
 
+    def upload_bytes(self, fields: dict[str, np.ndarray]) -> np.ndarray:
+        """(P,) bytes an engine uploads for each of the P probes of stored ``fields``: :meth:`bytes_per_probe` each;
+        an encoding whose probes use only part of a fixed layout overrides it (``shexp_hybrid``: not the chain levels
+        below a probe's ``first_level``)."""
+        rows = int(np.asarray(fields[self.field_specs()[0].name]).shape[0])
+        return np.full(rows, self.bytes_per_probe(), dtype=np.int64)
+
     @classmethod
     def layer_fields(cls, fields: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """The fields {name: (R, *shape)} of one prim's R probes to write into the baked USD layer: every stored field

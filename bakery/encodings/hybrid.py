@@ -54,10 +54,11 @@ import numpy as np
 from bakery.encodings.base import FieldSpec
 from bakery.encodings.registry import register
 from bakery.encodings.shexp import SHExpLights, fit_shexp_blocks
-from bakery.encodings.splitsum import DEFAULT_FACE_SIZE, FLOAT16_MAX, _cubes_at, probe_chunks, store_float16
+from bakery.encodings.splitsum import DEFAULT_FACE_SIZE, FLOAT16_MAX, _cubes_at, store_float16
 from bakery.errors import ClampWarning
 from bakery.probe import ProbeBatch
 from bakery.reflection import hybrid as hy
+from bakery.reflection.blocks import probe_blocks
 from bakery.reflection.lights import evaluate_light_parts, extract_lights
 from bakery.reflection.shexp import SHExpSettings, clamped_pq
 from bakery.reflection.splitsum import (
@@ -200,7 +201,7 @@ class SHExpHybrid(SHExpLights):
         cubes = _cubes_at(batch, self.chain.face_size)
         levels = [np.zeros((batch.count, 6, s, s, 3), np.float16) for s in self.chain.level_sizes()]
         clamped = 0
-        for part in probe_chunks(batch.count):  # bounded memory; each probe's levels do not depend on its batch
+        for part in probe_blocks(batch.count):  # bounded memory; each probe's levels do not depend on its batch
             for k, level in enumerate(prefilter_bandwidth_batch(cubes[part], self.chain, first)):
                 if level is not None:
                     clamped += store_float16(level, levels[k][part])

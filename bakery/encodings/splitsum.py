@@ -37,6 +37,7 @@ from bakery.encodings.base import Encoding, EncodingParams, FieldSpec
 from bakery.encodings.registry import register
 from bakery.errors import ClampWarning
 from bakery.probe import ProbeBatch
+from bakery.reflection.blocks import probe_blocks
 from bakery.reflection.shexp import TABLE_SAMPLES, TABLE_SIZE
 from bakery.reflection.splitsum import SplitSumSettings, evaluate_split_sum, prefilter_batch
 from bakery.reflection.tables import compute_dfg_tables
@@ -61,17 +62,6 @@ def store_float16(values: np.ndarray, out: np.ndarray) -> int:
 
 #: Level-0 face size of an instance built without one (``face_size`` unset outside a bake).
 DEFAULT_FACE_SIZE = 64
-
-
-#: Probes prefiltered together: the chain's temporaries (mip pyramid and levels of every probe as (texels, P·3)
-#: float32, ≈ 12 MB per probe at 128²) stay bounded whatever the recipe's batch size; results do not depend on it
-#: (the dense products run on fixed blocks of :data:`bakery.reflection.blocks.PROBE_BLOCK` probes).
-PREFILTER_PROBES = 16
-
-
-def probe_chunks(count: int, size: int = PREFILTER_PROBES) -> list[slice]:
-    """Slices of ≤ ``size`` consecutive probes covering ``count`` probes."""
-    return [slice(start, min(start + size, count)) for start in range(0, count, size)]
 
 
 def _cubes_at(batch: ProbeBatch, face_size: int) -> np.ndarray:
@@ -135,7 +125,7 @@ class SplitSum(Encoding):
         cubes = _cubes_at(batch, self.chain.face_size)
         levels = [np.zeros((batch.count, 6, s, s, 3), np.float16) for s in self.chain.level_sizes()]
         clamped = 0
-        for part in probe_chunks(batch.count):  # bounded memory; each probe's chain is the same whatever its batch
+        for part in probe_blocks(batch.count):  # bounded temporaries (≈ 12 MB per probe at 128²)
             for level, out in zip(prefilter_batch(cubes[part], self.chain), levels, strict=True):
                 clamped += store_float16(level, out[part])
         if clamped:

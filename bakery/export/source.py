@@ -34,8 +34,8 @@ from typing import Any
 import numpy as np
 
 from bakery.encodings import ENCODINGS
-from bakery.encodings.splitsum import PREFILTER_PROBES, probe_chunks
 from bakery.errors import InputError
+from bakery.reflection.blocks import PROBE_BLOCK, probe_blocks
 from bakery.reflection.splitsum import (
     SplitSumSettings,
     prefilter_batch,
@@ -193,7 +193,7 @@ def reflection_probes(store, probes: list[str], encoding: str) -> list[str]:  # 
 
 #: Probes prefiltered per batched call while an export streams (bounded memory: one chunk of captures and chains;
 #: the same bound as a bake's chains).
-EXPORT_CHUNK = PREFILTER_PROBES
+EXPORT_CHUNK = PROBE_BLOCK
 
 
 @dataclass
@@ -217,7 +217,7 @@ class ProfileChains:
 
         level0 = self.store.fields(self.encoding)["level0"]
         settings = _profile_settings(self.face_size, self.alphas, self.sizes)
-        for part in probe_chunks(len(self.probes), EXPORT_CHUNK):
+        for part in probe_blocks(len(self.probes), EXPORT_CHUNK):
             caps = np.asarray(level0[self.rows[part]], dtype=np.float32)
             if caps.shape[2] != self.face_size:
                 caps = np.stack([resample_cube(c, self.face_size) for c in caps]).astype(np.float32)

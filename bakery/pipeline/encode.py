@@ -75,11 +75,9 @@ DILATION_SETTING = "dilation"
 CAPTURED_SH_KEY = "dilation/radiance_sh"
 
 
-def _probe_names(probes: list[Probe], rows: np.ndarray, batch_rows: tuple[int, ...], shown: int = 3) -> str:
-    """``/A, /B, /C and 4 more``: the probes at ``batch_rows`` of the sub-batch whose probes are ``probes[rows]``."""
-    names = [probes[rows[row]].name for row in batch_rows]
-    more = f" and {len(names) - shown} more" if len(names) > shown else ""
-    return ", ".join(names[:shown]) + more
+def listed_names(names: list[str], shown: int = 3) -> str:
+    """``/A, /B, /C and 4 more``: the first ``shown`` of ``names`` and how many others, for one-line messages."""
+    return ", ".join(names[:shown]) + (f" and {len(names) - shown} more" if len(names) > shown else "")
 
 
 def aux_key(encoding: str, field_name: str) -> str:
@@ -185,7 +183,8 @@ def encode_batch(
                 timings[f"encode/{name}"] = time.perf_counter() - start
                 for record in recorded[before:]:  # bakery.errors.warn_about_probes: name the probes it is about
                     if getattr(record.message, "probe_rows", None):
-                        record.message = f"{record.message} ({_probe_names(probes, rows, record.message.probe_rows)})"
+                        named = [probes[rows[row]].name for row in record.message.probe_rows]
+                        record.message = f"{record.message} ({listed_names(named)})"
                 for spec in (*encoding.field_specs(), *encoding.aux_specs()):
                     array = fields[spec.name]
                     if array.shape != (rows.size, *spec.shape) or array.dtype != np.dtype(spec.dtype):

@@ -22,6 +22,7 @@ from bakery.pipeline.encode import (
     aux_key,
     full_length,
     irradiance_diagnostics,
+    listed_names,
     relative_rmse_per_probe,
 )
 from bakery.pipeline.settings import DEFAULT_BAND_TOLERANCE, BakeSettings, build_encodings
@@ -61,7 +62,7 @@ def inside_geometry_warning(merged: EncodedBatch, shown: int = 3) -> BakeWarning
     if not probes:
         return None
     names = [probe.name for probe in probes]
-    listed = ", ".join(names[:shown]) + (f" and {len(names) - shown} more" if len(names) > shown else "")
+    listed = listed_names(names, shown)
     relocated = sum(1 for probe in probes if probe.settings.get("relocate"))
     if relocated == len(probes):  # relocation was on and found no point outside within its search radius
         advice = ("Relocation (bakery:volume:relocate) found no point outside within half the spacing: move them, "

@@ -3,11 +3,10 @@
 Per encoding: bytes per probe (the store's ``bytes_per_probe``: the sum of its per-probe fields, shared tables
 excluded) × its probe count. Per probe kind (``irradiance``, ``reflection``): the sum over that kind's encodings.
 
-Uploaded bytes per probe (what an engine uploads): ``bytes_per_probe`` for every encoding, except one that stores a
-per-probe ``first_level`` k0 and chain levels ``level{k}`` (``shexp_hybrid``; ``schemas/store-reflection.md``): its
-levels k < k0 are zero-filled in the store's fixed layout and not uploaded, so a probe uploads
-``bytes_per_probe`` − Σ_{k < k0} (bytes of a row of ``level{k}``) — a probe that needs no chain (k0 = L) uploads its
-SH exponential and lights only. Mean, min and max over the encoding's probes, from the stored fields.
+Uploaded bytes per probe (what an engine uploads): each encoding's :meth:`~bakery.encodings.base.Encoding.upload_bytes`
+of its stored fields — ``bytes_per_probe``, except for ``shexp_hybrid`` (``schemas/store-reflection.md``), whose levels
+below a probe's ``first_level`` are zero-filled in the fixed layout and not uploaded: a probe that needs no chain
+uploads its SH exponential and lights only. Mean, min and max over the encoding's probes.
 
 Comparisons (computed, not measured on a GPU)
     * SH3 floats: 9 coefficients × 3 channels × 4 bytes = 108 bytes per probe.
@@ -89,20 +88,15 @@ def chain_settings_for(store: Any) -> ChainSettings:
 
 
 def upload_bytes(store: Any, name: str) -> np.ndarray:
-    """(P_k,) bytes an engine uploads for each probe of encoding ``name`` (module doc), from its stored fields."""
+    """(P_k,) bytes an engine uploads for each probe of encoding ``name``: the encoding's own rule
+    (:meth:`bakery.encodings.base.Encoding.upload_bytes`) on its stored fields, or the stored bytes per probe for an
+    encoding this bakery cannot read (a newer bakery's)."""
+    from bakery.encodings import get_encoding
+
     info = store.encodings[name]
-    fields = store.fields(name)
-    rows = info.probe_count
-    if "first_level" not in fields or rows == 0:
-        return np.full(rows, info.bytes_per_probe, dtype=np.int64)
-    first = np.asarray(fields["first_level"]).reshape(rows, -1)[:, 0].astype(np.int64)
-    levels = [(int(key[len("level"):]), np.asarray(values)) for key, values in fields.items()
-              if key.startswith("level") and key[len("level"):].isdigit()]
-    numbers = np.array([k for k, _ in levels], dtype=np.int64)  # (L,)
-    row_bytes = np.array([values.dtype.itemsize * int(np.prod(values.shape[1:], dtype=np.int64))
-                          for _, values in levels], dtype=np.int64)  # (L,)
-    skipped = (numbers[None, :] < first[:, None]).astype(np.int64) @ row_bytes  # (P_k,) levels below k0
-    return info.bytes_per_probe - skipped
+    if info.probe_count == 0 or store.unsupported_reason(name):
+        return np.full(info.probe_count, info.bytes_per_probe, dtype=np.int64)
+    return get_encoding(name).from_settings(info.settings).upload_bytes(store.fields(name))
 
 
 def memory_summary(store: Any) -> dict[str, Any]:
