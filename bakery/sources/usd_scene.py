@@ -122,11 +122,12 @@ class UsdSceneSource(Source):
 
         reading = read_scene(self.path, time=self.capture_settings.time,
                              subdivision=self.capture_settings.subdivision)
-        if reading.errors:
-            listing = "\n".join(f"  {issue}" for issue in reading.errors)
+        if reading.errors:  # each as `bakery check` prints it: the file that defines the prim (a sublayer, an asset)
+            listing = "\n".join(f"  {issue.layer or self.path}: {issue}" for issue in reading.errors)
             raise SceneError(f"{self.path}: {len(reading.errors)} error(s); the bake cannot be trusted:\n{listing}")
         for issue in reading.issues:
-            warnings.warn(f"{self.path}: {issue.prim}: {issue.message}", SceneWarning, stacklevel=2)  # all warnings
+            warnings.warn(f"{issue.layer or self.path}: {issue.prim}: {issue.message}", SceneWarning,
+                          stacklevel=2)  # all warnings
         self._reading = reading
         self._protected = tuple(str(Path(p).resolve()) for p in reading.layers)
         scene_hash = environment_hash(reading.scene, tuple(reading.assets))

@@ -27,7 +27,7 @@ from pxr import Sdf, Usd
 from bakery.capture.scene import CaptureScene
 from bakery.conventions import INSIDE_BACKFACE_FRACTION
 from bakery.errors import CHECK_FAILED_EXIT_CODE, SceneError
-from bakery.usd.scene import Issue, SceneReader, open_stage
+from bakery.usd.scene import Issue, SceneReader, defining_layer, open_stage
 
 __all__ = ["Issue", "check_scene", "check_exit_code"]
 
@@ -41,25 +41,8 @@ def check_scene(path: str | Path) -> list[Issue]:
     reading = SceneReader(stage, load_textures=True).read()
     issues: list[Issue] = list(reading.issues) + inside_geometry_issues(reading.scene)
     order = {"error": 0, "warning": 1}
-    issues = [replace(i, layer=defining_layer(stage, i.prim)) for i in dict.fromkeys(issues)]
+    issues = [replace(i, layer=defining_layer(stage, i.prim)) for i in dict.fromkeys(issues)]  # probes' too
     return sorted(issues, key=lambda i: (order.get(i.severity, 2), i.prim))
-
-
-def defining_layer(stage: Usd.Stage, prim_path: str) -> str:
-    """The file of the strongest ``def`` of the prim at ``prim_path`` (or of the prim owning that property path), if
-    that is not the stage's root layer — the sublayer or referenced asset to open to fix it — else ""."""
-    if not Sdf.Path.IsValidPathString(prim_path) or prim_path == "/":
-        return ""
-    prim = stage.GetPrimAtPath(Sdf.Path(prim_path).GetPrimPath())
-    if not prim:
-        return ""
-    for spec in prim.GetPrimStack():
-        if spec.specifier == Sdf.SpecifierDef:
-            layer = spec.layer
-            if layer == stage.GetRootLayer() or layer.anonymous:
-                return ""
-            return layer.realPath or layer.identifier
-    return ""
 
 
 def inside_geometry_issues(scene: CaptureScene, shown: int = 3) -> list[Issue]:

@@ -40,7 +40,7 @@ import contextlib
 import dataclasses
 import functools
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -77,8 +77,8 @@ _NO_SHADOW_API = {"shadow": True, "shadow_color": (0.0, 0.0, 0.0)}
 @dataclass(frozen=True)
 class Issue:
     """A problem found in a scene: ``severity`` "error" (the bake cannot be trusted) or "warning"; ``layer``: the
-    file that defines the prim when it is not the scene's root layer (a sublayer, a referenced asset; set by
-    :func:`bakery.usd.check.check_scene`), else ""."""
+    file that defines the prim when it is not the scene's root layer (a sublayer, a referenced asset: the file to
+    open to fix it; set by :meth:`SceneReader.read` with :func:`defining_layer`), else ""."""
 
     severity: str
     prim: str
@@ -448,7 +448,7 @@ class SceneReader:
         assert len(set(names)) == len(names)
         return SceneReading(
             scene=scene,
-            issues=tuple(self.issues),
+            issues=tuple(replace(issue, layer=defining_layer(self.stage, issue.prim)) for issue in self.issues),
             path=str(self.stage.GetRootLayer().realPath or self.stage.GetRootLayer().identifier),
             meters_per_unit=self.frame.mpu,
             up_axis=self.frame.up,
@@ -1490,6 +1490,23 @@ IMPLICIT_SURFACES = (UsdGeom.Sphere, UsdGeom.Cube, UsdGeom.Cylinder, UsdGeom.Cyl
 def is_surface_gprim(prim: Usd.Prim) -> bool:
     """Whether ``prim`` is one of :data:`IMPLICIT_SURFACES`."""
     return any(prim.IsA(kind) for kind in IMPLICIT_SURFACES)
+
+
+def defining_layer(stage: Usd.Stage, prim_path: str) -> str:
+    """The file of the strongest ``def`` of the prim at ``prim_path`` (or of the prim owning that property path), if
+    that is not the stage's root layer — the sublayer or referenced asset to open to fix it — else ""."""
+    if not Sdf.Path.IsValidPathString(prim_path) or prim_path == "/":
+        return ""
+    prim = stage.GetPrimAtPath(Sdf.Path(prim_path).GetPrimPath())
+    if not prim:
+        return ""
+    for spec in prim.GetPrimStack():
+        if spec.specifier == Sdf.SpecifierDef:
+            layer = spec.layer
+            if layer == stage.GetRootLayer() or layer.anonymous:
+                return ""
+            return layer.realPath or layer.identifier
+    return ""
 
 
 def read_scene(path: str | Path, load_textures: bool = True, time: float | None = None,

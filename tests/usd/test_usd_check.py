@@ -148,6 +148,12 @@ def test_check_names_the_sublayer_that_defines_a_prim(tmp_path):
     lines = result.stdout.splitlines()
     assert any(line.startswith(f"{sub.resolve()}: error: /Mystery: ") for line in lines), result.stdout
     assert any(line.startswith(f"{root}: error: /Local: ") for line in lines), result.stdout
+    # the bake refuses the same scene and names the same files, one line per error (check and bake never disagree)
+    baked = subprocess.run([sys.executable, "-m", "bakery.cli", "bake", str(root), "-o", str(tmp_path / "out.h5")],
+                           capture_output=True, text=True)
+    assert baked.returncode != 0 and "Traceback" not in baked.stderr and not (tmp_path / "out.h5").exists()
+    assert f"  {sub.resolve()}: error: /Mystery: " in baked.stderr, baked.stderr
+    assert f"  {root}: error: /Local: " in baked.stderr, baked.stderr
 
 
 def test_composition_errors_are_errors_in_check_and_bake(tmp_path):
