@@ -797,7 +797,8 @@ def _settings_options(command):  # noqa: ANN001, ANN202
         click.option("--face-size", type=int, default=None, help="Bake-grid cube face size."),
         click.option("--layout", type=click.Choice(LAYOUTS), help="Force the image layout."),
         click.option("--samples", type=click.IntRange(min=1), default=None, help="Rays per cube texel (scenes)."),
-        click.option("--bounces", type=click.IntRange(min=0), default=None, help="Diffuse bounces (scenes)."),
+        click.option("--bounces", type=click.IntRange(min=0), default=None,
+                     help="Largest number of bounces, Russian roulette from the 4th (scenes; default 64)."),
         click.option("--seed", type=click.IntRange(*SEED_RANGE), default=None,
                      help="Base seed of the per-probe capture seeds (scenes)."),
         click.option("--no-reference", is_flag=True, help="Skip error-vs-reference diagnostics."),
@@ -972,8 +973,10 @@ def farm_openjd(sources: tuple[Path, ...], template: Path, store: Path | None, l
     values = job_parameters(scene=sources[0], store=store, layer=layer, shard_dir=shard_dir, jobs=jobs)
     parameters = parameters_path(template)
     write_bytes_atomic(parameters, (json.dumps(values, indent=2) + "\n").encode())
-    console.print(f"wrote {template}: {len(info['chunking']['ranges'])} bake tasks "
-                  f"({', '.join(info['chunking']['ranges'])}) and a merge into {store} (plan {info['plan_id']}); "
+    ranges = info["chunking"]["ranges"]
+    work = (f"{len(ranges)} bake tasks ({', '.join(ranges)}) and a merge into {store}" if ranges else
+            f"{store} is up to date: one task that verifies it and bakes whatever changes before the job runs")
+    console.print(f"wrote {template}: {work} (plan {info['plan_id']}); "
                   f"estimated makespan {info['chunking']['makespan_seconds']:.0f} s; job parameters in {parameters} "
                   f"(openjd run {template} --job-param file://{parameters})")
 
@@ -997,7 +1000,8 @@ def _check_farm_outputs(layer: Path, shard_dir: Path, inputs: list[Path]) -> Non
               help="Where to write the calibration JSON (use it with --calibration or $BAKERY_CALIBRATION).")
 @click.option("--force", is_flag=True, help="Let -o replace a file that is not a calibration bakery wrote.")
 def farm_calibrate(output: Path, force: bool) -> None:
-    """Measure the cost model's constants on this machine (five bakes of the scale bench's generated hall, ~1 min)."""
+    """Measure the cost model's constants on this machine (eight bakes of the scale bench's generated hall, three
+    merges and a pilot; about a minute)."""
     from bakery.farm.calibrate import calibrate
 
     try:

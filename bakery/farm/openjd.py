@@ -5,6 +5,11 @@
                       --plan-id ID -o {{Param.ShardDir}}/shard-{{Task.Param.Probes}}.h5``
     step Merge        depends on BakeShards: ``bakery merge <every shard> -o {{Param.Store}} --layer {{Param.Layer}}``
 
+When the base store is up to date (the plan bakes no probe) there is no range to shard: the job is then the one
+step ``Merge``, ``bakery bake SCENE -o {{Param.Store}} --layer {{Param.Layer}}``, which verifies the store and
+reuses every probe (or bakes, on the one host, whatever changed after the planning). An OpenJD step needs at least
+one task, so a BakeShards step without ranges would not be a valid template.
+
 The ranges are the plan's batch-aligned chunking (:func:`bakery.pipeline.shards.suggest_chunking`), so no task
 recomputes another's batch. ``--plan-id`` pins the plan the template was written for: if the scene, the settings or
 the base store change before the job runs, every task fails with exit 2 and a message instead of baking a different
@@ -57,10 +62,24 @@ def job_template(*, name: str, scene: Path, store: Path, layer: Path, shard_dir:
         bake += ["--base", "{{Param.Store}}"]
     merge = [*prefix, "merge", *(f"{{{{Param.ShardDir}}}}/shard-{r}.h5" for r in ranges), "-o", "{{Param.Store}}",
              "--layer", "{{Param.Layer}}", "--json"]
+    steps = [{"name": "BakeShards",
+              "parameterSpace": {"taskParameterDefinitions": [
+                  {"name": "Probes", "type": "STRING", "range": list(ranges)}]},
+              "script": {"actions": {"onRun": {"command": program, "args": bake}}}},
+             {"name": "Merge",
+              "dependencies": [{"dependsOn": "BakeShards"}],
+              "script": {"actions": {"onRun": {"command": program, "args": merge}}}}]
+    description = f"bakery bake of {Path(scene).name} in {len(ranges)} probe-range tasks and a merge (plan {plan_id})"
+    if not ranges:  # the store is up to date: one bake that verifies and reuses it (module docstring)
+        rebake = [*prefix, "bake", "{{Param.Scene}}", "-o", "{{Param.Store}}", "--layer", "{{Param.Layer}}",
+                  "--jobs", "{{Param.Jobs}}", "--json", *bake_args]
+        steps = [{"name": "Merge", "script": {"actions": {"onRun": {"command": program, "args": rebake}}}}]
+        description = (f"bakery bake of {Path(scene).name}: the store was up to date when planned (plan {plan_id}); "
+                       "one task verifies it and bakes whatever changed since")
     return {
         "specificationVersion": "jobtemplate-2023-09",
         "name": name,
-        "description": f"bakery bake of {Path(scene).name} in {len(ranges)} probe-range tasks and a merge (plan {plan_id})",
+        "description": description,
         "parameterDefinitions": [
             _path_parameter("Scene", "FILE", "IN", defaults["Scene"], "The USD scene (or image) to bake."),
             _path_parameter("ShardDir", "DIRECTORY", "OUT", defaults["ShardDir"], "Shared folder of the shard stores."),
@@ -69,15 +88,7 @@ def job_template(*, name: str, scene: Path, store: Path, layer: Path, shard_dir:
             {"name": "Jobs", "type": "INT", "default": jobs, "minValue": 1,
              "description": "Worker processes of each bake task (bakery --jobs)."},
         ],
-        "steps": [
-            {"name": "BakeShards",
-             "parameterSpace": {"taskParameterDefinitions": [
-                 {"name": "Probes", "type": "STRING", "range": list(ranges)}]},
-             "script": {"actions": {"onRun": {"command": program, "args": bake}}}},
-            {"name": "Merge",
-             "dependencies": [{"dependsOn": "BakeShards"}],
-             "script": {"actions": {"onRun": {"command": program, "args": merge}}}},
-        ],
+        "steps": steps,
     }
 
 

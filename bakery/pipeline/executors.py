@@ -18,21 +18,29 @@ only the parent (even with SIGKILL) leaves no worker running. Ctrl-C reaches the
 (also of a rebuilt pool) starts with SIGINT blocked and ignores it from its initializer on, and only the parent acts
 on it (:func:`_workers_start_shielded`). A scheduler that cannot be reached is a
 :class:`SchedulerError` (exit 2) after a short connect timeout, not a traceback.
+
+Spawned workers import the ``__main__`` script again. A script that calls :func:`bakery.bake` with worker processes
+at its top level, outside ``if __name__ == "__main__":``, would re-run the bake in every worker (which then fails on
+the store's lock, and the bake on "worker process died"); the executors refuse it before any work, naming the
+script's line (:func:`unguarded_main_line`).
 """
 
 from __future__ import annotations
 
+import ast
 import importlib
 import logging
 import multiprocessing
 import os
 import signal
 import socket
+import sys
 import threading
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
 from typing import Protocol
 
 from bakery.errors import ConfigError, InputError
@@ -174,10 +182,55 @@ class SerialExecutor:
         pass
 
 
+def _is_main_test(test: ast.expr) -> bool:
+    """``__name__ == "__main__"`` (either way round)."""
+    if not (isinstance(test, ast.Compare) and len(test.ops) == 1 and isinstance(test.ops[0], ast.Eq)):
+        return False
+    sides = (test.left, test.comparators[0])
+    return (any(isinstance(side, ast.Name) and side.id == "__name__" for side in sides)
+            and any(isinstance(side, ast.Constant) and side.value == "__main__" for side in sides))
+
+
+def unguarded_main_line() -> tuple[str, int] | None:
+    """(script, line) of the top-level statement of the running ``__main__`` script that led to this call, when it
+    is not inside an ``if __name__ == "__main__":`` block — what spawned workers would run again as they import the
+    script; None when it is guarded, or there is no script (interactive, ``-c``, a notebook)."""
+    main = sys.modules.get("__main__")
+    path = getattr(main, "__file__", None)
+    if not path or not str(path).endswith(".py"):
+        return None
+    frame, line = sys._getframe(1), None
+    while frame is not None:  # the outermost frame of the script's own top-level code
+        if frame.f_globals is vars(main) and frame.f_code.co_name == "<module>":
+            line = frame.f_lineno
+        frame = frame.f_back
+    if line is None:
+        return None
+    try:
+        tree = ast.parse(Path(path).read_bytes())
+    except (OSError, SyntaxError, ValueError):
+        return None
+    guarded = any(isinstance(node, ast.If) and _is_main_test(node.test)
+                  and node.body[0].lineno <= line <= (node.body[-1].end_lineno or line)
+                  for node in ast.walk(tree))
+    return None if guarded else (str(path), line)
+
+
+def refuse_unguarded_script(what: str) -> None:
+    """ConfigError if the ``__main__`` script starts ``what`` (spawned worker processes) from unguarded top-level
+    code (:func:`unguarded_main_line`)."""
+    where = unguarded_main_line()
+    if where is not None:
+        raise ConfigError(f"{where[0]}:{where[1]}: this bake starts {what}, which import the script again and would "
+                          "re-run its top-level code, this bake included; put the bake under "
+                          "`if __name__ == \"__main__\":` (or bake with jobs=1)")
+
+
 class ProcessExecutor:
     name = "processes"
 
     def __init__(self, workers: int | None = None, retries: int = 2) -> None:
+        refuse_unguarded_script("worker processes")
         self.workers = workers or os.cpu_count() or 1
         self.retries = retries
         self._pool: ProcessPoolExecutor | None = None
@@ -283,6 +336,7 @@ class DaskExecutor:
                 raise SchedulerError(f"cannot connect to the Dask scheduler at {scheduler}: "
                                      f"{_reason(error)}") from None
         else:
+            refuse_unguarded_script("a Dask LocalCluster's worker processes")
             with _children_ignore_interrupt():  # the nannies and their workers inherit SIGINT ignored (Ctrl-C)
                 # silence_logs: what Dask logs about its own cluster (tasks lost or cancelled when a Ctrl-C or an
                 # error drops the unfinished batches on purpose, a worker's heartbeat failing as the scheduler

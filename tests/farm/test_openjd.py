@@ -4,6 +4,7 @@ done-when), with the operator cache shared by the tasks instead of rebuilt per t
 
 import importlib.util
 import json
+import re
 import subprocess
 import sys
 
@@ -69,3 +70,26 @@ def test_the_template_pins_its_plan(tmp_path):
     result = cli("bake", INDOOR, "--probes", "0-3", "--plan-id", plan_id, "-o", tmp_path / "s.h5", "--face-size", "8",
                  *FAST, check=False)
     assert result.returncode == 2 and "changed since the job was planned" in result.stderr
+
+
+def test_an_up_to_date_store_gets_a_valid_one_task_job(tmp_path):
+    """Planned against a store that is up to date, the plan bakes no probe: no range to shard, and an OpenJD step
+    without tasks is not a valid template (it was written, exit 0, and `openjd check` refused it). The job is one
+    `Merge` task that re-runs the bake: it reuses every probe and leaves the store's bytes as they were."""
+    (tmp_path / "out").mkdir()
+    store = tmp_path / "out" / "indoor.h5"
+    settings = ("--face-size", "4", *FAST)
+    cli("bake", INDOOR, "-o", store, *settings, "-j", "1")
+    before = store.read_bytes()
+    job = tmp_path / "bake.yaml"
+    written = cli("farm", "openjd", INDOOR, "-o", job, "--store", store, *settings, "--tasks", "4",
+                  "--command", f"{sys.executable} -m bakery.cli")
+    assert "is up to date" in written.stderr, written.stderr
+    checked = openjd("check", job)
+    assert checked.returncode == 0 and "passes validation" in checked.stdout, checked.stdout + checked.stderr
+    params = job.with_name("bake.params.json")
+    run = openjd("run", job, "--step", "Merge", "--run-dependencies", "--job-param", f"file://{params}")
+    assert run.returncode == 0, run.stdout[-4000:] + run.stderr[-2000:]
+    counts = re.search(r'"baked":\s*0\b', run.stdout) and re.search(r'"reused":\s*26\b', run.stdout)
+    assert counts, run.stdout[-3000:]
+    assert store.read_bytes() == before

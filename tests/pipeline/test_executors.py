@@ -164,3 +164,43 @@ def test_a_pool_broken_before_the_batches_are_given_is_rebuilt(tmp_path, monkeyp
         executor.close()
     assert not summary.failed
     assert (tmp_path / "serial.h5").read_bytes() == (tmp_path / "pool.h5").read_bytes()
+
+
+def _run_script(path, text):  # noqa: ANN001, ANN202
+    import subprocess
+    import sys
+
+    path.write_text(text)
+    return subprocess.run([sys.executable, str(path)], capture_output=True, text=True, timeout=300, cwd=path.parent,
+                          check=False)
+
+
+def test_a_script_baking_with_workers_at_its_top_level_is_refused_before_any_work(tmp_path):
+    """Spawned workers import the __main__ script again: unguarded, each re-ran the bake, failed on the store's lock,
+    and the bake ended in "worker process died 3 times" with worker tracebacks. Now the bake refuses at once, naming
+    the script's line — for the process pool and a Dask LocalCluster —, and writes nothing."""
+    image = tmp_path / "sky.hdr"
+    import numpy as np
+    import OpenImageIO as oiio
+
+    oiio.ImageBuf(np.ones((4, 8, 3), np.float32)).write(str(image))
+    for executor in ("jobs=2", "executor=make_executor(2, dask_local=True)"):
+        script = tmp_path / "bake_it.py"
+        result = _run_script(script, "import bakery\nfrom bakery.pipeline.executors import make_executor\n\n"
+                                     f"bakery.bake({str(image)!r}, 'out.h5', encodings=('sh2',), {executor})\n")
+        assert result.returncode != 0
+        last = result.stderr.strip().splitlines()[-1]
+        assert f"{script}:4: this bake starts" in last and '__name__ == "__main__"' in last, result.stderr
+        assert not (tmp_path / "out.h5").exists() and "worker process died" not in result.stderr
+
+
+def test_a_guarded_script_is_not_refused(tmp_path):
+    """Under `if __name__ == "__main__":` (either way round), also through a function, or with no script at all
+    (-c), nothing is refused."""
+    probe = ("from bakery.pipeline.executors import unguarded_main_line\n\n"
+             "def main():\n    print('where', unguarded_main_line())\n\n")
+    for guard in ('if __name__ == "__main__":\n    main()\n', 'if "__main__" == __name__:\n    main()\n'):
+        result = _run_script(tmp_path / "guarded.py", probe + guard)
+        assert result.returncode == 0 and "where None" in result.stdout, result.stderr
+    result = _run_script(tmp_path / "unguarded.py", probe + "main()\n")
+    assert f"where ('{tmp_path / 'unguarded.py'}', 6)" in result.stdout, result.stdout + result.stderr
