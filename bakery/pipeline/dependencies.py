@@ -1,9 +1,16 @@
 """What each scene probe's result depends on, for incremental bakes (conservative, no ``pxr``).
 
 Global part (affects every probe): meshes (triangles, materials, shading normals and a front side other than the
-winding's), the dome (texture content, scale, rotation), distant lights, every referenced asset's bytes and the
-capture's model version (:data:`bakery.capture.render.CAPTURE_MODEL_VERSION`). Any change there re-bakes all probes — geometry anywhere can
-occlude, reflect or emit towards any probe.
+winding's), the dome (texture content, scale, rotation), distant lights, the texels of every texture the capture
+samples (``CaptureScene.textures``, in the order materials and lights index them), every referenced asset's bytes
+and the capture's model version (:data:`bakery.capture.render.CAPTURE_MODEL_VERSION`). Any change there re-bakes all
+probes — geometry anywhere can occlude, reflect or emit towards any probe.
+
+The texels are hashed as the capture reads them, not only the files they come from: a material map refers to its
+texture by index and carries only the texture's mean, so two materials that swap textures of equal means, a changed
+``colorSpace`` of a texture whose mean it keeps, or a changed constant of a MaterialX graph authored in USD that is
+flattened into a texture (:mod:`bakery.usd.mtlx_graph`) changed no file and no hashed field — every probe was
+reused stale until 2026-12-07 (stores of scenes with textures re-bake once).
 
 Per-probe part: the probe's own prim data (kind, position, rotation, resolution, encodings, influence) and the
 bytes of its captured image, if any. Moving one probe re-bakes only that probe.
@@ -125,6 +132,9 @@ def environment_hash(scene, assets: tuple[str, ...] = ()) -> str:  # noqa: ANN00
                       sampling["draws_per_vertex"]))
     if any(light.visible and light.kind != "distant" for light in scene.lights):  # small shapes are splatted
         parts.append(("small_light_splat", SMALL_LIGHT_SPLAT_VERSION, SPLAT_LIGHT_TEXELS, SPLAT_LIGHT_GRID))
+    textures = getattr(scene, "textures", ())
+    if textures:  # what the capture samples, in the order materials and lights index them (module docstring)
+        parts.append(("textures", [np.asarray(texture.pixels, dtype=np.float32) for texture in textures]))
     parts += [file_digest(asset) for asset in sorted(set(assets))]
     parts.append((scene.meters_per_unit, scene.up_axis))
     parts.append(("capture model", CAPTURE_MODEL_VERSION))  # what the same scene captures to

@@ -9,6 +9,8 @@ that carry no energy, and finalize encodings over every probe.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 import numpy as np
 
 from bakery.conventions import INSIDE_BACKFACE_FRACTION
@@ -147,15 +149,16 @@ def _scatter(parts: list[np.ndarray], destination: np.ndarray) -> np.ndarray:
     return out
 
 
-def extract_probes(contents, names: list[str]) -> EncodedBatch:  # noqa: ANN001 - StoreContents
-    """The stored results of ``names`` as an :class:`EncodedBatch` (incremental reuse)."""
+def extract_probes(contents, names: list[str], *, encodings: bool = True) -> EncodedBatch:  # noqa: ANN001
+    """The stored results of ``names`` (``contents``: a StoreContents) as an :class:`EncodedBatch` (incremental
+    reuse); ``encodings`` False: their probes and diagnostics only."""
     index = {n: i for i, n in enumerate(contents.probe_names)}
     picked = np.array([index[n] for n in names], dtype=np.int64)
     probes = [Probe(contents.probe_names[i], tuple(contents.probe_kinds[i].split(",")),
                     tuple(map(float, contents.probe_positions[i]))) for i in picked]
     position = {int(i): r for r, i in enumerate(picked)}
     encoded, rows = {}, {}
-    for name, entry in contents.encodings.items():
+    for name, entry in (contents.encodings.items() if encodings else ()):
         probe_index = entry["fields"]["probe_index"]
         keep = np.array([r for r, i in enumerate(probe_index) if int(i) in position], dtype=np.int64)
         if keep.size == 0:
@@ -167,16 +170,19 @@ def extract_probes(contents, names: list[str]) -> EncodedBatch:  # noqa: ANN001 
     return EncodedBatch(probes, encoded, rows, diagnostics)
 
 
-def apply_band_skips(merged: EncodedBatch, tolerance: float | None) -> list[dict[str, str]]:
+def apply_band_skips(merged: EncodedBatch, tolerance: float | None,
+                     candidates: Iterable[str] = ()) -> list[dict[str, str]]:
     """Record each probe's required band (``diagnostics/required_band``) and, unless ``tolerance`` is None
-    (encodings asked for explicitly: report, do not skip), drop the encodings no probe needs. Returns the skips."""
+    (encodings asked for explicitly: report, do not skip), drop the encodings no probe needs. ``candidates``: more
+    encodings the decision is reported for although no probe of ``merged`` holds them (the planned encodings of
+    reused probes whose previous bake skipped them). Returns the skips."""
     if "band_energy" not in merged.diagnostics:
         return []
     energy = np.asarray(merged.diagnostics["band_energy"], dtype=np.float64)
     has = np.all(np.isfinite(energy), axis=1)
     positions = np.array([p.position for p in merged.probes], dtype=np.float64).reshape(-1, 3)
     required, skips = band_skip_decisions(energy[has], positions[has], tolerance or DEFAULT_BAND_TOLERANCE,
-                                          list(merged.encoded))
+                                          sorted(set(merged.encoded) | set(candidates)))
     if tolerance is None:
         skips = []
     required_all = np.full(len(merged.probes), np.nan, dtype=np.float32)

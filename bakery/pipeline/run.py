@@ -343,7 +343,9 @@ def finalize_and_write(request: BakeRequest, source: Source, plan: Plan, batches
     if inside is not None:
         merged.warnings.append(inside)
         warnings.warn(inside.message, bakery.errors.SceneWarning, stacklevel=2)
-    skipped = list(plan.skipped) + apply_band_skips(merged, request.band_energy_tolerance)
+    reused = set(plan.reused)  # what a reused probe's previous bake skipped is reported skipped again
+    skipped = list(plan.skipped) + apply_band_skips(
+        merged, request.band_energy_tolerance, {e for t in plan.tasks if t.probe.name in reused for e in t.encodings})
     encodings = finalize_encodings(merged, settings)
     hash_of = {t.probe.name: t.content_hash for t in plan.tasks}
     history, bake_ids = remap_history(previous, plan.reused, merged.probes)
@@ -545,6 +547,41 @@ def execute_batches(batches: list[BatchTask], request: BakeRequest, source: Sour
     return outcomes, len(done)
 
 
+def reused_lacking_kept_encodings(request: BakeRequest, plan: Plan, previous: StoreContents | None,
+                                  fresh: list[EncodedBatch]) -> set[str]:
+    """Reused probes whose stored results lack one of their encodings that this bake keeps.
+
+    Band skipping drops the band-2 encodings from a store when no probe needs band 2 (:mod:`bakery.pipeline.skip`).
+    A later bake reuses those probes (their hashes are unchanged) and may keep the encodings — a probe moved next to
+    a light now needs band 2, or ``band_energy_tolerance`` was lowered — and the reused probes have nothing to give
+    them: until 2026-12-07 the store then held them for the probes baked now only (or for none, while reporting
+    nothing skipped), where a clean bake holds them for every probe. The decision is the one
+    :func:`finalize_and_write` takes, on the band energies of every probe (``fresh``: the batches baked now, and the
+    reused probes' stored ones), after the volumes' dilation; the probes it leaves lacking are baked again."""
+    if previous is None or not plan.reused:
+        return set()
+    index = {n: i for i, n in enumerate(previous.probe_names)}
+    stored = {name: {int(i) for i in entry["fields"]["probe_index"]} for name, entry in previous.encodings.items()}
+    wanted = {t.probe.name: t.encodings for t in plan.tasks}
+    lacking = {n: {e for e in wanted[n] if index[n] not in stored.get(e, ())} for n in plan.reused}
+    lacking = {n: missing for n, missing in lacking.items() if missing}
+    if not lacking:
+        return set()
+    skipped: set[str] = set()
+    if request.band_energy_tolerance is not None:
+        # the probes and diagnostics alone (band energy, captured SH, backface fraction): what the decision reads
+        light = [EncodedBatch(b.probes, {}, {}, b.diagnostics) for b in fresh]
+        light.append(extract_probes(previous, plan.reused, encodings=False))
+        names = {p.name for b in light for p in b.probes}
+        trial = merge_batches(light, [n for n in plan.order if n in names])
+        planned = {t.probe.name: t.probe for t in plan.tasks}
+        trial.probes = [planned.get(p.name, p) for p in trial.probes]  # their settings (dilation)
+        dilate_volumes(trial, request.settings)
+        candidates = {e for missing in lacking.values() for e in missing}
+        skipped = {s["encoding"] for s in apply_band_skips(trial, request.band_energy_tolerance, candidates)}
+    return {n for n, missing in lacking.items() if missing - skipped}
+
+
 def with_rates(timings: dict[str, float]) -> dict[str, float]:
     """``timings`` (summed over batches) with ``rays_per_second`` = capture rays / capture seconds (per worker)."""
     timings = dict(timings)
@@ -577,6 +614,22 @@ def _bake_locked(request: BakeRequest, executor: Executor, progress: Callable[[i
             batches.append(outcome.result)
     del outcomes  # the batches are all that is kept of them (finalize_and_write drops them once merged)
     batches = refuse_non_finite(batches, failures)
+    while True:  # reused probes whose stored results lack an encoding this bake keeps are baked after all
+        again = reused_lacking_kept_encodings(request, plan, previous, batches)
+        if not again:
+            break
+        plan.reused = [n for n in plan.reused if n not in again]
+        extra = make_batches([t for t in plan.tasks if t.probe.name in again],
+                             request.batch_size or source.default_batch_size, settings.as_json())
+        plan.batches = plan.batches + extra
+        more, more_resumed = execute_batches(extra, request, source, plan, executor, journal, progress)
+        resumed += more_resumed
+        fresh = []
+        for outcome in sorted(more, key=lambda o: o.key):
+            failures.update(outcome.failures)
+            if outcome.result is not None:
+                fresh.append(outcome.result)
+        batches += refuse_non_finite(fresh, failures)
     if plan.reused and previous is not None:
         batches.append(extract_probes(previous, plan.reused))
     if failures and not batches:

@@ -571,7 +571,13 @@ def merge_shards(items: list[str | Path], output: str | Path, layer: str | Path 
 def _merge_locked(request: BakeRequest, source: Any, shards: list[Shard], first: Shard, start: float,
                   ) -> MergeSummary:
     from bakery.pipeline.merge import extract_probes
-    from bakery.pipeline.run import finalize_and_write, load_previous, plan_bake, with_rates
+    from bakery.pipeline.run import (
+        finalize_and_write,
+        load_previous,
+        plan_bake,
+        reused_lacking_kept_encodings,
+        with_rates,
+    )
 
     output = request.output
     previous = load_previous(first.base) if first.base else None
@@ -589,6 +595,12 @@ def _merge_locked(request: BakeRequest, source: Any, shards: list[Shard], first:
             batch = shard.batch
             batch.probes = [probe_of[p.name] for p in batch.probes]
             batches.append(batch)
+    lacking = sorted(reused_lacking_kept_encodings(request, plan, previous, batches))
+    if lacking:  # the merge cannot bake them (bakery.pipeline.run.reused_lacking_kept_encodings): refused, not stale
+        raise ShardError(f"{len(lacking)} probe(s) the plan reuses from the base store ({', '.join(lacking[:3])}"
+                         f"{' …' if len(lacking) > 3 else ''}) lack an encoding this bake keeps (the base's bake "
+                         f"skipped it, band skipping); bake without --base, or in one process (bakery bake), which "
+                         f"bakes them again")
     if plan.reused and previous is not None:
         batches.append(extract_probes(previous, plan.reused))
     if failures and not batches:

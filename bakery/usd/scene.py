@@ -481,9 +481,10 @@ class SceneReader:
         return tuple(self.materials.textures[k] for k in used)
 
     def _assets(self) -> set[str]:
-        """Files other than layers that the capture reads: dome texture, captured images, material textures."""
+        """Files other than layers that every probe's capture can read: dome texture, material and light textures,
+        MaterialX documents. Not a probe's captured image (``bakery:capture:image``): only that probe reads it, and
+        its bytes are in that probe's own hash (:mod:`bakery.pipeline.dependencies`)."""
         files = {d.source for d in self.domes if d.source}
-        files |= {p.image for p in self.probes if p.image}
         files |= set(self.materials.files)
         return files
 
