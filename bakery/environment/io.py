@@ -21,6 +21,7 @@ Colour of environment images (:func:`read_environment`)
 from __future__ import annotations
 
 import os
+import re
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -30,7 +31,13 @@ from pathlib import Path
 import numpy as np
 import OpenImageIO as oiio
 
-from bakery.environment.colour import decode_to_linear, transfer_of
+from bakery.environment.colour import (
+    LINEAR_GAMUTS,
+    chromaticities_problem,
+    decode_to_linear,
+    to_rec709_matrix,
+    transfer_of,
+)
 from bakery.environment.layouts import LAYOUTS, EnvironmentImage, layout_size_problem
 from bakery.environment.sanitize import SanitizeReport, sanitize_radiance
 from bakery.errors import ArgumentError, BakeryWarning, ImageError
@@ -75,6 +82,14 @@ class ImagePixels:
         gamma: OpenImageIO's ``oiio:Gamma`` metadata (0 when absent).
         alpha_channel: index of the alpha channel among ``pixels``' channels (OpenImageIO's ``alpha_channel``), −1
             when there is none or it was not read. OpenImageIO returns colour associated with alpha (premultiplied).
+        channel_names: the names of ``pixels``' channels in the file (e.g. ``R``, ``G``, ``B``, ``diffuse.R``).
+        subimages: the names of the file's subimages (OpenEXR parts; "" when unnamed) when it has more than one; the
+            first is the one read.
+        chromaticities: the file's primaries and white (OpenEXR ``chromaticities``, a Radiance ``PRIMARIES`` line)
+            as (xr, yr, xg, yg, xb, yb, xw, yw), or None when it does not say.
+        window_note: with ``display_window``, how the data window differed from the display window ("" when not).
+        exposure: a Radiance file's ``EXPOSURE`` (the product of its lines; 1 when absent): the factor its pixels
+            were multiplied by after they were radiance. Not applied.
     """
 
     pixels: np.ndarray
@@ -84,6 +99,11 @@ class ImagePixels:
     color_space: str = ""
     gamma: float = 0.0
     alpha_channel: int = -1
+    channel_names: tuple[str, ...] = ()
+    subimages: tuple[str, ...] = ()
+    chromaticities: tuple[float, ...] | None = None
+    window_note: str = ""
+    exposure: float = 1.0
 
 
 #: Alpha at or above this counts as opaque (an 8-bit 254/255 = 0.996 does not).
@@ -105,7 +125,14 @@ def _opened(path: Path) -> Iterator[tuple[oiio.ImageInput, oiio.ImageSpec]]:
     """An open ImageInput and its spec, after the header checks (empty image, more than :data:`MAX_PIXELS`)."""
     image_input = oiio.ImageInput.open(str(path))
     if image_input is None:
-        raise ImageError(f"{path}: OpenImageIO cannot open it: {oiio.geterror() or 'unknown format'}")
+        reason = oiio.geterror() or "unknown format"
+        header = radiance_header(path)
+        if path.stat().st_size == 0:
+            reason = "the file is empty (0 bytes)"
+        elif header is not None and header.format and header.format != "32-bit_rle_rgbe":
+            reason = (f"Radiance pixel format {header.format!r} is not supported (only 32-bit_rle_rgbe; convert XYZE "
+                      f"pictures to RGBE, e.g. with Radiance's ra_xyze -r)")
+        raise ImageError(f"{path}: OpenImageIO cannot open it: {reason}")
     try:
         spec = image_input.spec()
         width, height, channels = spec.width, spec.height, spec.nchannels
@@ -121,8 +148,19 @@ def _opened(path: Path) -> Iterator[tuple[oiio.ImageInput, oiio.ImageSpec]]:
         image_input.close()
 
 
-def read_image(path: str | os.PathLike[str], channels: int = 4) -> ImagePixels:
+def read_image(path: str | os.PathLike[str], channels: int = 4, *, display_window: bool = False,
+               orient: bool = False) -> ImagePixels:
     """Pixels of any image OpenImageIO reads, the first ``channels`` channels as float32 (see :class:`ImagePixels`).
+
+    Args:
+        display_window: return the display window (OpenEXR's frame; its ``full`` window in OpenImageIO) with the data
+            window placed in it — texels outside the data window black, data outside the display window dropped —
+            instead of the data window alone (which places a shifted or cropped data window wrongly). Files with
+            environment-map metadata (OpenEXR ``envmap``, OpenImageIO's ``textureformat`` "… Environment") keep the
+            data window: OpenEXR defines its latlong and cube maps on it (ImfEnvmap; a cube's display window is
+            commonly one face).
+        orient: turn the pixels as the file's orientation says (TIFF/EXIF ``Orientation``; a Radiance file's
+            resolution line, e.g. ``+Y 512 +X 1024`` is stored bottom row first), so that row 0 is the top.
 
     Raises:
         ImageError: the file is missing, unreadable, truncated or its header claims an empty or absurdly large image.
@@ -132,19 +170,147 @@ def read_image(path: str | os.PathLike[str], channels: int = 4) -> ImagePixels:
         raise ImageError(f"{path}: image not found")
     with _opened(path) as (image_input, spec):
         count = min(spec.nchannels, channels)
+        header = radiance_header(path) if image_input.format_name() == "hdr" else None
+        full = (spec.full_x, spec.full_y, spec.full_width, spec.full_height)
+        window_note = ""
+        environment_map = "environment" in str(spec.getattribute("textureformat") or "").lower()
+        data = (spec.x, spec.y, spec.width, spec.height)
+        if display_window and not environment_map and full[2] > 0 and full[3] > 0 and full != data:
+            if full[2] * full[3] > MAX_PIXELS:
+                raise ImageError(f"{path}: header claims a {full[2]}x{full[3]} display window, more than the "
+                                 f"{MAX_PIXELS:,} pixels bakery accepts; the file is corrupt")
+            window_note = (f"data window {spec.width}x{spec.height} at ({spec.x}, {spec.y}) in the {full[2]}x{full[3]} "
+                           f"display window at ({full[0]}, {full[1]})")
         pixels = image_input.read_image(0, 0, 0, count, oiio.FLOAT)
         if pixels is None:
             raise ImageError(f"{path}: reading pixels failed (truncated or corrupt file?): {image_input.geterror()}")
+        pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, -1)
+        if window_note:
+            pixels = _in_display_window(pixels, spec)
+        if orient:
+            orientation = header.orientation if header is not None else spec.get_int_attribute("Orientation", 1)
+            pixels = oriented(pixels, orientation)
         gamma = spec.getattribute("oiio:Gamma")
+        subimages = int(spec.get_int_attribute("oiio:subimages", 1))
+        chromaticities = spec.getattribute("chromaticities")
+        if header is not None and header.primaries is not None:
+            chromaticities = header.primaries
+        if chromaticities is not None and not any(float(v) for v in chromaticities):
+            chromaticities = None  # all zero: "not specified" (Photoshop's PRIMARIES=0 0 0 0 0 0 0 0, Poly Haven's)
+        names = tuple(spec.channelnames)[:count]
         return ImagePixels(
-            pixels=np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, -1),
+            pixels=pixels,
             is_8bit=_is_8bit(spec),
             texture_format=str(spec.getattribute("textureformat") or ""),
             integer_bits=_integer_bits(spec),
             color_space=str(spec.getattribute("oiio:ColorSpace") or ""),
             gamma=float(gamma) if isinstance(gamma, (int, float)) else 0.0,
             alpha_channel=spec.alpha_channel if 0 <= spec.alpha_channel < count else -1,
+            channel_names=names,
+            subimages=_subimage_names(image_input) if subimages > 1 else (),
+            chromaticities=tuple(float(v) for v in chromaticities) if chromaticities is not None else None,
+            window_note=window_note,
+            exposure=header.exposure if header is not None else 1.0,
         )
+
+
+def _in_display_window(pixels: np.ndarray, spec: oiio.ImageSpec) -> np.ndarray:
+    """The data window ``pixels`` (h, w, C) at (spec.x, spec.y) placed in the display window, black elsewhere."""
+    fx, fy, fw, fh = spec.full_x, spec.full_y, spec.full_width, spec.full_height
+    out = np.zeros((fh, fw, pixels.shape[2]), dtype=np.float32)
+    x0, x1 = max(spec.x, fx), min(spec.x + spec.width, fx + fw)
+    y0, y1 = max(spec.y, fy), min(spec.y + spec.height, fy + fh)
+    if x0 < x1 and y0 < y1:
+        out[y0 - fy:y1 - fy, x0 - fx:x1 - fx] = pixels[y0 - spec.y:y1 - spec.y, x0 - spec.x:x1 - spec.x]
+    return out
+
+
+def _subimage_names(image_input: oiio.ImageInput) -> tuple[str, ...]:
+    names = []
+    index = 0
+    while image_input.seek_subimage(index, 0):
+        names.append(str(image_input.spec().getattribute("name") or ""))
+        index += 1
+    image_input.seek_subimage(0, 0)
+    return tuple(names)
+
+
+def oriented(pixels: np.ndarray, orientation: int) -> np.ndarray:
+    """``pixels`` (H, W, ...) as stored, turned upright by a TIFF/EXIF orientation code (1 = as stored; 2–4 mirrored
+    or turned 180°; 5–8 transposed: the stored row 0 is the image's left (5, 8) or right (6, 7) column, the stored
+    column 0 its top (5, 6) or bottom (7, 8)). Codes outside 1–8 read as 1."""
+    if orientation in (5, 6, 7, 8):
+        pixels = np.swapaxes(pixels, 0, 1)
+    flip_rows = orientation in (3, 4, 7, 8)
+    flip_cols = orientation in (2, 3, 6, 7)
+    if flip_rows:
+        pixels = pixels[::-1]
+    if flip_cols:
+        pixels = pixels[:, ::-1]
+    return np.ascontiguousarray(pixels) if orientation in range(2, 9) else pixels
+
+
+@dataclass(frozen=True)
+class RadianceHeader:
+    """What bakery reads from a Radiance picture's header itself (OpenImageIO gives no primaries, and the wrong
+    orientation for two of the eight resolution lines).
+
+    Attributes:
+        format: the ``FORMAT=`` value ("" when absent), e.g. ``32-bit_rle_rgbe`` or ``32-bit_rle_xyze``.
+        orientation: the resolution line as a TIFF/EXIF orientation code of the array of scanlines (1 = ``-Y +X``).
+        exposure: the product of the ``EXPOSURE=`` lines (1 when there are none).
+        primaries: the ``PRIMARIES=`` line's 8 numbers (red, green, blue, white xy), or None.
+    """
+
+    format: str
+    orientation: int
+    exposure: float
+    primaries: tuple[float, ...] | None
+
+
+#: Radiance resolution lines (scanline axis, pixel axis; resolu.h: origin at the lower left, +Y up) → the TIFF/EXIF
+#: orientation of the array whose rows are the scanlines: "+X M +Y N" lists the columns left to right, each from the
+#: bottom up, so the array's row 0 is the left column and its column 0 the bottom (code 8). (OpenImageIO's rgbe
+#: reader swaps codes 6 and 8.)
+_RADIANCE_ORIENTATIONS = {("-Y", "+X"): 1, ("-Y", "-X"): 2, ("+Y", "-X"): 3, ("+Y", "+X"): 4,
+                          ("+X", "-Y"): 5, ("-X", "-Y"): 6, ("-X", "+Y"): 7, ("+X", "+Y"): 8}
+_RADIANCE_RESOLUTION = re.compile(rb"^([-+][XY])\s+\d+\s+([-+][XY])\s+\d+\s*$")
+
+
+def radiance_header(path: str | os.PathLike[str]) -> RadianceHeader | None:
+    """The header of a Radiance picture (``#?`` magic), or None when ``path`` is not one or its header does not end
+    in a resolution line within its first 64 KiB."""
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(1 << 16)
+    except OSError:
+        return None
+    if not head.startswith(b"#?"):
+        return None
+    lines = head.split(b"\n")
+    fmt, exposure, primaries = "", 1.0, None
+    for index, line in enumerate(lines[1:-1], start=1):
+        text = line.strip()
+        if not text:  # the blank line ends the header; the resolution line follows
+            match = _RADIANCE_RESOLUTION.match(lines[index + 1].strip())
+            if not match:
+                return None
+            orientation = _RADIANCE_ORIENTATIONS.get((match[1].decode(), match[2].decode()))
+            if orientation is None:
+                return None
+            return RadianceHeader(fmt, orientation, exposure, primaries)
+        key, _, value = text.partition(b"=")
+        try:
+            if key == b"FORMAT":
+                fmt = value.decode("ascii", "replace").strip()
+            elif key == b"EXPOSURE":
+                exposure *= float(value)
+            elif key == b"PRIMARIES":
+                numbers = tuple(float(v) for v in value.split())
+                primaries = numbers if len(numbers) == 8 else primaries
+        except ValueError:
+            continue
+    return None
 
 
 def is_8bit_image(path: str | os.PathLike[str]) -> bool:
@@ -161,6 +327,8 @@ def missing_image_message(path: Path) -> str:
     if path.is_dir():
         return (f"{path}: is a directory, not an environment image (give the image files, or a USD scene file, "
                 f"e.g. {path}/*.hdr)")
+    if path.exists():  # a pipe, socket or device: reading it could block or never end
+        return f"{path}: not a regular file (a pipe, socket or device); give an image file"
     return f"{path}: environment image not found"
 
 
@@ -208,7 +376,10 @@ def read_environment(
         raise ImageError(f"{path}: unknown layout {layout!r}; expected one of {LAYOUTS}")
     if decode not in ("auto", "raw"):
         raise ArgumentError(f"decode must be 'auto' or 'raw', got {decode!r}")
-    image = read_image(path, channels=4)
+    image = read_image(path, channels=4, display_window=True, orient=True)
+    if image.alpha_channel == 0:
+        raise ImageError(f"{path}: its first channel is alpha ({', '.join(image.channel_names)}); an environment "
+                         f"image needs RGB or luminance channels")
     pixels, alpha = image.pixels[..., :3], None
     if image.alpha_channel > 0:  # RGBA → RGB, YA → Y; the colour is premultiplied (OpenImageIO associates alpha)
         pixels, alpha = image.pixels[..., :image.alpha_channel], image.pixels[..., image.alpha_channel]
@@ -220,10 +391,12 @@ def read_environment(
     problem = layout_size_problem(chosen, height, width)
     if problem:
         raise ImageError(f"{path}: {problem}")
-    if pixels.shape[2] == 1:
+    colour_channels = pixels.shape[2]
+    if colour_channels == 1:
         pixels = np.repeat(pixels, 3, axis=2)
-    elif pixels.shape[2] == 2:
+    elif colour_channels == 2:
         raise ImageError(f"{path}: two-channel images are not radiance; expected RGB or luminance")
+    _warn_about_what_was_read(path, image, colour_channels)
     transparent = 0 if alpha is None else int(np.count_nonzero(alpha < ALPHA_OPAQUE))
     if transparent:
         warnings.warn(f"{path}: {transparent:,} of {alpha.size:,} texels are not opaque (alpha < 1); an environment "
@@ -235,8 +408,50 @@ def read_environment(
         how = {"srgb": "decoded as sRGB to", "gamma": f"decoded as gamma {gamma:g} to", "linear": "read as"}[transfer]
         warnings.warn(f"{path}: {image.integer_bits}-bit image {how} linear radiance{why}", BakeryWarning,
                       stacklevel=2)
+    if decode == "auto" and pixels.shape[2] == 3:
+        pixels = _to_rec709(path, image, pixels)
     radiance, report = sanitize_radiance(pixels, source=str(path))
     return EnvironmentImage(pixels=radiance, layout=chosen, source=str(path)), report
+
+
+def _warn_about_what_was_read(path: Path, image: ImagePixels, colour_channels: int) -> None:
+    """One-line warnings when the file holds more than, or other than, the radiance that was read: several
+    subimages (the first read), colour channels not named R, G, B (or Y), a Radiance EXPOSURE (not applied)."""
+    if image.subimages:
+        parts = ", ".join(repr(name) for name in image.subimages[:6]) + (" …" if len(image.subimages) > 6 else "")
+        warnings.warn(f"{path}: {len(image.subimages)} subimages (parts: {parts}); only the first, "
+                      f"{image.subimages[0]!r}, is read", BakeryWarning, stacklevel=3)
+    used = image.channel_names[:colour_channels]
+    bases = tuple(name.rsplit(".", 1)[-1].upper() for name in used)
+    if used and (bases not in (("R", "G", "B"), ("Y",)) or any("." in name for name in used)):
+        warnings.warn(f"{path}: no R, G, B (or Y) channels of its own; read {', '.join(used)} as "
+                      f"{'RGB' if colour_channels == 3 else 'luminance'} radiance", BakeryWarning, stacklevel=3)
+    if image.exposure != 1.0:
+        warnings.warn(f"{path}: Radiance EXPOSURE={image.exposure:g} not applied (pixels read as stored, as renderers "
+                      f"read them; divide by it for the radiance before that exposure)", BakeryWarning, stacklevel=3)
+
+
+def _to_rec709(path: Path, image: ImagePixels, pixels: np.ndarray) -> np.ndarray:
+    """Linear RGB ``pixels`` of a file whose primaries are not Rec.709 (its chromaticities, else a linear colour-space
+    name OpenImageIO reports, e.g. ``lin_ap1_scene`` for an OpenEXR ``colorInteropID`` of ACEScg) converted to linear
+    Rec.709, with a one-line warning; other files as they are (float files are linear whatever their tag)."""
+    name = image.color_space.strip().lower()
+    if image.chromaticities is not None:
+        problem = chromaticities_problem(image.chromaticities)
+        if problem:
+            warnings.warn(f"{path}: {problem}; read as linear Rec.709", BakeryWarning, stacklevel=3)
+            return pixels
+        chromaticities, what = image.chromaticities, "chromaticities " + " ".join(
+            f"{v:g}" for v in image.chromaticities)
+    elif name in LINEAR_GAMUTS:
+        chromaticities, what = LINEAR_GAMUTS[name], f"colour space {image.color_space!r}"
+    else:  # Rec.709, or a name of a transfer function (integer files: decoded before) or unknown: as stored
+        return pixels
+    matrix = to_rec709_matrix(chromaticities)
+    if matrix is None:
+        return pixels
+    warnings.warn(f"{path}: {what} converted to linear Rec.709 (Bradford-adapted white)", BakeryWarning, stacklevel=3)
+    return (pixels @ matrix.T.astype(np.float32)).astype(np.float32)
 
 
 def write_exr(path: str | os.PathLike[str], pixels: np.ndarray, half: bool = True, attributes: dict | None = None) -> None:

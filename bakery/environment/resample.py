@@ -54,11 +54,15 @@ _MAX_SUBSAMPLES = 16
 #: Bumped whenever the resampling of an unchanged image changes its result; image probes and non-latlong domes
 #: hash it, so their stores re-bake once (2: peaks splatted as flux, the mirrored ball's gather; 3: the disc maps'
 #: texel solid angles integrated and normalised to 4π, and integer files decoded by their transfer function,
-#: :func:`bakery.environment.io.read_environment`).
-RESAMPLE_MODEL_VERSION = 3
+#: :func:`bakery.environment.io.read_environment`; 4: files read upright by their orientation — Radiance resolution
+#: lines other than "-Y +X", TIFF/EXIF Orientation —, on OpenEXR's display window, and non-Rec.709 primaries
+#: converted).
+RESAMPLE_MODEL_VERSION = 4
 #: Luminance above this multiple of the environment's mean is a peak, resampled as flux (module docstring).
 PEAK_RATIO = 50.0
 _PEAK_SUBSAMPLES = 16
+#: Texels per band of rows :func:`environment_samples` builds at a time.
+_SAMPLE_BAND_TEXELS = 1_000_000
 
 
 def source_texel_solid_angles(image: EnvironmentImage) -> np.ndarray:
@@ -81,17 +85,27 @@ def source_texel_solid_angles(image: EnvironmentImage) -> np.ndarray:
 
 
 def environment_samples(image: EnvironmentImage) -> SphericalSamples:
-    """Full-resolution quadrature of the environment: one sample per valid texel (exact solid angles)."""
+    """Full-resolution quadrature of the environment: one sample per valid texel (exact solid angles).
+
+    Built a band of rows at a time into the float64 arrays it returns: an 8192 × 4096 latlong needs those (1.9 GB)
+    and little more (the whole-image grids of positions and directions took 4.6 GB at the peak before)."""
     h, w = image.height, image.width
-    rows, cols = np.meshgrid(np.arange(h) + 0.5, np.arange(w) + 0.5, indexing="ij")
-    directions, _ = layout_directions_and_density(image.layout, rows, cols, h, w)
     omega = source_texel_solid_angles(image)
     valid = omega > 0  # zero off the disc and in the cross's empty cells
-    return SphericalSamples(
-        directions=directions[valid].astype(np.float64),
-        solid_angles=omega[valid].astype(np.float64),
-        radiance=image.pixels[valid].astype(np.float64),
-    )
+    count = int(np.count_nonzero(valid))
+    directions = np.empty((count, 3))
+    radiance = np.empty((count, image.pixels.shape[2]))
+    band = max(1, _SAMPLE_BAND_TEXELS // max(1, w))
+    start = 0
+    for r0 in range(0, h, band):
+        r1 = min(h, r0 + band)
+        keep = valid[r0:r1]
+        end = start + int(np.count_nonzero(keep))
+        rows, cols = np.meshgrid(np.arange(r0, r1) + 0.5, np.arange(w) + 0.5, indexing="ij")
+        directions[start:end] = layout_directions_and_density(image.layout, rows[keep], cols[keep], h, w)[0]
+        radiance[start:end] = image.pixels[r0:r1][keep]
+        start = end
+    return SphericalSamples(directions=directions, solid_angles=omega[valid], radiance=radiance)
 
 
 def supersampling_factor(image: EnvironmentImage, face_size: int) -> int:
