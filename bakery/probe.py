@@ -8,12 +8,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from bakery.sh.projection import SHProjector
 from bakery.sphere.cubemap import cube_texel_directions, cube_texel_solid_angles
 from bakery.sphere.grid import SphericalSamples
+
+if TYPE_CHECKING:
+    from bakery.irradiance.reference import BinnedQuadrature
 
 PROBE_KINDS = ("irradiance", "reflection")
 
@@ -65,11 +69,14 @@ class ProbeBatch:
 
     Args:
         cubes: (P, 6, N, N, 3) float32 radiance.
-        reference_samples: optional per-probe full-resolution quadratures (the source image of a distant probe),
-            used by reference integrators and error reports; ``None`` means the cube itself is the reference.
+        reference_samples: optional per-probe full-resolution quadratures (the source image of a distant probe,
+            as :class:`~bakery.sphere.grid.SphericalSamples` or binned,
+            :class:`~bakery.irradiance.reference.BinnedQuadrature`), used by the reference diagnostics; ``None``
+            means the cube itself is the reference.
     """
 
-    def __init__(self, cubes: np.ndarray, reference_samples: list[SphericalSamples] | None = None) -> None:
+    def __init__(self, cubes: np.ndarray,
+                 reference_samples: list[SphericalSamples | BinnedQuadrature] | None = None) -> None:
         cubes = np.asarray(cubes, dtype=np.float32)
         if cubes.ndim != 5 or cubes.shape[1] != 6 or cubes.shape[2] != cubes.shape[3] or cubes.shape[4] != 3:
             raise ValueError(f"cubes must be (P, 6, N, N, 3), got {cubes.shape}")
@@ -94,17 +101,6 @@ class ProbeBatch:
         if max_band not in self._sh:
             self._sh[max_band] = cube_projector(self.face_size, max_band).project(self.texels())
         return self._sh[max_band]
-
-    def samples(self, index: int) -> SphericalSamples:
-        """Full-resolution quadrature of probe ``index`` (the reference), or its cube if none was given."""
-        if self.reference_samples is not None:
-            return self.reference_samples[index]
-        n = self.face_size
-        return SphericalSamples(
-            directions=cube_texel_directions(n).reshape(-1, 3),
-            solid_angles=cube_texel_solid_angles(n).reshape(-1),
-            radiance=self.cubes[index].reshape(-1, 3).astype(np.float64),
-        )
 
 
 class RadianceSHBatch(ProbeBatch):

@@ -13,7 +13,8 @@ Cube captures (:func:`reference_irradiance_cubes`; probes whose reference is the
 
 Full-resolution quadratures (:func:`reference_irradiance_binned`; distant probes: the source image)
     Brute force costs D × S per probe (S = 0.5 M texels for a 1k equirect: 2.2 s). Instead (quadratures of at
-    most ``EXACT_BRIGHTEST`` samples stay entirely brute force):
+    most ``EXACT_BRIGHTEST`` samples stay entirely brute force; steps 1–2 do not depend on the normals, and a bake
+    holds their result, :class:`BinnedQuadrature`, built band by band, instead of the samples):
     1. the ``EXACT_BRIGHTEST`` = 1024 samples of largest luminance flux (the sun) are integrated by brute force;
     2. every other sample is binned into the texel t of a reference cube of face ``REFERENCE_FACE_SIZE`` = 48 that
        contains it, keeping per texel its flux Φ_t = Σ Ω_s L_s and first moment m_t = Σ Ω_s L_s ω_s (per channel);
@@ -44,6 +45,8 @@ Notation
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
@@ -295,23 +298,94 @@ def bin_samples(samples: SphericalSamples, face_size: int, mask: np.ndarray | No
     return phi, moment
 
 
-def reference_irradiance_binned(samples: list[SphericalSamples], normals: np.ndarray,
+@dataclass(frozen=True)
+class BinnedQuadrature:
+    """A full-resolution quadrature reduced to what :func:`reference_irradiance_binned` reads (module doc, steps 1
+    and 2), whatever the normals: its ``EXACT_BRIGHTEST`` samples of largest luminance flux as they are, and every
+    other sample's flux and first moment binned into the texels of a reference cube. A few MB at any image size
+    (the samples of an 8192 × 4096 latlong are 1.9 GB), so a worker can hold a batch of them.
+
+    Attributes:
+        bright: the brightest samples (≤ ``EXACT_BRIGHTEST``), integrated by brute force.
+        phi: (6N², C) flux Φ_t of the other samples per reference-cube texel.
+        moment: (6N², C, 3) first moment m_t per texel.
+        face_size: N, the reference cube's face size.
+    """
+
+    bright: SphericalSamples
+    phi: np.ndarray
+    moment: np.ndarray
+    face_size: int
+
+    def flux(self) -> np.ndarray:
+        """∫ L dω per channel (C,) of the whole quadrature."""
+        return self.bright.flux() + self.phi.sum(axis=0)
+
+
+def binned_quadrature(samples: SphericalSamples, face_size: int = REFERENCE_FACE_SIZE,
+                      exact: int = EXACT_BRIGHTEST) -> BinnedQuadrature:
+    """``samples`` reduced to a :class:`BinnedQuadrature` (module doc, steps 1 and 2)."""
+    index, rest = _split_brightest(samples, exact)
+    bright = SphericalSamples(samples.directions[index], samples.solid_angles[index], samples.radiance[index])
+    phi, moment = bin_samples(samples, face_size, rest)
+    return BinnedQuadrature(bright, phi, moment, face_size)
+
+
+def binned_quadrature_of_bands(bands: Iterable[SphericalSamples], luminance_flux: np.ndarray,
+                               face_size: int = REFERENCE_FACE_SIZE, exact: int = EXACT_BRIGHTEST) -> BinnedQuadrature:
+    """:func:`binned_quadrature` of a quadrature given as consecutive ``bands`` of its samples (never all at once),
+    with ``luminance_flux`` (S,) = (L_s · luminance weights) Ω_s of all S samples, which picks the brightest as
+    :func:`_split_brightest` does. The bins are summed band by band (the same sums in another order)."""
+    luminance_flux = np.asarray(luminance_flux, dtype=np.float64)
+    total = luminance_flux.shape[0]
+    rest = np.ones(total, dtype=bool)
+    if exact >= total:
+        chosen = np.arange(total)
+    elif exact <= 0:
+        chosen = np.zeros(0, dtype=np.int64)
+    else:
+        chosen = np.argpartition(-np.abs(luminance_flux), exact - 1)[:exact]
+    rest[chosen] = False
+    chosen.sort()  # the bright samples are met band by band, in index order
+    t = 6 * face_size * face_size
+    phi, moment, start = None, None, 0
+    parts: list[SphericalSamples] = []
+    for band in bands:
+        end = start + band.count
+        mask = rest[start:end]
+        picked = np.flatnonzero(~mask)
+        parts.append(SphericalSamples(band.directions[picked], band.solid_angles[picked], band.radiance[picked]))
+        band_phi, band_moment = bin_samples(band, face_size, mask)
+        phi = band_phi if phi is None else phi + band_phi
+        moment = band_moment if moment is None else moment + band_moment
+        start = end
+    if start != total or not parts:
+        raise ValueError(f"the bands hold {start} samples, the luminance flux {total}")
+    bright = SphericalSamples(np.concatenate([q.directions for q in parts]),
+                              np.concatenate([q.solid_angles for q in parts]),
+                              np.concatenate([q.radiance for q in parts]))
+    return BinnedQuadrature(bright, phi, moment, face_size)
+
+
+def reference_irradiance_binned(samples: list[SphericalSamples | BinnedQuadrature], normals: np.ndarray,
                                 face_size: int = REFERENCE_FACE_SIZE, exact: int = EXACT_BRIGHTEST) -> np.ndarray:
-    """Irradiance (P, D, C) float32 of full-resolution quadratures at unit normals (D, 3): the brightest ``exact``
-    samples by brute force, the rest binned with exact positive/negative texels (module doc, error bound there)."""
+    """Irradiance (P, D, C) float32 of full-resolution quadratures (or their :class:`BinnedQuadrature`, which fix
+    their own face size and brightest samples) at unit normals (D, 3): the brightest ``exact`` samples by brute
+    force, the rest binned with exact positive/negative texels (module doc, error bound there)."""
     normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
-    splits = [_split_brightest(s, exact) for s in samples]
-    bright = np.stack([reference_irradiance(SphericalSamples(s.directions[index], s.solid_angles[index],
-                                                             s.radiance[index]), normals)
-                       if index.size else np.zeros((normals.shape[0], s.radiance.shape[1]))
-                       for s, (index, _) in zip(samples, splits, strict=True)])  # (P, D, C)
-    if not any(rest.any() for _, rest in splits):  # small quadratures: all by brute force
+    quadratures = [s if isinstance(s, BinnedQuadrature) else binned_quadrature(s, face_size, exact) for s in samples]
+    bright = np.stack([reference_irradiance(q.bright, normals) if q.bright.solid_angles.size
+                       else np.zeros((normals.shape[0], q.phi.shape[1])) for q in quadratures])  # (P, D, C)
+    if not any(q.phi.any() or q.moment.any() for q in quadratures):  # nothing binned: all by brute force
         return bright.astype(np.float32)
-    prefix, straddle = _binned_operators(face_size, _remember(normals))
-    binned = [bin_samples(s, face_size, rest) for s, (_, rest) in zip(samples, splits, strict=True)]
-    p, c, n = len(samples), bright.shape[2], face_size
-    phi = np.stack([b[0] for b in binned], axis=1).reshape(6 * n * n, -1)  # (T, P·C)
-    moment = np.stack([b[1] for b in binned], axis=1).reshape(6 * n, n, -1)  # (6N rows, N columns, P·C·3)
+    sizes = {q.face_size for q in quadratures}
+    if len(sizes) != 1:
+        raise ValueError(f"binned quadratures of different reference face sizes {sorted(sizes)}")
+    n = sizes.pop()
+    prefix, straddle = _binned_operators(n, _remember(normals))
+    p, c = len(quadratures), bright.shape[2]
+    phi = np.stack([q.phi for q in quadratures], axis=1).reshape(6 * n * n, -1)  # (T, P·C)
+    moment = np.stack([q.moment for q in quadratures], axis=1).reshape(6 * n, n, -1)  # (6N rows, N cols, P·C·3)
     cumulative = np.zeros((6 * n, n + 1, moment.shape[2]))  # prefix sums of each texel row's moments
     np.cumsum(moment, axis=1, out=cumulative[:, 1:])
     linear = (prefix @ cumulative.reshape(6 * n * (n + 1), -1)).reshape(-1, p, c, 3)  # Σ_{t positive} m_t

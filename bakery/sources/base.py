@@ -40,8 +40,8 @@ class Capture:
 
     Attributes:
         cube: (6, N, N, 3) float32 radiance on the bake grid.
-        reference: full-resolution quadrature of what the probe sees (a distant probe's source image), or None when
-            the cube is the reference.
+        reference: full-resolution quadrature of what the probe sees (a distant probe's source image; a
+            :class:`~bakery.irradiance.reference.BinnedQuadrature` of it), or None when the cube is the reference.
         sanitize: counts of input texels replaced by sanitising, or None when nothing was read from a file.
         stats: numbers summed into the bake's timings (``capture_rays``, ``capture_seconds``, …).
         diagnostics: per-probe arrays (no probe axis) stored under ``/diagnostics`` (e.g. ``input/flux_source``).

@@ -2,7 +2,8 @@
 
 Probe names: ``/environment`` for a single image, ``/environment/<stem>`` for several. The capture is the image
 resampled to the bake grid by the flux-exact area-weighted filter (:func:`bakery.environment.resample_to_cube`);
-the full-resolution image is the probe's reference quadrature. Workers read the image themselves (it is already a
+the full-resolution image is the probe's reference quadrature, held binned (:func:`bakery.environment.resample.
+environment_reference`). Workers read the image themselves (it is already a
 file on disk; nothing is snapshotted) and cache the decoded image per process.
 """
 
@@ -18,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from bakery.environment.io import missing_image_message, read_environment
-from bakery.environment.resample import RESAMPLE_MODEL_VERSION, environment_samples, resample_to_cube
+from bakery.environment.resample import RESAMPLE_MODEL_VERSION, environment_reference, resample_to_cube
 from bakery.errors import DegenerateInputWarning, ImageError
 from bakery.files import sha256_file
 from bakery.probe import PROBE_KINDS, Probe
@@ -39,8 +40,8 @@ class EnvironmentCapture:
 def _read(path: str, layout: str | None, face_size: int) -> Capture:
     image, report = read_environment(path, layout=layout)
     cube = resample_to_cube(image, face_size)
-    samples = environment_samples(image)
-    return Capture(cube, samples, report, diagnostics={"input/flux_source": samples.flux().astype(np.float64)})
+    reference = environment_reference(image)  # what the diagnostics read: a few MB (an 8K image's samples: 1.9 GB)
+    return Capture(cube, reference, report, diagnostics={"input/flux_source": reference.flux().astype(np.float64)})
 
 
 class EnvironmentSource(Source):

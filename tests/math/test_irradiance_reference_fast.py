@@ -136,3 +136,32 @@ def test_the_binned_operators_give_the_dense_formulation(tmp_path):
     s = np.maximum(normals @ centres.T, 0.0) * straddle
     dense = np.einsum("dcj,dj->dc", np.einsum("dt,tcj->dcj", positive.astype(np.float64), moment), normals) + s @ phi
     np.testing.assert_allclose(fast, dense, rtol=2e-5, atol=2e-6 * np.abs(dense).max())
+
+
+@pytest.mark.parametrize("band_texels", [1, 5000])
+def test_the_bakes_binned_reference_built_in_bands_is_the_binned_quadrature(monkeypatch, band_texels):
+    """What an image probe's capture holds (:func:`bakery.environment.resample.environment_reference`, built band by
+    band so that an 8K image never has its 1.9 GB of samples in memory) is the binned quadrature of its samples: the
+    same brightest samples, bins equal up to summation order, flux ∫L dω, and irradiance within the brute force's
+    a-posteriori bound (module doc)."""
+    from bakery.environment import resample as resample_module
+    from bakery.environment.layouts import EnvironmentImage
+
+    rng = np.random.default_rng(5)
+    pixels = rng.gamma(0.7, 1.0, size=(48, 96, 3)).astype(np.float32)
+    pixels[5, 40] = 4e4  # a sun
+    image = EnvironmentImage(pixels, "equirect")
+    samples = environment_samples(image)
+    monkeypatch.setattr(resample_module, "_SAMPLE_BAND_TEXELS", band_texels)
+    banded = resample_module.environment_reference(image)
+    whole = ref.binned_quadrature(samples)
+    key = lambda q: np.lexsort(q.bright.directions.T)  # noqa: E731 - the same set, in any order
+    np.testing.assert_array_equal(banded.bright.directions[key(banded)], whole.bright.directions[key(whole)])
+    np.testing.assert_array_equal(banded.bright.radiance[key(banded)], whole.bright.radiance[key(whole)])
+    np.testing.assert_allclose(banded.phi, whole.phi, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(banded.moment, whole.moment, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(banded.flux(), samples.flux(), rtol=1e-12)
+    brute = ref.reference_irradiance(samples, NORMALS)
+    fast = ref.reference_irradiance_binned([banded], NORMALS)[0]
+    bound = ref.binned_error_bound(samples, NORMALS)
+    assert np.all(np.abs(fast - brute) <= bound + 1e-5 * np.abs(brute).max())
