@@ -350,9 +350,10 @@ def bake_shard(request: BakeRequest, spec: ShardSpec, executor: Any = None,
     def summary(**values: Any) -> ShardSummary:
         seconds = time.perf_counter() - start
         baked = values.pop("baked")
+        recomputed = 0 if values["already_complete"] else extra  # a finished shard recomputes nothing
         return ShardSummary(store=str(request.output), plan_id=identity, range=format_range(probe_range),
                             shard=shard_label, work_probes=len(work), probes=len(wanted), baked=baked,
-                            batches=len(batches), recomputed_outside_range=extra,
+                            batches=len(batches), recomputed_outside_range=recomputed,
                             workers=getattr(executor, "workers", 1), executor=getattr(executor, "name", "?"),
                             seconds=seconds, probes_per_second=baked / seconds if seconds > 0 else 0.0, **values)
 

@@ -72,7 +72,9 @@ def test_ranges_that_cut_batches_still_merge_bit_identically(tmp_path, monkeypat
         summary = bake_shard(_request(tmp_path, shard), ShardSpec(probes=(first, last)))
         assert summary.probes == last - first + 1 and summary.baked == summary.probes
         shards.append(shard)
-    assert bake_shard(_request(tmp_path, shards[0]), ShardSpec(probes=(0, 9))).already_complete  # resumable
+    again = bake_shard(_request(tmp_path, shards[0]), ShardSpec(probes=(0, 9)))
+    assert again.already_complete and again.recomputed_outside_range == 0  # resumable; nothing recomputed
+    assert "recomputed" not in again.log_line()
     merged = tmp_path / "farm" / "indoor.h5"
     merge_shards(shards, merged)
     assert merged.read_bytes() == one.read_bytes()
