@@ -62,3 +62,57 @@ def to_working_space(rgb: np.ndarray, name: str) -> np.ndarray:
     flat = np.ascontiguousarray(values.reshape(-1, 3))
     _processor(canonical_name(name)).applyRGB(flat)
     return flat.reshape(values.shape)
+
+
+#: Hydra's tolerance on a PNG's gAMA value (Hio's stb reader: |γ − 0.45455| < 0.1 is sRGB, |γ − 1| < 0.1 linear)
+_GAMMA_TOLERANCE = 0.1
+
+
+def png_transfer_tag(path: str) -> str:
+    """What a PNG file's own colour chunks say about its encoding, read before its image data: ``"srgb"`` for an
+    ``sRGB`` chunk or a ``gAMA`` of 1/2.2 (0.45455), ``"linear"`` for a ``gAMA`` of 1, else ``""`` (not a PNG, no
+    chunk, another gamma). UsdPreviewSurface's ``sourceColorSpace`` "auto" checks the file's gamma / colour-space
+    metadata before it guesses from the bit depth and channel count (Hydra's stb reader reads ``gAMA`` the same
+    way); OpenImageIO reports a PNG without these chunks as sRGB too, so its ``oiio:ColorSpace`` cannot tell."""
+    try:
+        with open(path, "rb") as handle:
+            if handle.read(8) != b"\x89PNG\r\n\x1a\n":
+                return ""
+            tag = ""
+            for _ in range(64):  # the colour chunks precede IDAT (PNG specification, chunk ordering)
+                head = handle.read(8)
+                if len(head) < 8:
+                    return tag
+                length, kind = int.from_bytes(head[:4], "big"), head[4:]
+                if kind in (b"IDAT", b"IEND"):
+                    return tag
+                if kind not in (b"gAMA", b"sRGB"):
+                    handle.seek(length + 4, 1)  # the chunk's data and CRC
+                    continue
+                data = handle.read(length)
+                handle.seek(4, 1)  # CRC
+                if kind == b"sRGB":
+                    return "srgb"
+                if kind == b"gAMA" and len(data) == 4:
+                    gamma = int.from_bytes(data, "big") / 100000.0
+                    if abs(gamma - 0.45455) < _GAMMA_TOLERANCE:
+                        tag = "srgb"
+                    elif abs(gamma - 1.0) < _GAMMA_TOLERANCE:
+                        tag = "linear"
+            return tag
+    except OSError:
+        return ""
+
+
+def auto_decodes_srgb(path: str, is_8bit: bool, channels: int) -> tuple[bool, str]:
+    """UsdUVTexture ``sourceColorSpace = "auto"`` (UsdPreviewSurface specification 2.5): "Check for gamma/color
+    space metadata in the texture file itself; if metadata is indicative of sRGB, mark texture as sRGB. If no
+    relevant metadata is found, mark texture as sRGB if it is either 8-bit and has 3 channels or if it is 8-bit and
+    has 4 channels. Otherwise, do not mark texture as sRGB". Returns (decode as sRGB, why) for the file at ``path``
+    with ``channels`` channels (its integer depth ``is_8bit``)."""
+    tag = png_transfer_tag(path)
+    if tag:
+        return tag == "srgb", f"its PNG colour chunk says {tag}"
+    if is_8bit and channels in (3, 4):
+        return True, f"8-bit, {channels} channels"
+    return False, ("8-bit, " if is_8bit else "not 8-bit, ") + f"{channels} channel{'s' if channels != 1 else ''}"

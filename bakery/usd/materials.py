@@ -20,7 +20,8 @@ Surfaces, in order of preference
 Inputs
     Authored values, else the shader's fallbacks. An input connected to a ``UsdUVTexture`` becomes a texture map
     (``Material.maps``) evaluated per ray hit in the capture: ``scale``·texel + ``bias``, ``wrapS``/``wrapT``
-    (``useMetadata`` = repeat: image files carry no wrap metadata we read), ``fallback``, the output's channels,
+    (``useMetadata`` = black, the specification's fallback: bakery reads no wrap metadata from image files),
+    ``fallback`` (the node's value where its file is missing or unreadable, with a warning), the output's channels,
     and texture coordinates from the ``UsdPrimvarReader_float2`` on its ``st`` input (any ``varname``; default
     ``st``). The material's constant value for such an input is the texture's mean (used where a mesh has no
     texture coordinates, and for reports). UsdTransform2d nodes between the reader and the texture are composed
@@ -45,8 +46,11 @@ Ranges
     opacity and coat clamped to [0, 1], albedo and F0 to [0, 1], emission to ≥ 0; F0 = 0 for ``ior`` ≤ 0).
 
 Colour
-    ``sourceColorSpace`` "sRGB" decodes sRGB; "raw" leaves data alone; "auto" decodes 8-bit images as sRGB and
-    reads float images as linear. A ``colorSpace`` on the file attribute (or inherited from the layer, e.g.
+    ``sourceColorSpace`` "sRGB" decodes sRGB; "raw" leaves data alone; "auto" decodes as sRGB what the file's own
+    metadata says is sRGB (a PNG ``sRGB`` chunk or ``gAMA`` 1/2.2; ``gAMA`` 1 is linear), else 8-bit 3- and
+    4-channel images, and reads everything else as stored (UsdPreviewSurface specification,
+    :func:`bakery.usd.color.auto_decodes_srgb`). PNG/TGA colours are straight alpha (OpenImageIO's premultiplication
+    divided out). A ``colorSpace`` on the file attribute (or inherited from the layer, e.g.
     ``ACEScg``) converts colour inputs into the bake's linear Rec.709 with OpenColorIO (:mod:`bakery.usd.color`);
     data inputs (roughness, metallic, opacity, …) are never colour-converted. Textures larger than
     :data:`MAX_TEXTURE_SIZE` are box-filtered down (the capture mip-maps from there).
@@ -66,7 +70,7 @@ from bakery.environment.colour import srgb_to_linear
 from bakery.environment.io import read_image
 from bakery.errors import ImageError, SceneError
 from bakery.usd.assets import local_asset_path
-from bakery.usd.color import ColorSpaceError, canonical_name, to_working_space
+from bakery.usd.color import ColorSpaceError, auto_decodes_srgb, canonical_name, to_working_space
 from bakery.usd.values import typed_value
 
 _T = Usd.TimeCode.EarliestTime()
@@ -81,6 +85,10 @@ def udim_tile_size(tiles: int) -> int:
     if tiles <= 1:
         return MAX_TEXTURE_SIZE
     return max(64, 1 << int(np.floor(np.log2(MAX_TEXTURE_SIZE / np.sqrt(tiles)))))
+
+#: Image formats whose alpha is straight (unassociated) by definition (PNG, TGA), which OpenImageIO premultiplies
+#: when it reads them.
+_STRAIGHT_ALPHA_FORMATS = (".png", ".tga")
 
 #: UsdPreviewSurface fallbacks of the inputs bakery reads.
 PREVIEW_FALLBACKS = {
@@ -299,8 +307,10 @@ class MaterialReader:
         upstream_id = upstream.GetShaderId() or ""
         if upstream_id == "UsdUVTexture":
             entry, mean, primvar = self._uv_texture(upstream, output, name in COLOR_INPUTS)
-            if entry is None:
-                if value is not None:
+            if entry is None:  # no file authored: the input's value; a file that cannot be read: the fallback
+                if mean is not None:
+                    surface.values[name] = mean if np.ndim(fallback) else float(np.mean(mean))
+                elif value is not None:
                     surface.values[name] = value
                 return
             surface.maps[name] = entry
@@ -329,27 +339,37 @@ class MaterialReader:
                         "which the capture does not evaluate; its value is used")
 
     def _uv_texture(self, texture: UsdShade.Shader, output: str, is_color: bool):  # noqa: ANN202
-        """(map entry, mean value of the output, primvar name) of a UsdUVTexture, or (None, None, None)."""
+        """(map entry, mean value of the output, primvar name) of a UsdUVTexture; (None, the output's ``fallback``,
+        None) where it has no file or its file cannot be found or read (UsdPreviewSurface specification: "Fallback
+        value used when texture can not be read"; reported)."""
         path = str(texture.GetPath())
         file_input = texture.GetInput("file")
         asset = self._producer(file_input)[0] if file_input else None
-        if not isinstance(asset, Sdf.AssetPath) or not asset.path:
-            self._warn_once(path, "UsdUVTexture has no inputs:file; using the input's value")
-            return None, None, None
+        channels = output if output in ("r", "g", "b", "a") else "rgb"
+        fallback = _value4(self._input_value(texture, "fallback", None), (0.0, 0.0, 0.0, 1.0))
+        fallback_out = (float(fallback[{"r": 0, "g": 1, "b": 2, "a": 3}[channels]]) if channels != "rgb" else
+                        fallback[:3].copy())
+        if not isinstance(asset, Sdf.AssetPath) or not asset.path:  # "Fallback value to be returned when no
+            self._warn_once(path, "UsdUVTexture has no inputs:file; its fallback "  # texture is connected" (Sdr)
+                            f"{_shown(fallback_out)} is used")
+            return None, fallback_out, None
         udim = "<UDIM>" in asset.path
         tiles = self._udim_tiles(file_input, asset.path) if udim else []
         resolved = tiles[0][1] if udim and tiles else (None if udim else local_asset_path(asset))
-        if resolved is None:
-            self._warn_once(path, f"texture {asset.path!r} not found; using the input's value")
-            return None, None, None
+        if resolved is None:  # "Fallback value used when texture can not be read" (UsdPreviewSurface specification)
+            self._warn_once(path, f"texture {asset.path!r} not found; the UsdUVTexture's fallback "
+                            f"{_shown(fallback_out)} is used")
+            return None, fallback_out, None
         source_cs = str(self._input_value(texture, "sourceColorSpace", "") or "auto")
         color_space = file_input.GetAttr().GetColorSpace() if file_input else ""
         if not color_space:
             color_space = _inherited_color_space(texture.GetPrim())
         size = udim_tile_size(len(tiles)) if udim else 0
         index = self.texture_index(resolved, source_cs, path, color_space, is_color, size)
-        if index is None:
-            return None, None, None
+        if index is None:  # unreadable (reported by texture_index): the fallback, as for a missing file
+            self._warn_once(path, f"the UsdUVTexture's fallback {_shown(fallback_out)} is used for "
+                            f"{Path(resolved).name}")
+            return None, fallback_out, None
         udim_tiles, texel_mean = (), self._means[index]
         if udim:  # every tile, by its number; the mean over the tiles stands for the whole texture
             indices = [(tile, self.texture_index(file, source_cs, path, color_space, is_color, size))
@@ -358,9 +378,7 @@ class MaterialReader:
             texel_mean = np.mean([self._means[i] for _, i in udim_tiles], axis=0)
         scale = _value4(self._input_value(texture, "scale", None), (1.0, 1.0, 1.0, 1.0))
         bias = _value4(self._input_value(texture, "bias", None), (0.0, 0.0, 0.0, 0.0))
-        fallback = _value4(self._input_value(texture, "fallback", None), (0.0, 0.0, 0.0, 1.0))
         wrap = tuple(_wrap_mode(str(self._input_value(texture, w, "") or "useMetadata")) for w in ("wrapS", "wrapT"))
-        channels = output if output in ("r", "g", "b", "a") else "rgb"
         mean = texel_mean * scale + bias
         mean_out = float(mean[{"r": 0, "g": 1, "b": 2, "a": 3}[channels]]) if channels != "rgb" else mean[:3]
         primvar = "st"
@@ -427,8 +445,17 @@ class MaterialReader:
             self._texture_index[key] = None
             return None
         pixels = _rgba(image.pixels.astype(np.float64))
+        if image.alpha_channel >= 0 and Path(filename).suffix.lower() in _STRAIGHT_ALPHA_FORMATS:
+            # OpenImageIO associates (premultiplies) the straight alpha of these formats on reading; UsdPreviewSurface
+            # colour inputs are straight alpha ("no pre-multiplication"), so the stored colours are restored (where
+            # alpha is 0 they are lost: black)
+            alpha = pixels[..., 3:4]
+            pixels[..., :3] = np.where(alpha > 0.0, pixels[..., :3] / np.where(alpha > 0.0, alpha, 1.0), 0.0)
         label = "raw"
-        decode_srgb = source_cs == "sRGB" or (source_cs == "auto" and not color_space and image.is_8bit)
+        auto_srgb, why = False, ""
+        if source_cs == "auto" and not color_space:  # the specification's rule (bakery.usd.color.auto_decodes_srgb)
+            auto_srgb, why = auto_decodes_srgb(filename, image.is_8bit, int(image.pixels.shape[2]))
+        decode_srgb = source_cs == "sRGB" or (source_cs == "auto" and not color_space and auto_srgb)
         if source_cs == "raw":
             pass
         elif decode_srgb:
@@ -444,8 +471,9 @@ class MaterialReader:
                 label = "lin_rec709"
         elif is_color:
             label = "lin_rec709"
-            self._warn_once(prim, f"{Path(filename).name}: no colour-space information (float image, "
-                            "sourceColorSpace auto); read as linear Rec.709")
+            self._warn_once(prim, f"{Path(filename).name}: no colour-space information ({why}; sourceColorSpace "
+                            "auto decodes sRGB only for 8-bit 3- or 4-channel files or an sRGB tag); read as "
+                            "linear Rec.709")
         self._means[len(self.textures)] = pixels.reshape(-1, 4).mean(axis=0)
         pixels = _downsample(pixels, max_size)
         self.textures.append(Texture(name=filename, pixels=pixels.astype(np.float32), color_space=label))
@@ -554,8 +582,20 @@ def _value4(value, fallback) -> np.ndarray:  # noqa: ANN001
     return np.asarray(fallback if value is None else value, dtype=np.float64).reshape(-1)[:4]
 
 
+def _shown(value) -> str:  # noqa: ANN001
+    """A scalar or a colour as text: ``0.5`` or ``(0.2, 0.4, 0.6)``."""
+    if np.ndim(value) == 0:
+        return f"{float(value):g}"
+    return "(" + ", ".join(f"{float(x):g}" for x in np.asarray(value).reshape(-1)) + ")"
+
+
 def _wrap_mode(token: str) -> str:
-    return {"black": "black", "clamp": "clamp", "mirror": "mirror"}.get(token, "repeat")
+    """A UsdUVTexture ``wrapS``/``wrapT`` token as the capture's wrap mode. ``useMetadata`` (the fallback) "look[s]
+    for wrapS and wrapT metadata in the texture file itself ... If the texture contains no such metadata, then fall
+    back to black" (UsdPreviewSurface specification; Hydra Storm: HdWrapNoOpinion → clamp to a black border).
+    bakery reads no wrap metadata from files (see docs/capture.md), so ``useMetadata`` — and an unknown token, which
+    Hydra also reads as useMetadata — is black."""
+    return {"repeat": "repeat", "clamp": "clamp", "mirror": "mirror"}.get(token, "black")
 
 
 def _inherited_color_space(prim: Usd.Prim) -> str:

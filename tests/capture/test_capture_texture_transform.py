@@ -61,6 +61,8 @@ def _preview(file: str, transform: str) -> str:
         uniform token info:id = "UsdUVTexture"
         asset inputs:file = @{file}@
         token inputs:sourceColorSpace = "raw"
+        token inputs:wrapS = "repeat"
+        token inputs:wrapT = "repeat"
         {st}
         float3 outputs:rgb
     }}
