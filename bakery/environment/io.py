@@ -121,9 +121,14 @@ def _integer_bits(spec: oiio.ImageSpec) -> int:
 
 
 @contextmanager
-def _opened(path: Path) -> Iterator[tuple[oiio.ImageInput, oiio.ImageSpec]]:
-    """An open ImageInput and its spec, after the header checks (empty image, more than :data:`MAX_PIXELS`)."""
-    image_input = oiio.ImageInput.open(str(path))
+def _opened(path: Path, unassociated_alpha: bool = False) -> Iterator[tuple[oiio.ImageInput, oiio.ImageSpec]]:
+    """An open ImageInput and its spec, after the header checks (empty image, more than :data:`MAX_PIXELS`);
+    ``unassociated_alpha``: colours of files that store straight alpha (PNG, TGA, some TIFF) as stored, not
+    premultiplied (OpenImageIO's ``oiio:UnassociatedAlpha`` hint)."""
+    config = oiio.ImageSpec()
+    if unassociated_alpha:
+        config.attribute("oiio:UnassociatedAlpha", 1)
+    image_input = oiio.ImageInput.open(str(path), config)
     if image_input is None:
         reason = oiio.geterror() or "unknown format"
         header = radiance_header(path)
@@ -149,7 +154,7 @@ def _opened(path: Path) -> Iterator[tuple[oiio.ImageInput, oiio.ImageSpec]]:
 
 
 def read_image(path: str | os.PathLike[str], channels: int = 4, *, display_window: bool = False,
-               orient: bool = False) -> ImagePixels:
+               orient: bool = False, unassociated_alpha: bool = False) -> ImagePixels:
     """Pixels of any image OpenImageIO reads, the first ``channels`` channels as float32 (see :class:`ImagePixels`).
 
     Args:
@@ -161,6 +166,8 @@ def read_image(path: str | os.PathLike[str], channels: int = 4, *, display_windo
             commonly one face).
         orient: turn the pixels as the file's orientation says (TIFF/EXIF ``Orientation``; a Radiance file's
             resolution line, e.g. ``+Y 512 +X 1024`` is stored bottom row first), so that row 0 is the top.
+        unassociated_alpha: the colour of files that store straight alpha (PNG, TGA) as stored; by default
+            OpenImageIO premultiplies it on reading.
 
     Raises:
         ImageError: the file is missing, unreadable, truncated or its header claims an empty or absurdly large image.
@@ -168,7 +175,7 @@ def read_image(path: str | os.PathLike[str], channels: int = 4, *, display_windo
     path = Path(path)
     if not path.is_file():
         raise ImageError(f"{path}: image not found")
-    with _opened(path) as (image_input, spec):
+    with _opened(path, unassociated_alpha) as (image_input, spec):
         count = min(spec.nchannels, channels)
         header = radiance_header(path) if image_input.format_name() == "hdr" else None
         full = (spec.full_x, spec.full_y, spec.full_width, spec.full_height)

@@ -49,8 +49,8 @@ Colour
     ``sourceColorSpace`` "sRGB" decodes sRGB; "raw" leaves data alone; "auto" decodes as sRGB what the file's own
     metadata says is sRGB (a PNG ``sRGB`` chunk or ``gAMA`` 1/2.2; ``gAMA`` 1 is linear), else 8-bit 3- and
     4-channel images, and reads everything else as stored (UsdPreviewSurface specification,
-    :func:`bakery.usd.color.auto_decodes_srgb`). PNG/TGA colours are straight alpha (OpenImageIO's premultiplication
-    divided out). A ``colorSpace`` on the file attribute (or inherited from the layer, e.g.
+    :func:`bakery.usd.color.auto_decodes_srgb`). PNG/TGA colours are straight alpha (read as stored: OpenImageIO's
+    ``oiio:UnassociatedAlpha``). A ``colorSpace`` on the file attribute (or inherited from the layer, e.g.
     ``ACEScg``) converts colour inputs into the bake's linear Rec.709 with OpenColorIO (:mod:`bakery.usd.color`);
     data inputs (roughness, metallic, opacity, …) are never colour-converted. Textures larger than
     :data:`MAX_TEXTURE_SIZE` are box-filtered down (the capture mip-maps from there).
@@ -85,10 +85,6 @@ def udim_tile_size(tiles: int) -> int:
     if tiles <= 1:
         return MAX_TEXTURE_SIZE
     return max(64, 1 << int(np.floor(np.log2(MAX_TEXTURE_SIZE / np.sqrt(tiles)))))
-
-#: Image formats whose alpha is straight (unassociated) by definition (PNG, TGA), which OpenImageIO premultiplies
-#: when it reads them.
-_STRAIGHT_ALPHA_FORMATS = (".png", ".tga")
 
 #: UsdPreviewSurface fallbacks of the inputs bakery reads.
 PREVIEW_FALLBACKS = {
@@ -439,18 +435,14 @@ class MaterialReader:
             return self._texture_index[key]
         self.files.add(filename)
         try:
-            image = read_image(filename, channels=4)
+            # UsdPreviewSurface colour inputs are straight alpha ("no pre-multiplication"): a PNG's or TGA's colours
+            # as stored (OpenImageIO premultiplies them unless asked not to)
+            image = read_image(filename, channels=4, unassociated_alpha=True)
         except ImageError as error:
             self._warn_once(prim, f"texture cannot be read: {error}")
             self._texture_index[key] = None
             return None
         pixels = _rgba(image.pixels.astype(np.float64))
-        if image.alpha_channel >= 0 and Path(filename).suffix.lower() in _STRAIGHT_ALPHA_FORMATS:
-            # OpenImageIO associates (premultiplies) the straight alpha of these formats on reading; UsdPreviewSurface
-            # colour inputs are straight alpha ("no pre-multiplication"), so the stored colours are restored (where
-            # alpha is 0 they are lost: black)
-            alpha = pixels[..., 3:4]
-            pixels[..., :3] = np.where(alpha > 0.0, pixels[..., :3] / np.where(alpha > 0.0, alpha, 1.0), 0.0)
         label = "raw"
         auto_srgb, why = False, ""
         if source_cs == "auto" and not color_space:  # the specification's rule (bakery.usd.color.auto_decodes_srgb)

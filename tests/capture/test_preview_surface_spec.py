@@ -270,12 +270,11 @@ def test_srgb_decode_of_128_is_the_iec_formula(tmp_path):
 
 def test_png_colours_are_straight_alpha(tmp_path):
     """"All color inputs to the UsdPreviewSurface are straight alpha (no pre-multiplication)" and PNG stores
-    straight alpha: the rgb output of a texel (200, 200, 200, 128) is 200/255, not 200/255 · 128/255 (as read before:
-    OpenImageIO premultiplies PNG colours on reading; bakery divides it out — exact up to the 8-bit rounding of that
-    product, ±½ code value / alpha). The a output is 128/255."""
+    straight alpha: the rgb output of a texel (200, 200, 200, 128) is exactly 200/255, not 200/255 · 128/255 (as
+    read before: OpenImageIO premultiplies PNG colours on reading unless asked not to). The a output is 128/255."""
     file = _write_png(tmp_path / "half.png", 200, 4, alpha=128).name
     seen, _ = _seen(tmp_path, _texture_material(file, 'token inputs:sourceColorSpace = "raw"'), [(0.5, 0.5)])
-    np.testing.assert_allclose(seen[0], [200 / 255] * 3, atol=0.5 / 128 + 1e-6)
+    np.testing.assert_allclose(seen[0], [200 / 255] * 3, atol=1e-6)
     seen, _ = _seen(tmp_path, _texture_material(file, 'token inputs:sourceColorSpace = "raw"', "a"), [(0.5, 0.5)])
     np.testing.assert_allclose(seen[0], [128 / 255] * 3, atol=1e-6)
 
