@@ -277,6 +277,43 @@ def _normalized(scale: np.ndarray, normalize: bool, area_stage_units: float) -> 
     return scale / area_stage_units if normalize and area_stage_units > 0 else scale
 
 
+def _magnitude(what: str, value: float, notes: list[str]) -> float:
+    """A light's size input as a magnitude: HdEmbree's areas are lengths of transformed vectors, so a negative
+    size is the mirrored shape of the same area (reported); non-finite sizes are an error."""
+    if not math.isfinite(value):
+        raise ValueError(f"{what} {value} is not finite")
+    if value < 0:
+        notes.append(f"{what} {value} is negative; its magnitude is used")
+        return -value
+    return value
+
+
+def _non_uniform(lengths) -> bool:  # noqa: ANN001
+    """Whether axis lengths differ (relative 1e-6)."""
+    lengths = np.asarray(lengths, dtype=np.float64)
+    return bool(np.ptp(lengths) > 1e-6 * np.max(lengths))
+
+
+def distant_half_angle(angle_degrees: float) -> float:
+    """θmax of a DistantLight: half its ``inputs:angle``, clamped to [0, π] (UsdLux)."""
+    return min(max(math.radians(0.5 * float(angle_degrees)), 0.0), math.pi)
+
+
+def distant_size_factor(alpha: float) -> float:
+    """UsdLux's ``normalize`` divisor of a DistantLight of half-angle θmax = ``alpha``: 1 at 0, π·sin²θmax up to
+    π/2, (2 − sin²θmax)·π beyond."""
+    if alpha <= 0:
+        return 1.0
+    s2 = math.sin(alpha) ** 2
+    return math.pi * s2 if alpha <= 0.5 * math.pi else math.pi * (2.0 - s2)
+
+
+def facing_projected_solid_angle(alpha: float) -> float:
+    """∫ cos θ dω over a cone of half-angle ``alpha`` (≤ π) around the normal, counting only the hemisphere above
+    it: π·sin²α up to π/2, π beyond."""
+    return math.pi * math.sin(alpha) ** 2 if alpha <= 0.5 * math.pi else math.pi
+
+
 # ----------------------------------------------------------------------------------------------------------------
 @register_light
 class DistantLightModel(LightModel):
@@ -287,22 +324,30 @@ class DistantLightModel(LightModel):
 
     def __init__(self, light: Light, textures: tuple = ()) -> None:
         super().__init__(light, textures)
-        self.alpha = math.radians(0.5 * light.angle)
+        self.alpha = distant_half_angle(light.angle)
         self.direction = self.axes[2] / np.linalg.norm(self.axes[2])
         self.illuminance = np.asarray(light.illuminance, dtype=np.float64)
         self.one_minus_cos = 2.0 * math.sin(0.5 * self.alpha) ** 2
-        # radiance inside the disc: E = L·π·sin²α (UsdLux: illuminance at normal incidence)
-        self.disc_radiance = self.illuminance / (math.pi * math.sin(self.alpha) ** 2) if self.alpha > 0 else None
+        # radiance inside the disc: E = L·(projected solid angle of the disc on the facing normal)
+        self.disc_radiance = self.illuminance / facing_projected_solid_angle(self.alpha) if self.alpha > 0 else None
 
     @classmethod
     def from_usd(cls, name, inputs, placement, emission, normalize):  # noqa: ANN001, ANN206
-        angle = float(inputs["angle"])
-        alpha = math.radians(0.5 * angle)
-        illuminance = emission if normalize else emission * math.pi * math.sin(alpha) ** 2
+        """UsdLux (OpenUSD 25.x ``inputs:normalize``/``inputs:angle``): θmax = clamp(angle/2, 0, π) (the angle clipped
+        to [0°, 360°]); the disc's radiance is L = emission / sizeFactor, sizeFactor = 1 (normalize off, or
+        θmax = 0), π·sin²θmax (θmax ≤ π/2) or (2 − sin²θmax)·π (θmax > π/2). Stored as the illuminance on the
+        normal facing the light, E = L·π·sin²θmax (θmax ≤ π/2), L·π (wider: the whole hemisphere is lit), or E = L
+        for the parallel light of θmax = 0 (HdEmbree's delta light delivers Le)."""
+        raw = float(inputs["angle"])
         notes = []
-        if not normalize and angle <= 0:
-            notes.append("DistantLight with angle 0 and normalize off emits nothing (its illuminance is radiance × "
-                         "the disc's solid angle); set inputs:normalize = 1")
+        if not math.isfinite(raw):
+            raise ValueError(f"DistantLight angle {raw} is not finite")
+        angle = min(max(raw, 0.0), 360.0)
+        if angle != raw:
+            notes.append(f"DistantLight angle {raw}° clipped to {angle}° (UsdLux: 0 ≤ angle < 360)")
+        alpha = distant_half_angle(angle)
+        radiance = emission / distant_size_factor(alpha) if normalize else emission
+        illuminance = radiance * facing_projected_solid_angle(alpha) if alpha > 0 else radiance
         return Light("distant", name, illuminance=tuple(float(c) for c in illuminance), axes=placement.axes,
                      angle=angle), notes
 
@@ -449,22 +494,45 @@ class SphereLightModel(LightModel):
 
     @classmethod
     def from_usd(cls, name, inputs, placement, emission, normalize):  # noqa: ANN001, ANN206
+        """The sphere of ``radius`` (its magnitude, as HdEmbree's areas) under the light's transform. UsdLux's
+        ``normalize`` divides by the world-space surface area (stage units²) of that ellipsoid (Knud Thomsen's
+        p = 1.6 formula, as HdEmbree's ``_AreaSphere``); under a non-uniform scale it is drawn as the sphere of the
+        same area (its power exact). ``treatAsPoint`` (and radius 0): a point of the same radiant intensity
+        I = L·πr² as the sphere, drawn as a tiny sphere that probes see (splatted, as small light shapes) and
+        nothing hits; a normalized one of radius 0 is the limit of the normalized spheres, I = intensity/4 (in
+        stage-unit² areas: × metersPerUnit²), an unnormalized one I = intensity (UsdLux leaves zero-area lights to
+        the renderer; HdEmbree's emit nothing)."""
         lengths = np.asarray(placement.lengths)
+        notes = []
         radius_local = float(inputs["radius"])
-        radius = radius_local * float(np.mean(lengths))
+        if not math.isfinite(radius_local):
+            raise ValueError(f"SphereLight radius {radius_local} is not finite")
+        if radius_local < 0:
+            notes.append(f"SphereLight radius {radius_local} is negative; its magnitude is used")
+            radius_local = -radius_local
         # world-space (stage units) ellipsoid area, Knud Thomsen's p = 1.6 formula as HdEmbree's _AreaSphere
         a, b, c = (radius_local * lengths / placement.meters_per_unit).tolist()
         p = 1.6
         area_su = 4.0 * math.pi * (((a * b) ** p + (a * c) ** p + (b * c) ** p) / 3.0) ** (1.0 / p)
+        # the sphere of the ellipsoid's area (the mean axis for a uniform scale: the same sphere)
+        radius = math.sqrt(area_su / (4.0 * math.pi)) * placement.meters_per_unit
+        if radius_local > 0 and _non_uniform(lengths):
+            notes.append("SphereLight under a non-uniform scale is drawn as the sphere of its ellipsoid's area "
+                         f"(radius {radius:.4g} m; power exact, shape approximate)")
         radiance = _normalized(emission, normalize, area_su)
         if bool(inputs["treatAsPoint"]) or radius <= 0:
-            # a point of the same radiant intensity I = L·πr² as the sphere, drawn as a tiny, surface-less sphere
+            # a point of the same radiant intensity I = L·πr² as the sphere, drawn as a tiny sphere
             tiny = 1e-4
-            factor = (radius / tiny) ** 2 if radius > 0 else 1.0 / (math.pi * tiny**2)
+            if radius > 0:
+                factor = (radius / tiny) ** 2
+            elif normalize:  # lim r→0 of L/(4πr²)·πr² (areas in stage units², radius in metres)
+                factor = placement.meters_per_unit**2 / (4.0 * math.pi * tiny**2)
+            else:
+                factor = 1.0 / (math.pi * tiny**2)
             return Light("sphere", name, radiance=tuple(float(x) for x in radiance * factor),
-                         position=placement.position, axes=placement.axes, size=(tiny, 0.0), visible=False), []
+                         position=placement.position, axes=placement.axes, size=(tiny, 0.0)), notes
         return Light("sphere", name, radiance=tuple(float(x) for x in radiance), position=placement.position,
-                     axes=placement.axes, size=(radius, 0.0)), []
+                     axes=placement.axes, size=(radius, 0.0)), notes
 
     @property
     def radius(self) -> float:
@@ -567,12 +635,15 @@ class RectLightModel(_PlanarLight):
 
     @classmethod
     def from_usd(cls, name, inputs, placement, emission, normalize):  # noqa: ANN001, ANN206
-        width = float(inputs["width"]) * placement.lengths[0]
-        height = float(inputs["height"]) * placement.lengths[1]
+        notes: list[str] = []
+        w = _magnitude("RectLight width", float(inputs["width"]), notes)
+        h = _magnitude("RectLight height", float(inputs["height"]), notes)
+        width = w * placement.lengths[0]
+        height = h * placement.lengths[1]
         area_su = width * height / placement.meters_per_unit**2
         radiance = _normalized(emission, normalize, area_su)
         return Light("rect", name, radiance=tuple(float(x) for x in radiance), position=placement.position,
-                     axes=placement.axes, size=(width, height)), []
+                     axes=placement.axes, size=(width, height)), notes
 
     def _surface_point(self, u0, u1):  # noqa: ANN001, ANN202
         return (u0 - 0.5) * float(self.light.size[0]), (u1 - 0.5) * float(self.light.size[1])
@@ -581,10 +652,12 @@ class RectLightModel(_PlanarLight):
         return (np.abs(a) <= 0.5 * float(self.light.size[0])) & (np.abs(b) <= 0.5 * float(self.light.size[1]))
 
     def _texel(self, coords):  # noqa: ANN001, ANN202
-        """HdEmbree's RectLight lookup: s = a/width + ½ (local +X to the right), t = 1 − (b/height + ½) (row 0 at
-        local +Y), nearest texel."""
+        """UsdLuxRectLight: "in the default position, a texture file's min coordinates should be at (+X, +Y) and max
+        coordinates at (-X, -Y)": s = ½ − a/width (column 0 at local +X), t = ½ − b/height (row 0, the file's top
+        row, at local +Y), nearest texel — the image upright and unmirrored seen from the lit side (−Z), as HdEmbree
+        shows a rect light to the camera (its next-event lookup, s = a/width + ½, is mirrored)."""
         h, w = self.texture.shape[:2]
-        s = np.clip(coords[0].astype(np.float64) / self.light.size[0] + 0.5, 0.0, 1.0 - 1e-9)
+        s = np.clip(0.5 - coords[0].astype(np.float64) / self.light.size[0], 0.0, 1.0 - 1e-9)
         t = np.clip(0.5 - coords[1].astype(np.float64) / self.light.size[1], 0.0, 1.0 - 1e-9)
         index = (t * h).astype(np.int64) * w + (s * w).astype(np.int64)
         flat = self.texture.reshape(-1, 3)
@@ -599,13 +672,21 @@ class DiskLightModel(_PlanarLight):
 
     @classmethod
     def from_usd(cls, name, inputs, placement, emission, normalize):  # noqa: ANN001, ANN206
-        r_local = float(inputs["radius"])
-        radius = r_local * 0.5 * (placement.lengths[0] + placement.lengths[1])
-        area_su = math.pi * (r_local * placement.lengths[0]) * (r_local * placement.lengths[1]) \
-            / placement.meters_per_unit**2
+        """The disk of ``radius`` (its magnitude) under the light's transform; ``normalize`` divides by the world-space
+        area π·a·b of that ellipse (stage units², as HdEmbree's ``_AreaDisk``). Under a non-uniform scale it is drawn
+        as the disk of the ellipse's area, radius √(a·b) (its power exact; before, the mean radius (a + b)/2 gave it
+        up to (a + b)²/(4ab) × the power)."""
+        notes: list[str] = []
+        r_local = _magnitude("DiskLight radius", float(inputs["radius"]), notes)
+        a, b = r_local * placement.lengths[0], r_local * placement.lengths[1]
+        radius = math.sqrt(a * b)
+        if r_local > 0 and _non_uniform(placement.lengths[:2]):
+            notes.append("DiskLight under a non-uniform scale is drawn as the disk of its ellipse's area "
+                         f"(radius {radius:.4g} m; power exact, shape approximate)")
+        area_su = math.pi * a * b / placement.meters_per_unit**2
         radiance = _normalized(emission, normalize, area_su)
         return Light("disk", name, radiance=tuple(float(x) for x in radiance), position=placement.position,
-                     axes=placement.axes, size=(radius, 0.0)), []
+                     axes=placement.axes, size=(radius, 0.0)), notes
 
     def _surface_point(self, u0, u1):  # noqa: ANN001, ANN202
         rad = float(self.light.size[0]) * np.sqrt(u0)
@@ -624,15 +705,25 @@ class CylinderLightModel(LightModel):
 
     @classmethod
     def from_usd(cls, name, inputs, placement, emission, normalize):  # noqa: ANN001, ANN206
-        r_local, l_local = float(inputs["radius"]), float(inputs["length"])
+        """The lateral surface of ``radius`` and ``length`` (their magnitudes) under the light's transform;
+        ``normalize`` divides by its world-space area, Ramanujan's perimeter of the elliptic section × the length
+        (stage units², as HdEmbree's ``_AreaCylinder``). A section scaled non-uniformly is drawn as the circle of
+        the same perimeter (the area, so the power, exact; before, the mean radius)."""
+        notes: list[str] = []
+        r_local = _magnitude("CylinderLight radius", float(inputs["radius"]), notes)
+        l_local = _magnitude("CylinderLight length", float(inputs["length"]), notes)
         lengths = placement.lengths
-        radius = r_local * 0.5 * (lengths[1] + lengths[2])
         length = l_local * lengths[0]
         mpu = placement.meters_per_unit
         a, b, c = r_local * lengths[1] / mpu, r_local * lengths[2] / mpu, l_local * lengths[0] / mpu
         perimeter = math.pi * (3.0 * (a + b) - math.sqrt((3.0 * a + b) * (a + 3.0 * b)))  # Ramanujan, as HdEmbree
+        radius = perimeter / (2.0 * math.pi) * mpu  # the circle of the same perimeter (a for a = b)
+        if r_local > 0 and _non_uniform(lengths[1:]):
+            notes.append("CylinderLight with a non-uniformly scaled section is drawn as the circular cylinder of the "
+                         f"same area (radius {radius:.4g} m; power exact, shape approximate)")
         radiance = _normalized(emission, normalize, perimeter * c)
-        notes = ["treatAsLine is a hint; the cylinder's surface is rendered"] if bool(inputs["treatAsLine"]) else []
+        if bool(inputs["treatAsLine"]):
+            notes.append("treatAsLine is a hint; the cylinder's surface is rendered")
         return Light("cylinder", name, radiance=tuple(float(x) for x in radiance), position=placement.position,
                      axes=placement.axes, size=(radius, length)), notes
 
@@ -718,9 +809,9 @@ class LightSet:
         #: the shape a flagged shadow segment meets first is tested alone before the BVH (:meth:`occluded_soa`)
         self._culler = None
         self._shape_bvh = None
+        centres = np.array([m.centre for m in self.surfaces], dtype=np.float64).reshape(-1, 3)
+        radii = np.array([self._cull_radius(m) for m in self.surfaces], dtype=np.float64)
         if len(self.surfaces) >= PROXY_CULLED_SHAPES:
-            centres = np.array([m.centre for m in self.surfaces], dtype=np.float64)
-            radii = np.array([self._cull_radius(m) for m in self.surfaces])
             self._culler = SphereCuller(centres, radii)
             #: a shadow segment that ends on shape k is queried up to 2·R_k before its end: the rest lies within
             #: 3·R_k of k's centre, where only the shapes whose culling spheres reach that ball can be met
@@ -728,7 +819,7 @@ class LightSet:
             #: per shape k, those shapes (CSR: offsets (K + 1,), indices) whose culling spheres reach that ball
             self._end_neighbours = _balls_reached(centres, 3.0 * radii, radii)
             self._near_end = np.r_[np.diff(self._end_neighbours[0]) > 0, False]  # index −1: no shape
-        if len(self.surfaces) > CULLED_SHAPES:
+        if self._culler is not None and len(self.surfaces) > CULLED_SHAPES:  # the BVH's pairs need the culler
             self._shape_bvh = LightBVH([LightBound(tuple(c - r), tuple(c + r), 1.0)
                                         for c, r in zip(centres, radii, strict=True)])
         #: with the BVH, the sphere shapes' (segment, shape) pairs are intersected together (:func:`_sphere_hits`)

@@ -112,9 +112,11 @@ DEFAULT_BOUNCES = 64
 #: Version of what the capture models: part of every scene probe's content hash (:func:`bakery.pipeline.
 #: dependencies.environment_hash`), bumped whenever the same scene and settings capture differently, so a store
 #: baked before is re-baked rather than reused. 2: partial opacity as presence (was opaque), MaterialX transmission,
-#: shading normals, Cylinder/Cone/Capsule/Plane gprims. (Splatted small light shapes are versioned apart, for
-#: the scenes that have light shapes: :data:`bakery.pipeline.dependencies.SMALL_LIGHT_SPLAT_VERSION`.)
-CAPTURE_MODEL_VERSION = 2
+#: shading normals, Cylinder/Cone/Capsule/Plane gprims. 3: UsdLux spec audit (docs/capture.md "UsdLux
+#: interpretation"): RectLight textures with column 0 at local +X (were mirrored), point lights (treatAsPoint,
+#: radius 0) seen by probes, DistantLight angle/normalize per UsdLux. (Splatted small light shapes are versioned
+#: apart, for the scenes that have light shapes: :data:`bakery.pipeline.dependencies.SMALL_LIGHT_SPLAT_VERSION`.)
+CAPTURE_MODEL_VERSION = 3
 #: A visible light shape whose bounding sphere's angular radius, seen from the probe, is at most this many texel
 #: half-widths is seen through a splat of its sampled flux instead of by the probe's camera rays (module docstring
 #: "Small lights").

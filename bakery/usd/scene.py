@@ -72,6 +72,8 @@ _NOT_FINITE_WORLD = "world transform is not finite (a NaN or infinite xformOp va
 
 #: :meth:`_SceneReader._shadow` of a light without ShadowAPI opinions
 _NO_SHADOW_API = {"shadow": True, "shadow_color": (0.0, 0.0, 0.0)}
+#: Largest emission the float32 capture represents (np.finfo(np.float32).max)
+_FLOAT32_LIMIT = float(np.finfo(np.float32).max)
 
 
 @dataclass(frozen=True)
@@ -244,13 +246,25 @@ class _Frame:
         return (m3 @ self.axes).T
 
 
+#: UsdLux ``inputs:colorTemperature``: "The valid range is from 1000 to 10000" (UsdLuxBlackbodyTemperatureAsRgb
+#: clamps to it)
+COLOR_TEMPERATURE_RANGE = (1000.0, 10000.0)
+
+
 def blackbody_rgb(kelvin: float) -> np.ndarray:
     """Linear Rec.709 colour of a blackbody at ``kelvin`` with luminance 1 (Gf's Planckian locus, normalised to the
-    Rec.709 luminance of (1, 1, 1) as HdEmbree's ``_BlackbodyTemperatureAsRgb``)."""
+    Rec.709 luminance of (1, 1, 1) as HdEmbree's ``_BlackbodyTemperatureAsRgb``), the temperature clamped to UsdLux's
+    valid range 1000–10000 K and negative components (the blue of the locus below ~1900 K lies outside Rec.709)
+    clamped to 0 after the normalisation, both as ``UsdLuxBlackbodyTemperatureAsRgb``. ValueError if not finite
+    (Gf crashes on NaN)."""
+    kelvin = float(kelvin)
+    if not np.isfinite(kelvin):
+        raise ValueError(f"colorTemperature {kelvin} is not finite")
+    kelvin = min(max(kelvin, COLOR_TEMPERATURE_RANGE[0]), COLOR_TEMPERATURE_RANGE[1])
     color = Gf.Color(Gf.ColorSpace(Gf.ColorSpaceNames.LinearRec709))
-    color.SetFromPlanckianLocus(float(kelvin), 1.0)
+    color.SetFromPlanckianLocus(kelvin, 1.0)
     rgb = np.asarray(color.GetRGB(), dtype=np.float64)
-    return rgb / float(rgb @ np.array([0.2126, 0.7152, 0.0722]))
+    return np.maximum(rgb / float(rgb @ np.array([0.2126, 0.7152, 0.0722])), 0.0)
 
 
 def _orthonormalize(m3: np.ndarray) -> np.ndarray:
@@ -684,11 +698,23 @@ class SceneReader:
         intensity = float(self._input(prim, "intensity", 1.0))
         exposure = float(self._input(prim, "exposure", 0.0))
         color = np.asarray(self._input(prim, "color", (1.0, 1.0, 1.0)), dtype=np.float64)
+        if not np.isfinite(exposure) or abs(exposure) > 1e4:  # 2**exposure itself overflows a float (OverflowError)
+            raise SceneError(f"light exposure {exposure} is out of range (|exposure| ≤ 10000)")
         scale = intensity * 2.0**exposure * color
         if bool(self._input(prim, "enableColorTemperature", False)):
-            scale = scale * blackbody_rgb(float(self._input(prim, "colorTemperature", 6500.0)))
+            kelvin = float(self._input(prim, "colorTemperature", 6500.0))
+            if not np.isfinite(kelvin):
+                raise SceneError(f"colorTemperature {kelvin} is not finite")
+            low, high = COLOR_TEMPERATURE_RANGE
+            if not low <= kelvin <= high:
+                self.issue("warning", prim, f"colorTemperature {kelvin} K is outside UsdLux's valid range "
+                                            f"{low:g}–{high:g} K; clamped")
+            scale = scale * blackbody_rgb(kelvin)
         if not np.all(np.isfinite(scale)) or (scale < 0).any():
             raise SceneError(f"light emission {scale.tolist()} is negative or not finite")
+        if float(np.max(scale, initial=0.0)) > _FLOAT32_LIMIT:
+            raise SceneError(f"light emission {scale.tolist()} (intensity × 2^exposure × color) exceeds what the "
+                             "capture can represent (float32, ~3.4e38)")
         return scale
 
     def _response(self, prim: Usd.Prim) -> dict[str, float]:
@@ -729,7 +755,8 @@ class SceneReader:
         if not (applied or authored):
             return ()
         cone = float(self._input(prim, "shaping:cone:angle", 90.0))
-        softness = float(self._input(prim, "shaping:cone:softness", 0.0))
+        # UsdLux: "Values outside of the [0, 1] range are clamped to the range"
+        softness = min(max(float(self._input(prim, "shaping:cone:softness", 0.0)), 0.0), 1.0)
         focus = float(self._input(prim, "shaping:focus", 0.0))
         tint = tuple(float(c) for c in self._input(prim, "shaping:focusTint", (0.0, 0.0, 0.0)))
         return (cone, softness, focus, *tint)
@@ -784,6 +811,10 @@ class SceneReader:
         light, notes = cls.from_usd(name, inputs, self._placement(matrix), scale, normalize)
         for note in notes:
             self.issue("warning", prim, note)
+        emitted = np.asarray(light.illuminance if cls.kind == "distant" else light.radiance, dtype=np.float64)
+        if not np.all(np.isfinite(emitted)) or float(np.max(emitted, initial=0.0)) > _FLOAT32_LIMIT:
+            raise SceneError(f"light {'illuminance' if cls.kind == 'distant' else 'radiance'} {emitted.tolist()} "
+                             "(after normalize) exceeds what the capture can represent (float32, ~3.4e38)")
         shaping = self._shaping(prim) if cls.kind != "distant" else ()
         ies = self._ies(prim) if cls.kind != "distant" else None
         if cls.kind == "distant" and (self._shaping(prim) or self._input(prim, "shaping:ies:file", None)):

@@ -138,9 +138,11 @@ def CylinderLight "Tube"
     np.testing.assert_allclose(cubes[0][3].reshape(-1, 3)[:, 0].mean(), (rho * e / math.pi).mean(), rtol=0.01)
 
 
-def test_rect_light_texture_is_seen_with_hdembree_orientation(tmp_path):
-    """A textured RectLight facing the probe: texture column 0 lies at local −X, row 0 at local +Y (HdEmbree's
-    s = x/w + ½, t = 1 − (y/h + ½))."""
+def test_rect_light_texture_is_seen_with_usdlux_orientation(tmp_path):
+    """A textured RectLight facing the probe: texture column 0 lies at local +X, row 0 at local +Y — UsdLuxRectLight:
+    "a texture file's min coordinates should be at (+X, +Y) and max coordinates at (-X, -Y)", the image upright and
+    unmirrored seen from the lit side (as HdEmbree shows a rect light to the camera; before, column 0 lay at −X,
+    HdEmbree's mirrored next-event lookup s = x/w + ½)."""
     pixels = np.zeros((2, 2, 3), dtype=np.float32)
     pixels[0, 0], pixels[0, 1], pixels[1, 0], pixels[1, 1] = (1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 1)
     out = oiio.ImageOutput.create(str(tmp_path / "quad.exr"))
@@ -166,7 +168,7 @@ def RectLight "Panel"
     plus_z = d[..., 2] > 0.9
     p = d[plus_z] / d[plus_z][:, 2:3]
     seen = cubes[0][plus_z]
-    for (sx, sy), colour in (((-1, 1), (1, 0, 0)), ((1, 1), (0, 1, 0)), ((-1, -1), (0, 0, 1)), ((1, -1), (1, 1, 1))):
+    for (sx, sy), colour in (((1, 1), (1, 0, 0)), ((-1, 1), (0, 1, 0)), ((1, -1), (0, 0, 1)), ((-1, -1), (1, 1, 1))):
         quadrant = (np.sign(p[:, 0]) == sx) & (np.sign(p[:, 1]) == sy) & (np.abs(p[:, :2]).min(axis=1) > 0.05)
         assert quadrant.any()
         np.testing.assert_allclose(seen[quadrant], np.broadcast_to(colour, seen[quadrant].shape), atol=1e-6)
