@@ -4,8 +4,9 @@ sampling of the rest for surfaces.
 Orientation
     A UsdLux DomeLight's latlong texture follows the OpenEXR latlong convention in the dome's local frame
     (pole = local +Y, longitude 0 = local +Z, longitude +π/2 = local +X): exactly bakery's equirect convention
-    (:mod:`bakery.conventions`). :class:`bakery.capture.scene.Dome` carries the dome-local → bake rotation R, so a
-    bake direction ω looks up the texture at Rᵀω.
+    (:mod:`bakery.conventions`). :class:`bakery.capture.scene.Dome` carries the dome-local → bake orthogonal matrix
+    R (a rotation, or a reflection when the dome's transform mirrors: Hydra mirrors the sky then), so a bake
+    direction ω looks up the texture at Rᵀω = R⁻¹ω.
 
 Split: sun + rest
     The brightest texels (radiance luminance > :data:`SUN_RATIO` × the dome's mean, brightest first, at most

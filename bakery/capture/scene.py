@@ -118,8 +118,9 @@ class Dome:
     Attributes:
         name: prim path.
         scale: (3,) color · intensity · 2^exposure, multiplying the texture (or the constant if no texture).
-        rotation: (3, 3) dome-local → bake-frame rotation (columns are the dome's local axes in the bake frame),
-            including the dome's pole-axis alignment (see :mod:`bakery.usd.scene`).
+        rotation: (3, 3) dome-local → bake-frame orthogonal matrix (columns are the dome's local axes in the bake
+            frame), including the dome's pole-axis alignment; a reflection (det −1) when the dome's transform
+            mirrors (see :mod:`bakery.usd.scene`).
         pixels: (H, W, 3) float32 texture radiance, or ``None`` for a constant dome.
         layout: environment layout of ``pixels`` (:data:`bakery.environment.LAYOUTS`).
         source: texture file, for messages.

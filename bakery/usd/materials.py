@@ -134,9 +134,12 @@ class MaterialReader:
     _texture_index: dict[tuple[str, str], int | None] = field(default_factory=dict)
     _means: dict[int, np.ndarray] = field(default_factory=dict)
 
-    def material_for(self, gprim: Usd.Prim) -> tuple[Material, str | None]:
-        """The gprim's material and the name of the primvar its textures read (None if untextured)."""
-        display, varying = _display_color(gprim, self.time)
+    def material_for(self, gprim: Usd.Prim, display_prim: Usd.Prim | None = None) -> tuple[Material, str | None]:
+        """The gprim's material and the name of the primvar its textures read (None if untextured).
+        ``display_prim``: the prim whose ``displayColor``/``displayOpacity`` the fallback surface reads (a GeomSubset's
+        mesh: the subset binds, the primvars are the mesh's); default ``gprim``."""
+        display, varying = _display_color(display_prim or gprim, self.time)
+        opacity = _display_opacity(display_prim or gprim, self.time)
         binding = UsdShade.MaterialBindingAPI(gprim)
         material, _rel = binding.ComputeBoundMaterial(UsdShade.Tokens.full)
         if not material:
@@ -148,16 +151,17 @@ class MaterialReader:
                     if key not in self._materials:
                         self._materials[key] = self._read_mtlx_document(key, *mtlx)
                     result, use_display, primvar = self._materials[key]
-                    return (_default_material(display, result.name, varying), None) if use_display else \
+                    return (_default_material(display, result.name, varying, opacity), None) if use_display else \
                         (result, primvar)
             if targets:
                 self._warn_once(str(targets[0]), f"bound material {targets[0]} does not exist; using defaults")
-            return _default_material(display, varying=varying), None
+            return _default_material(display, varying=varying, opacity=opacity), None
         key = str(material.GetPath())
         if key not in self._materials:
             self._materials[key] = self._read_material(material)
         result, use_display, primvar = self._materials[key]
-        return (_default_material(display, result.name, varying), None) if use_display else (result, primvar)
+        return (_default_material(display, result.name, varying, opacity), None) if use_display else \
+            (result, primvar)
 
     # ------------------------------------------------------------------------------------------------------------
     def _warn_once(self, prim: str, message: str, severity: str = "warning") -> None:
@@ -611,7 +615,7 @@ def _inherited_color_space(prim: Usd.Prim) -> str:
 def _display_color(gprim: Usd.Prim, time: Usd.TimeCode = _T) -> tuple[tuple[float, float, float] | None, bool]:
     """The mean of the gprim's ``displayColor`` (None if not authored) and whether it varies over a Mesh (more
     than one distinct value, not constant interpolation)."""
-    primvar = UsdGeom.PrimvarsAPI(gprim).GetPrimvar("displayColor")
+    primvar = UsdGeom.PrimvarsAPI(gprim).FindPrimvarWithInheritance("displayColor")  # constant ones inherit
     if not primvar or not primvar.HasAuthoredValue():
         return None, False
     value = primvar.ComputeFlattened(time)
@@ -650,14 +654,28 @@ def vertex_color_entry(primvar: str) -> dict:
     return {"primvar": primvar, "scale": (1.0, 1.0, 1.0, 1.0), "bias": (0.0, 0.0, 0.0, 0.0)}
 
 
+def _display_opacity(gprim: Usd.Prim, time: Usd.TimeCode = _T) -> float:
+    """The mean of the gprim's authored ``displayOpacity``, clamped to [0, 1]; 1 when not authored."""
+    primvar = UsdGeom.PrimvarsAPI(gprim).FindPrimvarWithInheritance("displayOpacity")
+    if not primvar or not primvar.HasAuthoredValue():
+        return 1.0
+    value = primvar.ComputeFlattened(time)
+    values = np.asarray(value if value is not None else [], dtype=np.float64).reshape(-1)
+    if values.size == 0 or not np.all(np.isfinite(values)):
+        return 1.0
+    return float(np.clip(values, 0.0, 1.0).mean())
+
+
 def _default_material(display: tuple[float, float, float] | None, name: str = "<default>",
-                      varying: bool = False) -> Material:
+                      varying: bool = False, opacity: float = 1.0) -> Material:
     """Hydra's fallback surface: the gprim's ``displayColor`` (its mean; read per hit when it varies over the
-    gprim, ``varying``), else UsdPreviewSurface's grey."""
+    gprim, ``varying``), else UsdPreviewSurface's grey; ``opacity``, the mean ``displayOpacity``, is its presence,
+    as hdPrman's fallback material wires ``displayOpacity`` to ``presence``
+    (third_party/renderman-*/plugin/hdPrman/rileyFallbackMaterialSceneIndexPlugin.cpp)."""
     if display is None:
-        return Material(name=name)
+        return Material(name=name, opacity=opacity)
     maps = (dict(vertex_color_entry("displayColor"), input="diffuseColor"),) if varying else ()
-    return Material(name=name, diffuse=display, maps=maps)
+    return Material(name=name, diffuse=display, maps=maps, opacity=opacity)
 
 
 def _binding_targets(gprim: Usd.Prim) -> list[Sdf.Path]:

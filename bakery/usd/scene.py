@@ -12,7 +12,9 @@ DomeLight orientation
     world rotation followed by A. A Z-up stage's dome therefore needs ``rotateX = 90`` to put its pole on +Z
     (as in OpenUSD's ``domeLightZup.usda``); with it, the Y-up and Z-up versions of a scene bake identically.
     ``DomeLight_1`` has ``poleAxis``: "Y" as above; "Z" (or "scene" on a Z-up stage) first turns the pole from
-    local +Y to local +Z (rotateX 90°).
+    local +Y to local +Z (rotateX 90°, UsdImaging's ``domeOffset``, before the prim's transform). A mirroring
+    transform (negative scale) mirrors the sky, as in HdEmbree and Storm, which look the texture up through the
+    inverse world matrix; a non-uniform scale is reported and only its rotation and mirror applied.
 
 What is read (``docs/capture.md``)
     Probes (bakery schema types); every UsdLux light through its class in :mod:`bakery.capture.lights`
@@ -419,8 +421,8 @@ class SceneReader:
                 elif prim.HasAPI(UsdLux.LightAPI) or prim.IsA(UsdLux.DomeLight) or prim.IsA(UsdLux.DomeLight_1):
                     self._read_light(prim)
                 elif prim.IsA(UsdGeom.PointInstancer):
+                    iterator.PruneChildren()  # its prototypes are drawn only as its instances, also when it fails
                     self._read_point_instancer(prim)
-                    iterator.PruneChildren()
                 elif prim.IsA(UsdGeom.Mesh):
                     self._read_mesh(prim)
                 elif is_surface_gprim(prim) or prim.IsA(UsdGeom.Points) or prim.IsA(UsdGeom.BasisCurves):
@@ -952,6 +954,26 @@ class SceneReader:
                                         "material's own glow is not added (the capture has one emission per surface)")
         return dataclasses.replace(material, emission=light, maps=maps)
 
+    def _dome_orientation(self, prim: Usd.Prim, matrix: np.ndarray, pre: np.ndarray | None) -> np.ndarray:
+        """Dome-local → bake orthogonal matrix (columns: the dome's local axes in the bake frame) of its world matrix,
+        after the DomeLight_1 pole turn ``pre``: the orthogonal factor of the polar decomposition, a **reflection**
+        (det −1) for a mirroring transform. Hydra looks the dome up through the inverse of its full world matrix
+        (HdEmbree ``_SampleDomeLight``: ``xformWorldToLight.TransformDir``; Storm ``worldToLightTransform``), so a
+        negative scale mirrors the sky; until 2026-12 bakery turned it into a rotation (``scale = (-1, 1, 1)``
+        showed the sky turned 180° about Y instead of mirrored in X). A non-uniform scale, which Hydra applies to
+        the directions before normalising them (a squashed sky), is not modelled: reported, its rotation (and
+        mirror) kept."""
+        m3 = np.asarray(matrix, dtype=np.float64)[:3, :3]
+        u, sigma, vt = np.linalg.svd(m3)
+        if sigma[0] > 0 and sigma[-1] < sigma[0] * (1.0 - 1e-5):
+            self.issue("warning", prim, "dome light with a non-uniform scale (singular values "
+                       f"{', '.join(f'{x:.6g}' for x in sigma)}): Hydra stretches the sky by it; bakery applies only "
+                       "the rotation (and any mirroring) of the transform")
+        q = u @ vt  # nearest orthogonal matrix; keeps the sign of det(m3)
+        if pre is not None:
+            q = pre @ q
+        return (q @ self.frame.axes).T
+
     def _read_dome(self, prim: Usd.Prim, matrix: np.ndarray, scale: np.ndarray) -> None:
         pre = None
         if prim.IsA(UsdLux.DomeLight_1):
@@ -960,7 +982,7 @@ class SceneReader:
             pole = str(attr.Get(self.time)) if attr and attr.Get(self.time) else pole
             if pole == "Z" or (pole == "scene" and self.frame.up == "Z"):
                 pre = _POLE_Y_TO_Z
-        rotation = tuple(map(tuple, self.frame.rotation(matrix, pre).tolist()))
+        rotation = tuple(map(tuple, self._dome_orientation(prim, matrix, pre).tolist()))
         name = str(prim.GetPath())
         response = self._response(prim)
         response = {**response, **self._shadow(prim)}  # ShadowAPI on the dome (Dome.shadow, Dome.shadow_color)
@@ -1008,16 +1030,24 @@ class SceneReader:
     # Geometry
     def _triangulate(self, prim: Usd.Prim, points: np.ndarray, counts: np.ndarray, indices: np.ndarray
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Fan triangulation: point indices (T, 3), face-vertex positions (T, 3) and face index (T,) per triangle."""
+        """Fan triangulation, as Hydra's ``HdMeshUtil::ComputeTriangleIndices`` (also of concave faces): point
+        indices (T, 3), face-vertex positions (T, 3) and face index (T,) per triangle. Faces of fewer than 3 vertices
+        are skipped (reported), as Hydra skips them ("degenerated face found") while drawing the rest of the mesh;
+        UsdGeomMesh::ValidateTopology's violations — counts not summing to the indices, indices outside the points —
+        are errors."""
         if counts.size == 0:
             return np.zeros((0, 3), dtype=np.int64), np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int64)
-        if (counts < 3).any() or counts.sum() != indices.size:
+        if (counts < 0).any() or counts.sum() != indices.size:
             raise SceneError(f"faceVertexCounts (sum {counts.sum()}) do not match {indices.size} faceVertexIndices "
-                             "or a face has fewer than 3 vertices")
+                             "or a count is negative")
         if indices.size and (indices.min() < 0 or indices.max() >= len(points)):
             raise SceneError(f"faceVertexIndices reference points outside 0..{len(points) - 1}")
+        degenerate = np.flatnonzero(counts < 3)
+        if degenerate.size:
+            self.issue("warning", prim, f"{degenerate.size} face(s) of fewer than 3 vertices (faces "
+                       f"{degenerate[:5].tolist()}{'…' if degenerate.size > 5 else ''}) skipped, as Hydra skips them")
         starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        per_face = counts - 2
+        per_face = np.maximum(counts - 2, 0)
         face_of_tri = np.repeat(np.arange(counts.size), per_face)
         j = np.arange(per_face.sum()) - np.repeat(np.cumsum(per_face) - per_face, per_face)
         s = starts[face_of_tri]
@@ -1160,7 +1190,7 @@ class SceneReader:
         (T, 3, components), or None (reported) if it cannot be read."""
         what = "textures read" if components == 2 else "colour inputs read"
         fallback = "the textures' mean values are used" if components == 2 else "their fallback values are used"
-        primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar(name)
+        primvar = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance(name)  # an ancestor's constant primvar too
         if not primvar or not primvar.HasValue():
             self.issue("warning", prim, f"{what} primvar {name!r}, which the mesh does not have; {fallback}")
             return None
@@ -1183,7 +1213,7 @@ class SceneReader:
         scheme = mesh.GetSubdivisionSchemeAttr()
         if scheme and scheme.HasAuthoredValue() and str(scheme.Get()) != "none":
             return None
-        primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar("normals")
+        primvar = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance("normals")  # as Hydra's _GetInheritedPrimvar
         if self._skinned.get(str(prim.GetPath()), (None, None))[0] is not None:  # bind-pose normals
             if (primvar and primvar.HasValue()) or mesh.GetNormalsAttr().HasAuthoredValue():
                 self.issue("warning", prim, "skinned: its authored normals are not skinned; the geometric normals "
@@ -1302,7 +1332,9 @@ class SceneReader:
             if k < 0:
                 parts.append((part, material, primvar, None))
             else:
-                sub_material, sub_primvar = self.materials.material_for(subsets[k].GetPrim())
+                # the subset's binding (inherited from the mesh when it has none, as UsdShade resolves it and
+                # Hydra binds HdGeomSubsets); the fallback surface reads the mesh's displayColor/displayOpacity
+                sub_material, sub_primvar = self.materials.material_for(subsets[k].GetPrim(), display_prim=prim)
                 parts.append((part, sub_material, sub_primvar, subsets[k].GetPrim().GetName()))
         return parts
 
@@ -1310,19 +1342,29 @@ class SceneReader:
                               suffix: str = "") -> None:
         """Every instance of every prototype: its meshes, gprims, points and curves (named "<path>#n"), its UsdLux
         lights (one light per instance, "<path>#n"; a GeometryLight once, for all instances' meshes) and nested
-        point instancers (names "<path>#n#m"), skipping invisible and guide/proxy prims as the stage traversal
-        does. ``instancer_world``: the instancer's world matrix when it is itself an instance of a prototype."""
+        point instancers (names "<path>#n#m"), skipping guide/proxy prims as the stage traversal does and prims
+        invisible from the prototype root down (Hydra), and the instances masked by ``invisibleIds``/``inactiveIds``.
+        Instance transforms in UsdGeomPointInstancer's order: the prototype root's local transform (once), scales,
+        orientations, positions, the instancer's. ``instancer_world``: the instancer's world matrix when it is itself
+        an instance of a prototype."""
         instancer = UsdGeom.PointInstancer(prim)
         for attr in (instancer.GetPositionsAttr(), instancer.GetOrientationsAttr(), instancer.GetScalesAttr()):
             self.value(attr)  # their types (USD computes the transforms from them)
-        transforms = instancer.ComputeInstanceTransformsAtTime(self.time, self.time)
-        proto_indices = np.asarray(self.value(instancer.GetProtoIndicesAttr()) or [], dtype=np.int64)
+        time = self._instancer_time(instancer)
+        # the prototype root's own transform is applied below, with the rest of the prototype's (IncludeProtoXform
+        # would apply it twice); masked instances (inactiveIds, invisibleIds) are dropped by the mask below
+        transforms = instancer.ComputeInstanceTransformsAtTime(time, time, UsdGeom.PointInstancer.ExcludeProtoXform,
+                                                               UsdGeom.PointInstancer.IgnoreMask)
+        proto_indices = np.asarray(typed_value(instancer.GetProtoIndicesAttr(), time) or [], dtype=np.int64)
         prototypes = instancer.GetPrototypesRel().GetTargets()
         if transforms is None or len(proto_indices) == 0 or not prototypes:
             return
         if len(transforms) != len(proto_indices):  # USD computes none when an array's length does not match
             raise SceneError(f"the transforms of its {len(proto_indices)} instances cannot be computed: positions "
                              "(and orientations, scales when authored) need one value per protoIndices entry")
+        mask = np.asarray(instancer.ComputeMaskAtTime(time) or [True] * len(proto_indices), dtype=bool)
+        if mask.size != proto_indices.size:
+            mask = np.ones(proto_indices.size, dtype=bool)
         instancer_world = self.world(prim) if instancer_world is None else instancer_world
         stage = prim.GetStage()
         for p_index, proto_path in enumerate(prototypes):
@@ -1330,19 +1372,21 @@ class SceneReader:
             if not proto:
                 self.issue("warning", prim, f"prototype {proto_path} does not exist")
                 continue
-            parent_inv = np.linalg.inv(self.world(proto.GetParent()))
-            chosen = np.flatnonzero(proto_indices == p_index)
+            chosen = np.flatnonzero((proto_indices == p_index) & mask)
             if chosen.size == 0:
                 continue
             instances = [(f"{suffix}#{n}", _matrix(transforms[int(n)]) @ instancer_world) for n in chosen]
             iterator = iter(Usd.PrimRange(proto, Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)))
             for sub in iterator:
                 imageable = UsdGeom.Imageable(sub)
-                if imageable and (imageable.ComputeVisibility(self.time) == UsdGeom.Tokens.invisible or
-                                  imageable.ComputePurpose() in (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy)):
+                # visibility from the prototype root down, as Hydra's point instancer computes it
+                # (UsdImagingPointInstancerAdapter::_ComputeProtoVisibility): the prototype's namespace ancestors —
+                # an invisible "Prototypes" scope — do not hide its instances; an invisible prim prunes its subtree
+                if imageable and (typed_value(imageable.GetVisibilityAttr(), self.time) == UsdGeom.Tokens.invisible
+                                  or imageable.ComputePurpose() in (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy)):
                     iterator.PruneChildren()
                     continue
-                to_proto = self.world(sub) @ parent_inv  # prim → prototype-parent space (row vectors)
+                to_proto = self._to_prototype_parent(sub, proto)  # prim → prototype-parent space (row vectors)
                 path = str(sub.GetPath())
                 try:
                     if sub.IsA(UsdGeom.PointInstancer):
@@ -1370,6 +1414,37 @@ class SceneReader:
                     self.issue("error", sub, str(exc))
                 except (TypeError, ValueError, IndexError, Tf.ErrorException) as exc:  # as in :meth:`read`
                     self.issue("error", sub, f"cannot be read: {_exception_text(exc)}")
+
+    def _instancer_time(self, instancer: UsdGeom.PointInstancer) -> Usd.TimeCode:
+        """The time at which a point instancer's instances are computed: the reader's, or without ``--time`` the
+        earliest time sample of its per-instance attributes (Default when none is sampled). Evaluated at a sample
+        with itself as the base time, velocities and angular velocities move nothing (USD's
+        ComputeInstanceTransformsAtTime at EarliestTime extrapolates positions by velocities to −∞)."""
+        if self.time != _T:
+            return self.time
+        firsts = []
+        for attr in (instancer.GetPositionsAttr(), instancer.GetOrientationsAttr(), instancer.GetOrientationsfAttr(),
+                     instancer.GetScalesAttr(), instancer.GetProtoIndicesAttr(), instancer.GetVelocitiesAttr(),
+                     instancer.GetAngularVelocitiesAttr(), instancer.GetAccelerationsAttr(),
+                     instancer.GetInvisibleIdsAttr(), instancer.GetIdsAttr()):
+            samples = attr.GetTimeSamples() if attr else []
+            if samples:
+                firsts.append(samples[0])
+        return Usd.TimeCode(min(firsts)) if firsts else Usd.TimeCode.Default()
+
+    def _to_prototype_parent(self, prim: Usd.Prim, proto: Usd.Prim) -> np.ndarray:
+        """The transform of ``prim`` (the prototype root or one of its descendants) into the space of the prototype
+        root's parent: the local transforms from ``prim`` up to the root, the root's own included (UsdGeomPointInstancer
+        step 1, "the authored local to parent transformation for prototypes[protoIndices[i]]"); an empty-scaled
+        ancestor above the root does not matter."""
+        matrix = np.eye(4)
+        current = prim
+        while True:
+            local, resets = self.xforms.GetLocalTransformation(current)
+            matrix = matrix @ _matrix(local)
+            if current == proto or resets or not current.GetParent():
+                return matrix
+            current = current.GetParent()
 
 
 def catmull_clark(points: np.ndarray, counts: np.ndarray, indices: np.ndarray, levels: int,
@@ -1486,15 +1561,19 @@ def loop_subdivide(points: np.ndarray, counts: np.ndarray, indices: np.ndarray, 
 
 
 def _front_side(prim: Usd.Prim, matrix: np.ndarray, time: Usd.TimeCode = _T) -> int:
-    """:attr:`Mesh.front` of a gprim placed by the world ``matrix``: 0 when ``doubleSided``, else +1 for a
-    right-handed ``orientation`` (USD's fallback; implicit surfaces: normals outward), −1 for left-handed, the sign
-    flipped by a mirroring world transform (det < 0) as Hydra flips the winding; the bake frame is a rotation."""
+    """:attr:`Mesh.front` of a gprim placed by the world ``matrix``: 0 when ``doubleSided``, else +1 for a Mesh of
+    right-handed ``orientation`` (USD's fallback), −1 for a left-handed one, the sign flipped by a mirroring world
+    transform (det < 0) as Hydra flips the winding; the bake frame is a rotation. The tessellated implicit surfaces,
+    points and curves are wound outward and keep +1 whatever their ``orientation``: UsdGeom applies the winding rule
+    "for all non-implicit surface and solid types" (usdGeom/overview.dox, UsdGeom_WindingOrder), and Hydra's
+    generated meshes for them are always rightHanded (geomUtil/*MeshGenerator.cpp)."""
     gprim = UsdGeom.Gprim(prim)
     double_sided = typed_value(gprim.GetDoubleSidedAttr(), time)
     if double_sided:
         return 0
-    orientation = typed_value(gprim.GetOrientationAttr(), time)
-    side = -1 if orientation == UsdGeom.Tokens.leftHanded else 1
+    side = 1
+    if prim.IsA(UsdGeom.Mesh) and typed_value(gprim.GetOrientationAttr(), time) == UsdGeom.Tokens.leftHanded:
+        side = -1
     return side if np.linalg.det(np.asarray(matrix, dtype=np.float64)[:3, :3]) >= 0 else -side
 
 

@@ -1,8 +1,9 @@
 """Probe validity: the share of a probe's camera rays whose first hit is the back of a single-sided surface
 (``CaptureStats.backface_fraction``; Majercik et al. 2021, Sec. 4). Closed forms: 1 inside a closed, outward-wound
-mesh or gprim (also under a mirroring transform, which USD's winding rule follows); 0 outside it, inside a
-``doubleSided`` one, or inside a left-handed one; 5/6 exactly at the centre of a box without one face (each cube
-face of the probe sees one box face); a bake names the probes ≥ 25 % in one warning and stores the fractions."""
+mesh or gprim (also under a mirroring transform, which USD's winding rule follows, and inside a left-handed
+implicit gprim, which has no winding); 0 outside it, inside a ``doubleSided`` one, or inside a left-handed Mesh; 5/6
+exactly at the centre of a box without one face (each cube face of the probe sees one box face); a bake names the
+probes ≥ 25 % in one warning and stores the fractions."""
 
 from __future__ import annotations
 
@@ -62,10 +63,23 @@ def test_a_mirroring_transform_keeps_the_outside_the_front(tmp_path):
     assert inside == 1.0
 
 
-@pytest.mark.parametrize("extra", ["uniform bool doubleSided = 1", 'uniform token orientation = "leftHanded"'])
-def test_double_sided_and_left_handed_gprims_have_no_back_face_inside(tmp_path, extra):
-    (inside,) = _fractions(tmp_path, header() + DOME + GREY + _gprim("Cube", extra) + probe("In", (0.1, 0.2, -0.1)))
+def test_double_sided_gprims_have_no_back_face_inside(tmp_path):
+    (inside,) = _fractions(tmp_path, header() + DOME + GREY + _gprim("Cube", "uniform bool doubleSided = 1")
+                           + probe("In", (0.1, 0.2, -0.1)))
     assert inside == 0.0
+
+
+def test_left_handed_meshes_flip_but_implicit_gprims_keep_their_outside(tmp_path):
+    """UsdGeom applies the winding rule (and ``orientation``) "for all non-implicit surface and solid types"
+    (usdGeom/overview.dox); Hydra meshes a Cube rightHanded whatever its orientation. A left-handed box Mesh wound
+    outward is seen from the inside as its front."""
+    (cube,) = _fractions(tmp_path, header() + DOME + GREY + _gprim("Cube", 'uniform token orientation = "leftHanded"')
+                         + probe("In", (0.1, 0.2, -0.1)))
+    assert cube == 1.0
+    box = box_mesh("Box", 1.0, "/Grey").replace("rel material:binding", 'uniform token orientation = "leftHanded"\n'
+                                                   "    rel material:binding")
+    (mesh,) = _fractions(tmp_path, header() + DOME + GREY + box + probe("In", (0.1, 0.2, -0.1)))
+    assert mesh == 0.0
 
 
 def test_a_box_without_one_face_gives_five_sixths(tmp_path):
