@@ -2,15 +2,17 @@
 
     f(wo, wi) = (1 − F(wo·h)) · ρ_d/π  +  F(wo·h) · D(h) · V(wo, wi)
 
-with D the GGX distribution, V the height-correlated Smith visibility G2/(4 (n·wo)(n·wi)) and F Schlick's
-Fresnel — exactly the terms of :mod:`bakery.brdf.ggx` that the reflection encodings use. F = F0 + (F90 − F0)(1 −
-c)⁵ with F90 = min(1, 50·luminance(F0)) (a surface with F0 = 0 has no specular lobe at all, so a purely diffuse
-material is exactly Lambertian). A tinted lobe (MaterialX specular weight and colour, a coat's colour) scales F0
-and F90 alike: its F90 (3, M) is given. α = roughness², clamped to ≥ :data:`MIN_ALPHA`.
+(reciprocal; not energy-conserving at grazing views under a dielectric lobe: a white ρ_d with F0 0.04 reflects
+up to 1.2–1.3 there, docs/capture.md "Materials and colour") with D the GGX distribution, V the height-correlated
+Smith visibility G2/(4 (n·wo)(n·wi)) and F Schlick's Fresnel — exactly the terms of :mod:`bakery.brdf.ggx` that the
+reflection encodings use. F = F0 + (F90 − F0)(1 − c)⁵ with F90 = min(1, 50·luminance(F0)) (a surface with F0 = 0
+has no specular lobe at all, so a purely diffuse material is exactly Lambertian), or F90 (3, M) as given: a
+UsdPreviewSurface metal's, mix(F90, albedo, metallic), and a tinted lobe's (MaterialX specular weight and colour, a
+coat's colour), which scales F0 and F90 alike. α = roughness², clamped to ≥ :data:`MIN_ALPHA`.
 
 Clearcoat (UsdPreviewSurface ``clearcoat`` c, ``clearcoatRoughness`` r_c; MaterialX coat): a white GGX lobe with
-F0 = 0.04 (MaterialX: ((ior − 1)/(ior + 1))² of the coat's IOR, given per point) on top, F_c = c·Schlick(0.04,
-v·h), α_c = r_c² (≥ MIN_ALPHA); the base lobes are weighted by 1 − F_c (the
+F0 = ((ior − 1)/(ior + 1))² of the coat's IOR (UsdPreviewSurface: its ``ior``; given per point, else 0.04) on top,
+F_c = c·Schlick(F0_c, v·h), α_c = r_c² (≥ MIN_ALPHA); the base lobes are weighted by 1 − F_c (the
 light the coat transmits, as the diffuse lobe is by 1 − F under the specular one). It is picked first with
 probability p_c = clip(F_c(n·v) / (F_c(n·v) + (1 − F_c(n·v))·(base weights)), 0.05, 0.95) and sampled by its visible
 normals; the mixture pdf is p_c·pdf_c + (1 − p_c)·pdf_base. Without a coat the BSDF is unchanged.

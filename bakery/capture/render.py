@@ -116,7 +116,9 @@ DEFAULT_BOUNCES = 64
 #: interpretation"): RectLight textures with column 0 at local +X (were mirrored), point lights (treatAsPoint,
 #: radius 0) seen by probes, DistantLight angle/normalize per UsdLux. (Splatted small light shapes are versioned
 #: apart, for the scenes that have light shapes: :data:`bakery.pipeline.dependencies.SMALL_LIGHT_SPLAT_VERSION`.)
-CAPTURE_MODEL_VERSION = 3
+#: 4: UsdPreviewSurface spec audit (tests/capture/test_bsdf_spec.py): a metal's F90 is its albedo, F90 = mix(white,
+#: diffuseColor, metallic) (was white), and the clearcoat's F0 comes from ``ior`` (was 0.04 whatever the ior).
+CAPTURE_MODEL_VERSION = 4
 #: A visible light shape whose bounding sphere's angular radius, seen from the probe, is at most this many texel
 #: half-widths is seen through a splat of its sampled flux instead of by the probe's camera rays (module docstring
 #: "Small lights").

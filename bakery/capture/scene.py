@@ -171,7 +171,11 @@ class Material:
             metal, under the coat) or ``"coat"`` (open_pbr_surface fuzz: everything, the coat included).
         sheen_mode: the lobe, MaterialX ``sheen_bsdf``'s mode: ``"conty_kulla"`` (the Imageworks lobe,
             :mod:`bakery.brdf.sheen`) or ``"zeltner"`` (the LTC fuzz, :mod:`bakery.brdf.sheen_ltc`).
-        clearcoat_f0: the coat's F0, ((ior − 1)/(ior + 1))² of a MaterialX coat's IOR (UsdPreviewSurface: 0.04).
+        clearcoat_f0: the coat's F0, ((ior − 1)/(ior + 1))² of the coat's IOR: a MaterialX coat's ``coat_IOR`` /
+            ``coat_ior``, UsdPreviewSurface's ``ior`` ("including the clearcoat if clearcoat > 0"; 0.04 at 1.5).
+        metal_edge_albedo: the metallic share's F90 is the albedo, not white (UsdPreviewSurface: "If metallic is 1,
+            then both F0 ... and edge F90 reflectivity will simply be the Albedo ... In between, we interpolate":
+            F90 = (1 − metallic)·F90_dielectric + metallic·diffuse); MaterialX surfaces' metals keep F90 = 1.
         opacity, opacity_threshold: cut-outs: a hit whose opacity is below the threshold (threshold > 0) is
             passed through; without a threshold, opacity is the surface's presence: a hit is passed through with
             probability 1 − opacity (stochastic alpha: a window of opacity 0.2 passes 80 % of the light).
@@ -207,6 +211,7 @@ class Material:
     clearcoat: float = 0.0
     clearcoat_roughness: float = 0.01
     clearcoat_f0: float = 0.04
+    metal_edge_albedo: bool = False
     diffuse_roughness: float = 0.0
     diffuse_energy_compensation: bool = False
     sheen: float = 0.0

@@ -281,8 +281,13 @@ class Surfaces:
         #: (N, 3) each material's dielectric specular tint and coat tint (Material), or None when none is tinted:
         #: the BSDF then derives F90 from F0 alone, exactly as without them
         self.specular_tint = self.coat_tint = self.edge_tint = None
-        if any(tuple(m.specular_tint) != (1.0, 1.0, 1.0) or tuple(m.coat_tint) != (1.0, 1.0, 1.0)
-               or m.specular_edge_tint is not None for m in mats):
+        #: (N,) bool: the metallic share's F90 is the albedo (Material.metal_edge_albedo, UsdPreviewSurface's
+        #: metallic workflow), where some material's F90 then differs from the one derived from F0
+        self.metal_edge = np.array([m.metal_edge_albedo and not m.use_specular_workflow for m in mats], dtype=bool)
+        metal_edge = any(edge and (m.metallic > 0 or any(entry.get("input") == "metallic" for entry in m.maps))
+                         for edge, m in zip(self.metal_edge, mats))
+        if metal_edge or any(tuple(m.specular_tint) != (1.0, 1.0, 1.0) or tuple(m.coat_tint) != (1.0, 1.0, 1.0)
+                             or m.specular_edge_tint is not None for m in mats):
             self.specular_tint = np.array([m.specular_tint for m in mats], dtype=np.float64).reshape(-1, 3)
             self.coat_tint = np.array([m.coat_tint for m in mats], dtype=np.float64).reshape(-1, 3)
             self.edge_tint = np.array([m.specular_tint if m.specular_edge_tint is None else m.specular_edge_tint
@@ -554,8 +559,12 @@ class Surfaces:
             spec = self.specular_tint[k].astype(dtype).reshape(3, 1)
             edge = self.edge_tint[k].astype(dtype).reshape(3, 1)
             coat = self.coat_tint[k].astype(dtype).reshape(3, 1)
-            f90 = (np.minimum(1, 50 * np.tensordot(LUMINANCE_WEIGHTS.astype(dtype), np.asarray(f0), axes=1))
-                   * (coat * (1 if self.specular_workflow[k] else (1 - metallic) * edge + metallic)))
+            if self.metal_edge[k]:  # UsdPreviewSurface: F90 = mix(F90 of the dielectric, albedo, metallic)
+                f90 = coat * ((1 - metallic) * (np.minimum(1, 50 * dielectric) * edge)
+                              + metallic * np.minimum(diffuse, 1))
+            else:
+                f90 = (np.minimum(1, 50 * np.tensordot(LUMINANCE_WEIGHTS.astype(dtype), np.asarray(f0), axes=1))
+                       * (coat * (1 if self.specular_workflow[k] else (1 - metallic) * edge + metallic)))
             if not self.specular_workflow[k]:
                 f0 = (1 - metallic) * dielectric * spec + metallic * diffuse
             f0, albedo = np.clip(coat * f0, 0, 1), albedo * coat
@@ -682,6 +691,11 @@ class Surfaces:
             spec, edge, coat = self.specular_tint[mi], self.edge_tint[mi], self.coat_tint[mi]
             share = np.where(spec_wf[:, None], 1.0, (1.0 - metallic)[:, None] * edge + metallic[:, None])
             f90 = np.minimum(1.0, 50.0 * (f0 @ LUMINANCE_WEIGHTS))[:, None] * share * coat
+            metal_edge = self.metal_edge[mi] & ~spec_wf
+            if metal_edge.any():  # UsdPreviewSurface: F90 = mix(F90 of the dielectric, albedo, metallic)
+                edged = ((1.0 - metallic) * np.minimum(1.0, 50.0 * dielectric))[:, None] * edge \
+                    + metallic[:, None] * np.minimum(diffuse, 1.0)
+                f90 = np.where(metal_edge[:, None], edged * coat, f90)
             tinted = (1.0 - metallic)[:, None] * dielectric[:, None] * spec + metallic[:, None] * diffuse
             f0 = np.clip(coat * np.where(spec_wf[:, None], f0, tinted), 0.0, 1.0)
             albedo = albedo * coat

@@ -116,6 +116,9 @@ class Surface:
     maps: dict[str, dict] = field(default_factory=dict)
     primvar: str | None = None
     notes: list[str] = field(default_factory=list)
+    #: the surface it was read from (``UsdPreviewSurface`` natively or as a MaterialX node, or a MaterialX surface
+    #: category): UsdPreviewSurface's own rules apply to it alone (the coat's F0 from ``ior``, the metal's F90)
+    kind: str = "UsdPreviewSurface"
 
 
 @dataclass
@@ -226,6 +229,13 @@ class MaterialReader:
                 self._warn_once(path, f"{name} is textured; its mean {float(np.mean(v[name])):g} is used")
                 continue
             maps.append(dict(entry, input=name))
+        preview = surface.kind == "UsdPreviewSurface"
+        clearcoat_f0 = float(surface.values.get("clearcoat_f0", 0.04))
+        ior = float(np.mean(v["ior"]))
+        coated = float(np.mean(v["clearcoat"])) > 0
+        if preview and coated and ior > 0:  # the spec's ior: "… including the clearcoat if clearcoat > 0"
+            f0 = ((1.0 - ior) / (1.0 + ior)) ** 2
+            clearcoat_f0 = 0.04 if abs(f0 - 0.04) <= 1e-9 else f0  # the spec's fallback 1.5: exactly 0.04
         material = Material(
             name=path,
             diffuse=_color(v["diffuseColor"]),
@@ -240,7 +250,8 @@ class MaterialReader:
             maps=tuple(sorted(maps, key=lambda m: m["input"])),
             clearcoat=float(np.clip(np.mean(v["clearcoat"]), 0.0, 1.0)),
             clearcoat_roughness=float(np.clip(np.mean(v["clearcoatRoughness"]), 0.0, 1.0)),
-            clearcoat_f0=float(surface.values.get("clearcoat_f0", 0.04)),
+            clearcoat_f0=clearcoat_f0,
+            metal_edge_albedo=preview,
             diffuse_roughness=float(surface.values.get("diffuse_roughness", 0.0)),
             diffuse_energy_compensation=bool(surface.values.get("diffuse_energy_compensation", False)),
             sheen=float(surface.values.get("sheen", 0.0)),

@@ -238,7 +238,7 @@ _PREVIEW_SURFACE_MAP = tuple((name, name, None, False) for name in ("diffuseColo
 def _to_surface(category: str, values: dict[str, object], maps: dict[str, dict], notes: list[str]) -> Surface:
     """Map a MaterialX surface's inputs (values and texture maps by input name) onto the capture's model."""
     d = {**_defaults(category), **values}
-    surface = Surface(notes=list(notes))
+    surface = Surface(notes=list(notes), kind=category)
     for name, neutral in _UNMODELLED.get(category, ()):
         if name in maps or (name in d and abs(_mean(d[name]) - neutral) > 1e-6):
             surface.notes.append(f"{category} {name} is not modelled by the capture")
