@@ -1,11 +1,16 @@
 """A minimal engine-side reader of a bakery baked layer: pxr + numpy only, no bakery import.
 
-    python examples/engine_reader.py scene.bake.usda [normals.npy] [-o irradiance.npz]
+    python examples/engine_reader.py scene.bake.usda [normals.npy] [--stage-normals] [-o irradiance.npz]
 
 It does what an engine's importer does (docs/engine-integration.md): find the prims with ``BakeryBakedProbeAPI``,
 read each ``bakery:irradiance:<encoding>:<field>`` array with its customData ``shape`` and ``probeCount``, and
 evaluate the irradiance exactly as bakery's shaders (bakery/shaders/bakery_core.glsl) and Python API do — here in
 numpy, one function per stored layout. Prints a summary; with ``-o`` writes ``{"<prim>|<encoding>": (probeCount, N, 3)}``.
+
+Directions: the arrays are in bakery's bake frame (right-handed, +Y up), so ``normals.npy`` holds bake-frame unit
+normals and the summary's "+Y" is up, whatever the stage's axis. A Z-up layer's world (stage) direction (x, y, z) is
+(x, z, −y) in the bake frame: with ``--stage-normals`` the normals (and the summary's "+Y") are in the stage's frame
+instead (the layer's ``upAxis``, copied from the scene; :func:`stage_to_bake`). ``metersPerUnit`` plays no part.
 
 The settings evaluation depends on are read from the layer too (``uniform bakery:settings:<encoding>:<key>``): the
 hallucination ``curve`` (c2, c1) and the quantized layouts' ``sqrt_companding``; a layer without them (older bakes)
@@ -19,7 +24,7 @@ import sys
 from math import pi, sqrt
 
 import numpy as np
-from pxr import Usd
+from pxr import Usd, UsdGeom
 
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 A0, A1, A2 = pi, 2.0 * pi / 3.0, pi / 4.0  # cosine-lobe band factors
@@ -56,6 +61,18 @@ def read_layer(path: str) -> dict[str, dict[str, np.ndarray]]:
             values[attr.GetName()] = np.asarray(attr.Get()).reshape([count, *shape])  # float3[] → (..., 3)
         prims[str(prim.GetPath())] = values
     return prims
+
+
+def stage_to_bake(directions: np.ndarray, up_axis: str) -> np.ndarray:
+    """Stage-frame directions (N, 3) → bake frame: a Z-up stage's (x, y, z) is (x, z, −y) (−90° about X); Y-up is
+    unchanged (docs/engine-integration.md, "Frame")."""
+    d = np.asarray(directions, dtype=np.float64)
+    return np.stack([d[:, 0], d[:, 2], -d[:, 1]], axis=-1) if up_axis == "Z" else d
+
+
+def layer_up_axis(path: str) -> str:
+    """The layer's ``upAxis`` (bakery copies the scene's), "Y" when unauthored (UsdGeom's fallback)."""
+    return str(UsdGeom.GetStageUpAxis(Usd.Stage.Open(path)))
 
 
 # ------------------------------------------------------------------------------------------------ evaluation
@@ -178,11 +195,17 @@ def irradiance_of_layer(path: str, normals: np.ndarray) -> dict[str, np.ndarray]
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("layer")
-    parser.add_argument("normals", nargs="?", help=".npy of unit normals (N, 3); default: the six axes")
+    parser.add_argument("normals", nargs="?", help=".npy of unit normals (N, 3), bake frame (+Y up); default: the "
+                        "six axes")
+    parser.add_argument("--stage-normals", action="store_true",
+                        help="the normals are in the stage's frame (the layer's upAxis), not the bake frame")
     parser.add_argument("-o", "--output", help="write the irradiance as .npz")
     args = parser.parse_args(argv)
     normals = np.load(args.normals) if args.normals else np.concatenate([np.eye(3), -np.eye(3)])
-    result = irradiance_of_layer(args.layer, np.asarray(normals, dtype=np.float64))
+    normals = np.asarray(normals, dtype=np.float64)
+    if args.stage_normals:
+        normals = stage_to_bake(normals, layer_up_axis(args.layer))
+    result = irradiance_of_layer(args.layer, normals)
     for key, value in result.items():
         print(f"{key}: {value.shape[0]} probe(s), irradiance at +Y {np.round(value[:, 1].mean(axis=0), 4)}"
               if not args.normals else f"{key}: {value.shape}")

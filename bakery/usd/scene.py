@@ -241,7 +241,8 @@ class _Frame:
         return self.mpu * (np.asarray(local) @ matrix[:3, :3] @ self.axes)
 
     def rotation(self, matrix: np.ndarray, pre: np.ndarray | None = None) -> np.ndarray:
-        """Local → bake rotation (columns = local axes in the bake frame) of a world matrix, scale removed."""
+        """Local → bake orthogonal matrix (columns = local axes in the bake frame) of a world matrix, scale removed:
+        a rotation, or a reflection for a mirroring transform (:func:`_orthonormalize`)."""
         m3 = _orthonormalize(matrix[:3, :3])
         if pre is not None:
             m3 = pre @ m3
@@ -270,12 +271,13 @@ def blackbody_rgb(kelvin: float) -> np.ndarray:
 
 
 def _orthonormalize(m3: np.ndarray) -> np.ndarray:
+    """The orthogonal factor of the polar decomposition of a probe's world matrix (scale removed): a rotation, or a
+    **reflection** (det −1) for a mirroring transform, so that a captured image follows the probe's local frame
+    (``bakery:capture:image``) as a mirrored dome's sky does (:meth:`SceneReader._dome_orientation`). Until 2026-12 a
+    mirror was turned into a rotation by negating the axis of the smallest singular value — arbitrary: ``scale =
+    (-2, 1, 1)`` turned the image upside down (its zenith to −Y) while ``(1, -0.5, 1)`` left it unmirrored."""
     u, _s, vt = np.linalg.svd(m3)
-    r = u @ vt
-    if np.linalg.det(r) < 0:  # mirrored transforms: keep a rotation
-        u[:, -1] *= -1
-        r = u @ vt
-    return r
+    return u @ vt
 
 
 def _matrix(gf: Gf.Matrix4d) -> np.ndarray:
