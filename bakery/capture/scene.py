@@ -298,7 +298,8 @@ class ProbeSpec:
         name: unique identity (prim path; volume members are ``<volume path>[i,j,k]``).
         kind: ``"irradiance"`` or ``"reflection"``.
         position: (3,) bake-frame position in metres.
-        rotation: (3, 3) probe-local → bake-frame rotation (orients a captured image).
+        rotation: (3, 3) probe-local → bake-frame orthogonal matrix, a rotation or, under a mirroring transform, a
+            reflection (orients a captured image).
         resolution: requested capture face size (0 = the bake's default).
         image: optional captured environment image file (absolute path).
         encodings: optional per-probe encoding names.

@@ -26,7 +26,7 @@ What is read (``docs/capture.md``)
     payloads loaded; texture coordinates for textured materials; UsdPreviewSurface and MaterialX materials
     (:mod:`bakery.usd.materials`, :mod:`bakery.usd.mtlx`). Invisible prims and ``guide``/``proxy`` purposes are
     skipped. Composition errors (unparsable sublayers, missing references and payloads) are errors. The stage is
-    read at ``time`` (default: authored defaults, else each attribute's earliest time sample).
+    read at ``time`` (default: each attribute's earliest time sample, else its authored default).
 
 Attribute types
     USD returns an opinion of another type than the schema declares as authored (``string bakery:volume:relocate =
@@ -62,7 +62,8 @@ from bakery.usd.plugin import FALLBACKS, PLUGIN_DIR, PROBE_TYPES
 from bakery.usd.values import typed_value, value_kind
 
 _POLE_Y_TO_Z = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # row vectors: +Y ↦ +Z
-#: Time at which the scene is read: authored defaults, else the first time sample.
+#: Time at which the scene is read without ``--time``: each attribute's earliest time sample, else its authored
+#: default (USD's EarliestTime: a time sample wins over a default).
 _T = Usd.TimeCode.EarliestTime()
 #: Largest ``bakery:capture:resolution``: the largest bake face size
 MAX_CAPTURE_RESOLUTION = MAX_FACE_SIZE
@@ -1388,6 +1389,10 @@ class SceneReader:
                                   or imageable.ComputePurpose() in (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy)):
                     iterator.PruneChildren()
                     continue
+                if str(sub.GetTypeName()) in PROBE_TYPES:  # a probe has one place: not one per instance
+                    self.issue("warning", sub, "probe inside a PointInstancer prototype: not baked (probes are "
+                                               "placed prims, not instanced; place it outside the prototypes)")
+                    continue
                 to_proto = self._to_prototype_parent(sub, proto)  # prim → prototype-parent space (row vectors)
                 path = str(sub.GetPath())
                 try:
@@ -1624,8 +1629,8 @@ def defining_layer(stage: Usd.Stage, prim_path: str) -> str:
 
 def read_scene(path: str | Path, load_textures: bool = True, time: float | None = None,
                subdivision: int = 0) -> SceneReading:
-    """Read a USD scene for capture at USD time ``time`` (None: authored defaults, else each attribute's earliest
-    time sample), refining catmullClark meshes ``subdivision`` levels. Raises SceneError only if the stage cannot
+    """Read a USD scene for capture at USD time ``time`` (None: each attribute's earliest time sample, else its
+    authored default), refining catmullClark meshes ``subdivision`` levels. Raises SceneError only if the stage cannot
     be opened; everything else is reported in ``SceneReading.issues``."""
     stage = open_stage(path)
     return SceneReader(stage, load_textures=load_textures, time=time, subdivision=subdivision).read()

@@ -419,3 +419,15 @@ def test_extent_only_prims_and_zero_area_faces_are_read_without_errors(tmp_path)
     assert not reading.errors
     assert "/Empty" not in meshes
     np.testing.assert_array_equal(meshes["/Flat"].triangles, _positions(_fan([3, 3], [0, 1, 2, 0, 1, 4])))
+
+
+def test_a_probe_inside_a_prototype_is_reported_not_baked(tmp_path):
+    """A probe is one placed prim; inside a PointInstancer prototype it would be one per instance, which nothing in
+    the schema describes. It was skipped silently; now it is a warning naming it, and the instances still draw."""
+    body = _instancer("point3f[] positions = [(0, 0, 0), (5, 0, 0), (9, 0, 0)]\n    int[] protoIndices = [0, 0, 1]",
+                      prototypes="</PI/Protos/A>, </PI/Protos/Inner>", protos=probe("Inner"))
+    reading, meshes = _read(tmp_path, body)
+    assert not reading.errors and len(meshes) == 2
+    assert [p.name for p in reading.scene.probes] == ["/Probe"]
+    warned = [i for i in reading.issues if i.prim == "/PI/Protos/Inner"]
+    assert warned and "PointInstancer prototype" in warned[0].message
