@@ -98,9 +98,11 @@ def glowing_mtlx_document(nodes: str, output: str) -> str:
 """
 
 
-def textured_floor(material_path: str, extra: str = "") -> str:
-    """A 2 m square Mesh "Floor" at y = 0 with st = ((x + 1)/2, (1 − z)/2) (t grows towards −z) bound to
+def textured_floor(material_path: str, extra: str = "", st=((0, 0), (1, 0), (1, 1), (0, 1))) -> str:  # noqa: ANN001
+    """A 2 m square Mesh "Floor" at y = 0, corners (x, z) = (−1, 1), (1, 1), (1, −1), (−1, −1), with texture
+    coordinates ``st`` there (default st = ((x + 1)/2, (1 − z)/2): t grows towards −z) bound to
     ``material_path``; ``extra``: more attributes (usda lines)."""
+    coordinates = ", ".join(f"({s}, {t})" for s, t in st)
     return f"""
 def Mesh "Floor" (
     prepend apiSchemas = ["MaterialBindingAPI"]
@@ -109,7 +111,7 @@ def Mesh "Floor" (
     int[] faceVertexCounts = [4]
     int[] faceVertexIndices = [0, 1, 2, 3]
     point3f[] points = [(-1, 0, 1), (1, 0, 1), (1, 0, -1), (-1, 0, -1)]
-    texCoord2f[] primvars:st = [(0, 0), (1, 0), (1, 1), (0, 1)] (
+    texCoord2f[] primvars:st = [{coordinates}] (
         interpolation = "vertex"
     )
     rel material:binding = <{material_path}>{extra}

@@ -18,7 +18,15 @@ import zlib
 import numpy as np
 import OpenImageIO as oiio
 import pytest
-from usd_scenes import glowing_material, glowing_mtlx_document, glowing_mtlx_material, header, probe, write
+from usd_scenes import (
+    glowing_material,
+    glowing_mtlx_document,
+    glowing_mtlx_material,
+    header,
+    probe,
+    textured_floor,
+    write,
+)
 
 from bakery.capture import capture_probes
 from bakery.sphere.cubemap import cube_texel_directions
@@ -99,23 +107,9 @@ def _texture_material(file: str, inputs: str = "", output: str = "rgb", transfor
 
 
 def _floor(material_path: str, st=((0, 0), (1, 0), (1, 1), (0, 1))) -> str:  # noqa: ANN001
-    """The 2 m floor at y = 0 with corners (−1, 1), (1, 1), (1, −1), (−1, −1) (x, z) and texture coordinates ``st``
-    there (default: textured_floor's, st = ((x + 1)/2, (1 − z)/2))."""
-    coordinates = ", ".join(f"({s}, {t})" for s, t in st)
-    return f"""
-def Mesh "Floor" (
-    prepend apiSchemas = ["MaterialBindingAPI"]
-)
-{{
-    int[] faceVertexCounts = [4]
-    int[] faceVertexIndices = [0, 1, 2, 3]
-    point3f[] points = [(-1, 0, 1), (1, 0, 1), (1, 0, -1), (-1, 0, -1)]
-    texCoord2f[] primvars:st = [{coordinates}] (
-        interpolation = "vertex"
-    )
-    rel material:binding = <{material_path}>
-}}
-"""
+    """The shared 2 m textured floor (:func:`usd_scenes.textured_floor`) with texture coordinates ``st`` at its
+    corners (−1, 1), (1, 1), (1, −1), (−1, −1) (x, z)."""
+    return textured_floor(material_path, st=st)
 
 
 def _seen(tmp_path, material: str, points, floor: str | None = None, extra_header: str = ""):  # noqa: ANN001, ANN202
