@@ -23,9 +23,16 @@ Inputs
     (``useMetadata`` = black, the specification's fallback: bakery reads no wrap metadata from image files),
     ``fallback`` (the node's value where its file is missing or unreadable, with a warning), the output's channels,
     and texture coordinates from the ``UsdPrimvarReader_float2`` on its ``st`` input (any ``varname``; default
-    ``st``). The material's constant value for such an input is the texture's mean (used where a mesh has no
-    texture coordinates, and for reports). UsdTransform2d nodes between the reader and the texture are composed
-    into the entry's ``st_transform`` (st' = R(rotation)·(scale ⊙ st) + translation, R counter-clockwise). Colour
+    ``st``). The material's constant value for such an input is the texture's mean (for reports, and for the
+    inputs the capture reads as constants). UsdTransform2d nodes between the reader and the texture are composed
+    into the entry's ``st_transform`` (st' = R(rotation)·(scale ⊙ st) + translation, R counter-clockwise). Where
+    the gprim has no such primvar (a Mesh without it, an implicit Sphere, Cube, …) the reader returns its
+    ``fallback`` — "fallback value to be returned if geometry fetch failed", default (0, 0) (UsdPreviewSurface
+    specification, Primvar Reader) — so the texture is looked up at that constant st: the entry's ``st_fallback``
+    (absent: (0, 0)), turned by :func:`read_at_fallback_st` into a constant ``st_transform`` (after the
+    UsdTransform2d, with the wrap modes, scale and bias of any lookup) by the scene reader. MaterialX ``texcoord``
+    has no fallback input; its output's default is zero (MaterialX Standard Nodes: ``texcoord`` ``out`` default
+    "zero"), so images read st (0, 0) there as well. Colour
     inputs connected to a ``UsdPrimvarReader_float3`` read the primvar per hit (a map entry with a ``primvar``: the
     mesh's corner colours, ``Mesh.colors``, interpolated with the hit's barycentrics; the reader's fallback where
     the mesh lacks it); other primvar readers give their fallback (reported).
@@ -58,7 +65,7 @@ Colour
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cache
 from pathlib import Path
 
@@ -395,6 +402,7 @@ class MaterialReader:
         primvar = "st"
         st_input = texture.GetInput("st")
         transform = None  # UsdTransform2d nodes between the reader and the texture, composed
+        fallback_st = (0.0, 0.0)  # what the reader returns where the gprim has no such primvar
         for _ in range(8):
             if not st_input:
                 break
@@ -412,6 +420,7 @@ class MaterialReader:
                 name = self._producer(varname)[0] if varname else None
                 if name:
                     primvar = str(name)
+                fallback_st = _st_value(self._input_value(reader, "fallback", None))
             elif reader is not None:
                 self._warn_once(path, f"st is computed by {reader_id or 'an untyped shader'}, which the capture does "
                                 "not evaluate; the primvar st is read")
@@ -420,6 +429,8 @@ class MaterialReader:
                  "bias": tuple(map(float, bias)), "fallback": tuple(map(float, fallback)), "wrap": wrap}
         if transform is not None and transform != IDENTITY_AFFINE:
             entry["st_transform"] = transform
+        if fallback_st != (0.0, 0.0):  # read by the scene reader only (module docstring "Inputs")
+            entry["st_fallback"] = fallback_st
         if udim_tiles:
             entry["udim"] = udim_tiles
         return entry, mean_out, primvar
@@ -657,6 +668,69 @@ def compose_affine(outer, inner) -> tuple[tuple[float, float, float], ...]:  # n
     m = np.vstack([np.asarray(outer, dtype=np.float64), [0.0, 0.0, 1.0]]) @ np.vstack(
         [np.asarray(inner, dtype=np.float64), [0.0, 0.0, 1.0]])
     return tuple(tuple(float(x) for x in row) for row in m[:2])
+
+
+def _st_value(value) -> tuple[float, float]:  # noqa: ANN001
+    """A primvar reader's ``fallback`` as texture coordinates (s, t): its first two components; (0, 0), the
+    UsdPrimvarReader_float2 fallback, where it has none or they are not finite."""
+    if value is None:
+        return (0.0, 0.0)
+    numbers = np.asarray(value, dtype=np.float64).reshape(-1)
+    if numbers.size < 2 or not np.all(np.isfinite(numbers[:2])):
+        return (0.0, 0.0)
+    return (float(numbers[0]), float(numbers[1]))
+
+
+def _reads_st(entry: dict) -> bool:
+    """Whether a map entry is a texture looked up at texture coordinates (not a colour primvar read per hit)."""
+    return "primvar" not in entry
+
+
+def without_st_fallbacks(material: Material) -> Material:
+    """``material`` for a gprim that has the primvar its textures read: its map entries without ``st_fallback``
+    (which only :func:`read_at_fallback_st` uses; the capture never sees it, so the scene's hash is unchanged)."""
+    if not any("st_fallback" in entry for entry in material.maps):
+        return material
+    return replace(material, maps=tuple({k: v for k, v in entry.items() if k != "st_fallback"}
+                                        for entry in material.maps))
+
+
+def read_at_fallback_st(material: Material) -> tuple[Material, str]:
+    """``material`` for a gprim without the primvar its textures read, and a description of what is read instead.
+
+    The UsdPreviewSurface specification's ``UsdPrimvarReader_float2``: "fallback value to be returned if geometry
+    fetch failed" (default (0, 0)); a ``UsdUVTexture`` fed by it samples the texture at that st (after the
+    UsdTransform2d between them, with its wrap modes, scale and bias), everywhere on the gprim. Each texture entry's
+    ``st_transform`` becomes the constant map st ↦ T(fallback) (T its own transform; a degenerate map, so the
+    footprint — and the level of detail — is zero: the full-resolution texture, bilinearly, as Hydra Storm samples
+    a constant st, whose screen-space derivatives vanish). A tangent-space normal map is dropped: it has no tangent
+    frame without texture coordinates (Storm's TBN from the st derivatives is then zero and the unperturbed normal
+    is shaded). Colour primvars read per hit are kept."""
+    maps, readings, dropped = [], {}, False
+    for entry in material.maps:
+        if not _reads_st(entry):
+            maps.append(entry)
+            continue
+        if entry.get("input") == "normal" and entry.get("space") != "world":
+            dropped = True
+            continue
+        fallback = tuple(float(x) for x in entry.get("st_fallback", (0.0, 0.0)))
+        constant = compose_affine(entry.get("st_transform", IDENTITY_AFFINE),
+                                  ((0.0, 0.0, fallback[0]), (0.0, 0.0, fallback[1])))
+        moved = {k: v for k, v in entry.items() if k != "st_fallback"}
+        moved["st_transform"] = constant
+        maps.append(moved)
+        readings.setdefault(fallback, []).append(str(entry.get("input", "?")))
+    texts = []
+    if len(readings) == 1:
+        texts.append(f"the textures are read at the primvar reader's fallback st {_shown(next(iter(readings)))}")
+    elif readings:
+        texts.append("the textures are read at their primvar readers' fallback st: " + ", ".join(
+            f"{_shown(value)} ({', '.join(inputs)})" for value, inputs in readings.items()))
+    if dropped:
+        texts.append("the normal map is not applied (no tangent frame without texture coordinates)")
+    text = "; ".join(texts)
+    return replace(material, maps=tuple(maps)), text
 
 
 def vertex_color_entry(primvar: str) -> dict:

@@ -57,7 +57,7 @@ from bakery.errors import ImageError, SceneError
 from bakery.usd import gprims
 from bakery.usd.assets import local_asset_path
 from bakery.usd.color import WORKING_SPACE, ColorSpaceError, to_working_space
-from bakery.usd.materials import MaterialReader, srgb_to_linear
+from bakery.usd.materials import MaterialReader, read_at_fallback_st, srgb_to_linear, without_st_fallbacks
 from bakery.usd.plugin import FALLBACKS, PLUGIN_DIR, PROBE_TYPES
 from bakery.usd.values import typed_value, value_kind
 
@@ -1187,12 +1187,14 @@ class SceneReader:
 
     _read_gprim = _read_mesh
 
-    def _corner_primvar(self, prim: Usd.Prim, name: str, topology, components: int = 2  # noqa: ANN001
-                        ) -> np.ndarray | None:
+    def _corner_primvar(self, prim: Usd.Prim, name: str, topology, components: int = 2,  # noqa: ANN001
+                        fallback: str = "") -> np.ndarray | None:
         """A float2 (texture coordinates) or float3 (``components`` = 3: colours) primvar at every triangle corner
-        (T, 3, components), or None (reported) if it cannot be read."""
+        (T, 3, components), or None (reported, ending with ``fallback``: what is used instead) if it cannot be
+        read."""
         what = "textures read" if components == 2 else "colour inputs read"
-        fallback = "the textures' mean values are used" if components == 2 else "their fallback values are used"
+        fallback = fallback or ("the textures are read at the primvar reader's fallback st" if components == 2
+                                else "their fallback values are used")
         primvar = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance(name)  # an ancestor's constant primvar too
         if not primvar or not primvar.HasValue():
             self.issue("warning", prim, f"{what} primvar {name!r}, which the mesh does not have; {fallback}")
@@ -1265,14 +1267,22 @@ class SceneReader:
         normals = None if local_normals is None else self._bake_normals(prim, local_normals, matrix)
         for part, material, primvar, label in self._material_parts(prim, topology, tris.shape[0]):
             uvs = None
-            if primvar is not None:
+            textured = any("primvar" not in entry for entry in material.maps)  # textures read at st
+            if primvar is not None and textured:
+                # where the gprim has no such primvar the reader's fallback st is read (UsdPreviewSurface
+                # specification: "fallback value to be returned if geometry fetch failed"): a constant lookup
+                at_fallback, reading = read_at_fallback_st(material)
                 if topology is None:
-                    self.issue("warning", prim, f"{prim.GetTypeName()} gprims have no texture coordinates; the "
-                               "textures' mean values are used")
+                    self.issue("warning", prim, f"{prim.GetTypeName()} gprims have no texture coordinates; {reading}")
                 else:
-                    corner = self._corner_primvar(prim, primvar, topology)
+                    corner = self._corner_primvar(prim, primvar, topology, fallback=reading)
                     uvs = None if corner is None else corner.astype(np.float32)
-            if uvs is None and any("primvar" not in entry for entry in material.maps):  # textures: their means
+                if uvs is None:  # every corner at st (0, 0); each entry's constant st_transform moves it
+                    material = at_fallback
+                    uvs = np.zeros((tris.shape[0], 3, 2), dtype=np.float32)
+                else:
+                    material = without_st_fallbacks(material)
+            elif textured:  # no primvar named (cannot happen for the readers' materials): as before, untextured
                 material = dataclasses.replace(material, maps=tuple(e for e in material.maps if "primvar" in e))
             colors, material = self._vertex_colors(prim, material, topology)
 

@@ -183,8 +183,8 @@ def Xform "Asset" (
 
 
 def test_check_reports_what_a_bake_would_silently_change(tmp_path):
-    """Averaged textures (no texture coordinates), float textures without colour space, subdivision surfaces baked
-    as their cage, unsupported light types: warnings, per prim."""
+    """Textures read at the primvar reader's fallback st (no texture coordinates), float textures without colour
+    space, subdivision surfaces baked as their cage, unsupported light types: warnings, per prim."""
     import numpy as np
     import OpenImageIO as oiio
 
@@ -208,7 +208,7 @@ def test_check_reports_what_a_bake_would_silently_change(tmp_path):
     issues = check_scene(write(tmp_path / "silent.usda", text))
     messages = {(i.prim, i.message) for i in issues}
     assert check_exit_code(issues) == 0
-    assert any(p == "/Box" and "mean" in m for p, m in messages)
+    assert any(p == "/Box" and "fallback st (0, 0)" in m for p, m in messages)
     assert any(p == "/Box" and "control cage" in m for p, m in messages)
     assert any(p == "/M/Tex" and "colour-space" in m for p, m in messages)
     assert any(p == "/Custom" and "not supported" in m for p, m in messages)

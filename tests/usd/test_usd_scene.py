@@ -149,7 +149,7 @@ def RectLight "Panel"
     np.testing.assert_allclose(lights["/Panel"].radiance, (4.0 / (2 * k * 0.5 * k),) * 3)  # 4 / area in units²
 
 
-def test_preview_surface_texture_means_are_linear_and_used_without_texture_coordinates(tmp_path):
+def test_preview_surface_texture_means_are_linear_and_the_fallback_st_is_read_without_texture_coordinates(tmp_path):
     pixels = np.zeros((4, 4, 3), dtype=np.uint8)
     pixels[:2] = 255  # half white, half black, sRGB-encoded 8 bit → linear mean 0.5
     out = oiio.ImageOutput.create(str(tmp_path / "half.png"))
@@ -170,11 +170,17 @@ def test_preview_surface_texture_means_are_linear_and_used_without_texture_coord
         "color3f inputs:diffuseColor.connect = </M/Tex.outputs:rgb>",
     ) + box_mesh("Box", 1.0, "/M") + probe("P", (0, 5, 0)) + 'def DomeLight "Sky"\n{\n}\n'
     reading = read_scene(write(tmp_path / "tex.usda", text))
-    # the box has no texture coordinates: the texture's linear mean is used, and that is reported
-    assert [i.message for i in reading.issues] == [
-        "textures read primvar 'st', which the mesh does not have; the textures' mean values are used"]
+    # the material's constant is the texture's linear mean (reports, constant inputs)
     np.testing.assert_allclose(reading.scene.meshes[0].material.diffuse, (0.4, 0.4, 0.4), rtol=1e-6)
-    assert reading.scene.meshes[0].material.maps == () and reading.scene.meshes[0].uvs is None
+    # the box has no texture coordinates: the texture is read at st (0, 0) — the UsdPrimvarReader_float2 fallback
+    # ("fallback value to be returned if geometry fetch failed", UsdPreviewSurface specification; here no reader,
+    # UsdUVTexture's st fallback (0, 0)) — everywhere (every st maps to it), and that is reported
+    assert [i.message for i in reading.issues] == [
+        "textures read primvar 'st', which the mesh does not have; the textures are read at the primvar reader's "
+        "fallback st (0, 0)"]
+    (entry,) = reading.scene.meshes[0].material.maps
+    assert entry["st_transform"] == ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0)) and "st_fallback" not in entry
+    assert not np.any(reading.scene.meshes[0].uvs)
 
 
 def test_instances_and_payloads_are_resolved(tmp_path):
