@@ -98,6 +98,37 @@ def glowing_mtlx_document(nodes: str, output: str) -> str:
 """
 
 
+def uv_texture_material(file: str, inputs: str = "", output: str = "rgb", transform: str = "") -> str:
+    """Material </Glow> whose emission is a UsdUVTexture of ``file`` (its ``output``: rgb, r, g, b or a) read at the
+    primvar st through a UsdPrimvarReader_float2, and through a UsdTransform2d when ``transform`` (its input lines)
+    is given; ``inputs``: more texture inputs (usda lines)."""
+    st_source = "</Glow/Transform.outputs:result>" if transform else "</Glow/Reader.outputs:result>"
+    transform_shader = f"""
+    def Shader "Transform"
+    {{
+        uniform token info:id = "UsdTransform2d"
+        float2 inputs:in.connect = </Glow/Reader.outputs:result>
+        {transform}
+        float2 outputs:result
+    }}""" if transform else ""
+    output_type = "float3" if output == "rgb" else "float"
+    return glowing_material("Glow", f"</Glow/Texture.outputs:{output}>", f"""
+    def Shader "Texture"
+    {{
+        uniform token info:id = "UsdUVTexture"
+        asset inputs:file = @{file}@
+        {inputs}
+        float2 inputs:st.connect = {st_source}
+        {output_type} outputs:{output}
+    }}
+    def Shader "Reader"
+    {{
+        uniform token info:id = "UsdPrimvarReader_float2"
+        string inputs:varname = "st"
+        float2 outputs:result
+    }}{transform_shader}""")
+
+
 def textured_floor(material_path: str, extra: str = "", st=((0, 0), (1, 0), (1, 1), (0, 1))) -> str:  # noqa: ANN001
     """A 2 m square Mesh "Floor" at y = 0, corners (x, z) = (−1, 1), (1, 1), (1, −1), (−1, −1), with texture
     coordinates ``st`` there (default st = ((x + 1)/2, (1 − z)/2): t grows towards −z) bound to

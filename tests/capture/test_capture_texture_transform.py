@@ -11,12 +11,12 @@ import numpy as np
 import OpenImageIO as oiio
 import pytest
 from usd_scenes import (
-    glowing_material,
     glowing_mtlx_document,
     glowing_mtlx_material,
     header,
     probe,
     textured_floor,
+    uv_texture_material,
     write,
 )
 
@@ -45,33 +45,8 @@ def _floor(material: str) -> str:
 
 
 def _preview(file: str, transform: str) -> str:
-    st = "float2 inputs:st.connect = </Glow/Transform.outputs:result>" if transform else \
-        "float2 inputs:st.connect = </Glow/Reader.outputs:result>"
-    transform_shader = f"""
-    def Shader "Transform"
-    {{
-        uniform token info:id = "UsdTransform2d"
-        float2 inputs:in.connect = </Glow/Reader.outputs:result>
-        {transform}
-        float2 outputs:result
-    }}""" if transform else ""
-    return glowing_material("Glow", "</Glow/Texture.outputs:rgb>", f"""
-    def Shader "Texture"
-    {{
-        uniform token info:id = "UsdUVTexture"
-        asset inputs:file = @{file}@
-        token inputs:sourceColorSpace = "raw"
-        token inputs:wrapS = "repeat"
-        token inputs:wrapT = "repeat"
-        {st}
-        float3 outputs:rgb
-    }}
-    def Shader "Reader"
-    {{
-        uniform token info:id = "UsdPrimvarReader_float2"
-        string inputs:varname = "st"
-        float2 outputs:result
-    }}{transform_shader}""")
+    return uv_texture_material(file, 'token inputs:sourceColorSpace = "raw"\n        token inputs:wrapS = "repeat"\n'
+                                     '        token inputs:wrapT = "repeat"', transform=transform)
 
 
 def _materialx(file: str, image: str, place: str = "") -> str:

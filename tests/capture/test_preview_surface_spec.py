@@ -19,12 +19,12 @@ import numpy as np
 import OpenImageIO as oiio
 import pytest
 from usd_scenes import (
-    glowing_material,
     glowing_mtlx_document,
     glowing_mtlx_material,
     header,
     probe,
     textured_floor,
+    uv_texture_material,
     write,
 )
 
@@ -78,32 +78,7 @@ def _write_png(path, value: int, channels: int, chunks: dict[bytes, bytes] | Non
     return path
 
 
-def _texture_material(file: str, inputs: str = "", output: str = "rgb", transform: str = "") -> str:
-    st_source = "</Glow/Transform.outputs:result>" if transform else "</Glow/Reader.outputs:result>"
-    transform_shader = f"""
-    def Shader "Transform"
-    {{
-        uniform token info:id = "UsdTransform2d"
-        float2 inputs:in.connect = </Glow/Reader.outputs:result>
-        {transform}
-        float2 outputs:result
-    }}""" if transform else ""
-    output_type = "float3" if output == "rgb" else "float"
-    return glowing_material("Glow", f"</Glow/Texture.outputs:{output}>", f"""
-    def Shader "Texture"
-    {{
-        uniform token info:id = "UsdUVTexture"
-        asset inputs:file = @{file}@
-        {inputs}
-        float2 inputs:st.connect = {st_source}
-        {output_type} outputs:{output}
-    }}
-    def Shader "Reader"
-    {{
-        uniform token info:id = "UsdPrimvarReader_float2"
-        string inputs:varname = "st"
-        float2 outputs:result
-    }}{transform_shader}""")
+_texture_material = uv_texture_material
 
 
 def _floor(material_path: str, st=((0, 0), (1, 0), (1, 1), (0, 1))) -> str:  # noqa: ANN001
