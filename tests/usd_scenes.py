@@ -98,10 +98,12 @@ def glowing_mtlx_document(nodes: str, output: str) -> str:
 """
 
 
-def uv_texture_material(file: str, inputs: str = "", output: str = "rgb", transform: str = "") -> str:
+def uv_texture_material(file: str, inputs: str = "", output: str = "rgb", transform: str = "", varname: str = "st",
+                        fallback=None) -> str:  # noqa: ANN001
     """Material </Glow> whose emission is a UsdUVTexture of ``file`` (its ``output``: rgb, r, g, b or a) read at the
-    primvar st through a UsdPrimvarReader_float2, and through a UsdTransform2d when ``transform`` (its input lines)
-    is given; ``inputs``: more texture inputs (usda lines)."""
+    primvar ``varname`` through a UsdPrimvarReader_float2 (its ``fallback`` authored unless None), and through a
+    UsdTransform2d when ``transform`` (its input lines) is given; ``inputs``: more texture inputs (usda lines)."""
+    authored = "" if fallback is None else f"\n        float2 inputs:fallback = ({fallback[0]}, {fallback[1]})"
     st_source = "</Glow/Transform.outputs:result>" if transform else "</Glow/Reader.outputs:result>"
     transform_shader = f"""
     def Shader "Transform"
@@ -124,7 +126,7 @@ def uv_texture_material(file: str, inputs: str = "", output: str = "rgb", transf
     def Shader "Reader"
     {{
         uniform token info:id = "UsdPrimvarReader_float2"
-        string inputs:varname = "st"
+        string inputs:varname = "{varname}"{authored}
         float2 outputs:result
     }}{transform_shader}""")
 

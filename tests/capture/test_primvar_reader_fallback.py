@@ -19,7 +19,14 @@ import math
 import numpy as np
 import OpenImageIO as oiio
 import pytest
-from usd_scenes import glowing_material, glowing_mtlx_document, glowing_mtlx_material, header, probe, write
+from usd_scenes import (
+    glowing_mtlx_document,
+    glowing_mtlx_material,
+    header,
+    probe,
+    uv_texture_material,
+    write,
+)
 
 from bakery.capture import capture_probes
 from bakery.pipeline.dependencies import environment_hash
@@ -59,31 +66,7 @@ def _image(tmp_path) -> str:  # noqa: ANN001
 def _material(file: str, fallback=None, inputs: str = RAW, transform: str = "", varname: str = "st") -> str:  # noqa: ANN001
     """A glowing material: emissiveColor ← UsdUVTexture(file) ← [UsdTransform2d ←] UsdPrimvarReader_float2
     (``varname``, ``fallback`` authored unless None)."""
-    authored = "" if fallback is None else f"\n        float2 inputs:fallback = ({fallback[0]}, {fallback[1]})"
-    st_source = "</Glow/Transform.outputs:result>" if transform else "</Glow/Reader.outputs:result>"
-    transform_shader = f"""
-    def Shader "Transform"
-    {{
-        uniform token info:id = "UsdTransform2d"
-        float2 inputs:in.connect = </Glow/Reader.outputs:result>
-        {transform}
-        float2 outputs:result
-    }}""" if transform else ""
-    return glowing_material("Glow", "</Glow/Texture.outputs:rgb>", f"""
-    def Shader "Texture"
-    {{
-        uniform token info:id = "UsdUVTexture"
-        asset inputs:file = @{file}@
-        {inputs}
-        float2 inputs:st.connect = {st_source}
-        float3 outputs:rgb
-    }}
-    def Shader "Reader"
-    {{
-        uniform token info:id = "UsdPrimvarReader_float2"
-        string inputs:varname = "{varname}"{authored}
-        float2 outputs:result
-    }}{transform_shader}""")
+    return uv_texture_material(file, inputs, transform=transform, varname=varname, fallback=fallback)
 
 
 def _floor(material_path: str = "/Glow", st: bool = False) -> str:
