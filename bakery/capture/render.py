@@ -118,7 +118,11 @@ DEFAULT_BOUNCES = 64
 #: apart, for the scenes that have light shapes: :data:`bakery.pipeline.dependencies.SMALL_LIGHT_SPLAT_VERSION`.)
 #: 4: UsdPreviewSurface spec audit (tests/capture/test_bsdf_spec.py): a metal's F90 is its albedo, F90 = mix(white,
 #: diffuseColor, metallic) (was white), and the clearcoat's F0 comes from ``ior`` (was 0.04 whatever the ior).
-CAPTURE_MODEL_VERSION = 4
+#: 5: MaterialX surface audit (tests/capture/test_mtlx_surface_spec.py): open_pbr_surface's specular_weight scales
+#: the dielectric's F0 alone through the modulated IOR (was F0 and F90) and a coated base reflects at the
+#: specular/coat IOR ratio (was specular_ior); MaterialX dielectrics' Schlick F90 is the exact Fresnel's
+#: hemispherical-mean one (IORs below ≈ 1.34; was min(1, 50·F0)).
+CAPTURE_MODEL_VERSION = 5
 #: A visible light shape whose bounding sphere's angular radius, seen from the probe, is at most this many texel
 #: half-widths is seen through a splat of its sampled flux instead of by the probe's camera rays (module docstring
 #: "Small lights").

@@ -16,7 +16,8 @@ Mapping (metallic workflow of the capture; see ``docs/capture.md``)
     emission             emission · emission_color                       emission_luminance · emission_color
     opacity              mean(opacity)                                   geometry_opacity
     coat (clearcoat)     coat, coat_roughness, F0 from coat_IOR          coat_weight, coat_roughness, coat_ior
-    specular_tint        specular · specular_color                       specular_weight · specular_color
+    specular_tint        specular · specular_color (F0 and F90)          specular_color, F0 of modulated_eta_s
+                                                                     (specular_weight, coat IOR ratio)
     coat_tint            mix(1, coat_color, coat)                        mix(1, coat_color, coat_weight)
     diffuse roughness    diffuse_roughness (qualitative Oren–Nayar)      base_diffuse_roughness (EON)
     subsurface           diffuse limit: mix(diffuse, subsurface_color)   the same, subsurface_weight
@@ -361,7 +362,10 @@ def _subsurface_as_diffuse(category: str, values: dict[str, object], maps: dict[
 
 def _specular_and_coat_tints(category: str, values: dict[str, object], maps: dict[str, dict],
                              surface: Surface) -> None:
-    """Material.specular_tint = specular weight × specular colour (the dielectric lobe's whole Fresnel curve) and
+    """Material.specular_tint / specular_edge_tint: the dielectric lobe's Schlick F0 and F90 relative to the
+    capture's F0(ior), min(1, 50·F0(ior)) — standard_surface: specular × specular_color on both, F90 that of
+    :func:`_dielectric_f90`; open_pbr_surface: specular_color on both, F0 and F90 those of the graph's
+    modulated IOR (:func:`_open_pbr_dielectric`); the metal lobes' specular terms are reported — and
     Material.coat_tint = mix(1, coat colour, coat weight) (what the coat passes to the base; the coat's own lobe is
     the capture's clearcoat). Textured: their means, reported."""
     weight_input, colour_input, coat_input, coat_colour_input = _TINTS[category]
@@ -373,15 +377,99 @@ def _specular_and_coat_tints(category: str, values: dict[str, object], maps: dic
             surface.notes.append(f"{category} {name} is textured; its mean is used")
         return np.broadcast_to(np.asarray(value, dtype=np.float64), 3)
 
-    specular = np.clip(constant(weight_input, 1.0) * constant(colour_input, 1.0), 0.0, None)
-    if np.any(specular != 1.0):
-        surface.values["specular_tint"] = tuple(float(x) for x in specular)
     coat = min(max(float(np.mean(constant(coat_input, 0.0))), 0.0), 1.0)
+    weight, colour = constant(weight_input, 1.0), np.clip(constant(colour_input, 1.0), 0.0, None)
+    metal_input = "base_metalness" if category == "open_pbr_surface" else "metalness"
+    if (metal_input in maps or _mean(values.get(metal_input, 0.0)) > 0) and (
+            np.any(weight != 1.0) or np.any(colour != 1.0)):  # the metal's lobe: Material has no terms for it
+        surface.notes.append(
+            f"{category} {weight_input} and {colour_input} on the metal are not modelled: " + (
+                "the graph weights the metal lobe by specular_weight and tints its F82 edge by specular_color "
+                "(generalized_schlick_bsdf); the capture's metal is Schlick F0 = base_weight·base_color, F90 = 1"
+                if category == "open_pbr_surface" else
+                "the graph's metal is a conductor of the artistic IOR of (base·base_color, specular·specular_color); "
+                "the capture's is Schlick F0 = base·base_color, F90 = 1"))
+    ior_input = "specular_ior" if category == "open_pbr_surface" else "specular_IOR"
+    ior = _mean(maps[ior_input].get("_mean", values.get(ior_input, 1.5)) if ior_input in maps
+                else values.get(ior_input, 1.5))
+    f0_ior = _ior_f0(ior)  # the capture's dielectric F0 (Material.ior = the surface's specular IOR)
+    if category == "open_pbr_surface":  # the weight modulates the IOR (F0 alone); the colour tints the lobe
+        f0, f90 = _open_pbr_dielectric(ior, float(np.mean(weight)), coat, _mean(values.get("coat_ior", 1.6)))
+        if f0 > 0 and f0_ior <= 0:
+            surface.notes.append(f"{category} specular_ior {ior:g} under a coat: the base's reflection (F0 {f0:.3g}) "
+                                 "is not modelled")
+        f0_tint = colour * (f0 / f0_ior if f0_ior > 0 else 0.0)
+        if ior_input in maps and coat > 0:
+            surface.notes.append(f"{category} {ior_input} is textured under a coat: the coat's IOR ratio is applied "
+                                 "at its mean")
+    else:  # standard_surface: dielectric_bsdf weight × tint scale the whole lobe
+        f0, f90 = f0_ior, _dielectric_f90(ior)
+        f0_tint = np.clip(weight * colour, 0.0, None)
+        colour = f0_tint
+    # Schlick F90 of the capture's dielectric is min(1, 50·F0(ior)) (bakery.capture.bsdf): the edge tint rescales
+    # it to the graph's F90 (_dielectric_f90)
+    rule = min(1.0, 50.0 * f0_ior)
+    edge = colour * (f90 / rule if rule > 0 else 0.0) if f0 > 0 else np.zeros(3)
+    if np.any(f0_tint != 1.0) or np.any(edge != f0_tint):
+        surface.values["specular_tint"] = tuple(float(x) for x in f0_tint)
+        if np.any(np.abs(edge - f0_tint) > 1e-12):
+            surface.values["specular_edge_tint"] = tuple(float(x) for x in edge)
     passed = np.clip((1.0 - coat) + coat * constant(coat_colour_input, 1.0), 0.0, 1.0)
     if category == "open_pbr_surface" and coat > 0:
         passed = passed * _open_pbr_coat_darkening(values, maps, coat)
     if np.any(passed != 1.0):
         surface.values["coat_tint"] = tuple(float(x) for x in passed)
+
+
+def _ior_f0(ior: float) -> float:
+    """((n − 1)/(n + 1))², the normal-incidence reflectance of a dielectric of IOR n (MaterialX ``mx_ior_to_f0``)."""
+    return ((ior - 1.0) / (ior + 1.0)) ** 2 if ior > 0 else 0.0
+
+
+@lru_cache(maxsize=256)
+def _dielectric_f90(ior: float) -> float:
+    """The Schlick F90 that stands for MaterialX ``dielectric_bsdf``'s exact Fresnel F(μ, n) (``mx_fresnel_dielectric``)
+    in the capture's F0 + (F90 − F0)(1 − μ)⁵ with F0 = F0(n): the one of the same hemispherical mean ∫ F 2μ dμ (the
+    albedo of a smooth surface under uniform light), F90 = F0 + 21·(∫ F 2μ dμ − F0), at most 1 — 1 from n ≈ 1.34 up
+    (where Schlick's mean is within 7 % of the exact one), falling to 0 as n → 1 (F → 0 but at grazing: Schlick's
+    F90 = 1 there would keep a mean of 1/21 of a surface that reflects nothing; at n = 1.067, a coated OpenPBR base,
+    0.35). ``docs/capture.md`` gives the residuals."""
+    if ior <= 0 or ior == 1.0:
+        return 0.0
+    mu, w = _GAUSS
+    c2 = mu * mu
+    g2 = ior * ior + c2 - 1.0
+    g = np.sqrt(np.maximum(g2, 0.0))
+    exact = np.where(g2 < 0, 1.0, 0.5 * ((g - mu) / (g + mu)) ** 2
+                     * (1.0 + (((g + mu) * mu - 1.0) / ((g - mu) * mu + 1.0)) ** 2))
+    f0 = _ior_f0(ior)
+    return float(min(1.0, max(0.0, f0 + 21.0 * (float(np.sum(exact * 2.0 * mu * w)) - f0))))
+
+
+def _gauss_unit(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss–Legendre nodes and weights on [0, 1]."""
+    x, w = np.polynomial.legendre.leggauss(n)
+    return 0.5 * (x + 1.0), 0.5 * w
+
+
+#: the quadrature of :func:`_dielectric_f90`'s hemispherical means
+_GAUSS = _gauss_unit(512)
+
+
+def _open_pbr_dielectric(ior: float, weight: float, coat: float, coat_ior: float) -> tuple[float, float]:
+    """(F0, F90) of open_pbr_surface's dielectric reflection (NG_open_pbr_surface_surfaceshader): under a coat the
+    base's IOR is the relative one, ``eta_s`` = mix(specular_ior, max(r, 1/r), coat_weight) with r =
+    specular_ior/coat_ior (``specular_to_coat_ior_ratio_tir_fix``); ``specular_weight`` scales its F0 alone,
+    ``scaled_specular_F0_clamped`` = clamp(weight·F0(eta_s), 0, 0.99999), through the IOR of that F0,
+    ``modulated_eta_s`` = (1 + s√F0)/(1 − s√F0), s = sign(eta_s − 1), which is the ``dielectric_reflection``'s IOR.
+    F90: :func:`_dielectric_f90` of that IOR."""
+    ratio = ior / coat_ior if coat_ior != 0 else 1.0
+    fixed = ratio if ratio > 1.0 else (coat_ior / ior if ior != 0 else 1.0)
+    eta = (1.0 - coat) * ior + coat * fixed
+    f0 = min(max(weight * _ior_f0(eta), 0.0), 0.99999)
+    root = float(np.sign(eta - 1.0)) * f0 ** 0.5
+    modulated = (1.0 + root) / (1.0 - root)
+    return (f0, _dielectric_f90(modulated)) if root != 0 else (0.0, 0.0)
 
 
 def _open_pbr_coat_darkening(values: dict[str, object], maps: dict[str, dict], coat: float) -> np.ndarray:

@@ -1,6 +1,7 @@
-"""MaterialX specular weight/colour and coat colour as tints: the stdlib graphs weight the dielectric specular lobe
-by ``specular`` × ``specular_color`` (F0 and F90 alike) and pass mix(1, coat_color, coat) through the coat to the
-base. References: the reader's closed forms, the BSDF's Schlick terms written out, and linearity of the capture in
+"""MaterialX specular weight/colour and coat colour as tints: standard_surface's graph weights the dielectric
+specular lobe by ``specular`` × ``specular_color`` (F0 and F90 alike; open_pbr_surface's ``specular_weight`` scales
+F0 alone, through ``modulated_eta_s``: tests/capture/test_mtlx_surface_spec.py) and both pass mix(1, coat_color,
+coat) through the coat to the base. References: the reader's closed forms, the BSDF's Schlick terms written out, and linearity of the capture in
 the tint (a tinted lobe is the untinted one times the tint, path for path)."""
 
 from __future__ import annotations
@@ -35,7 +36,18 @@ def test_specular_and_coat_tints_are_read(tmp_path, category_id, names):
                        f"color3f inputs:{colour} = (1, 0.5, 0.25)\n        float inputs:{coat} = 0.6\n        "
                        f"color3f inputs:{coat_colour} = (0.2, 0.4, 1)")
     material = reading.scene.meshes[0].material
-    np.testing.assert_allclose(material.specular_tint, (0.5, 0.25, 0.125), rtol=1e-6)
+    if coat == "coat_weight":
+        # open_pbr_surface.mtlx (NG_open_pbr_surface_surfaceshader): ``eta_s`` = mix(specular_ior 1.5, coat_ior/
+        # specular_ior 1.6/1.5, coat_weight 0.6), its F0 scaled by specular_weight 0.5 (``scaled_specular_F0``), the
+        # colour tinting the lobe; the capture's F0 is F0(specular_ior) = 0.04 × specular_tint. (Before this audit
+        # the tint was weight × colour, F0 and F90 alike, without the coat's IOR.)
+        eta = 0.4 * 1.5 + 0.6 * 1.6 / 1.5
+        f0 = 0.5 * ((eta - 1) / (eta + 1)) ** 2
+        np.testing.assert_allclose(material.specular_tint, np.array([1.0, 0.5, 0.25]) * f0 / 0.04, rtol=1e-6)
+        assert material.specular_edge_tint is not None  # F90: test_mtlx_surface_spec.py
+    else:
+        np.testing.assert_allclose(material.specular_tint, (0.5, 0.25, 0.125), rtol=1e-6)
+        assert material.specular_edge_tint is None
     expected = 0.4 + 0.6 * np.array([0.2, 0.4, 1.0])
     if coat == "coat_weight":  # OpenPBR also darkens the base under its coat (default base 0.8, coat_ior 1.6)
         k = 1 - (1 - (0.6 / 2.6) ** 2) / 1.6 ** 2
