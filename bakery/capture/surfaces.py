@@ -2,9 +2,11 @@
 
 Each mesh has one :class:`bakery.capture.scene.Material`; its textured inputs (``Material.maps``) are evaluated at
 the hit's texture coordinates (the mesh's ``uvs`` interpolated with the hit's barycentrics), as UsdUVTexture does:
-``value = scale · texel + bias`` with ``wrapS``/``wrapT`` (repeat, mirror, clamp, black; the reader resolves "useMetadata" to black)
-and the ``fallback`` where a texture has no coordinates. An entry with a ``primvar`` reads a colour per vertex
-instead (the mesh's ``colors`` at the hit's barycentrics); one with a ``tint_primvar`` multiplies its texel by it
+``value = scale · texel + bias`` with ``wrapS``/``wrapT`` (repeat, mirror, clamp, black; the reader resolves
+"useMetadata" to black); a gprim without texture coordinates is read at its primvar reader's fallback st (a
+constant ``st_transform``, :func:`bakery.usd.materials.read_at_fallback_st`). An entry with a ``primvar`` reads a
+colour per vertex instead (the mesh's ``colors`` at the hit's barycentrics); one with a ``tint_primvar`` multiplies
+its texel by it
 (``value = scale · texel · colour + bias``: a MaterialX ``multiply`` of an image graph by a ``geompropvalue``).
 
 Filtering

@@ -48,8 +48,8 @@ from bakery.environment.layouts import (
     layout_inside,
     vertical_cross_face_size,
 )
-from bakery.sphere.cubemap import cube_face_uv_to_direction, cube_texel_solid_angles, direction_to_cube_texel
 from bakery.irradiance.reference import BinnedQuadrature, binned_quadrature_of_bands
+from bakery.sphere.cubemap import cube_face_uv_to_direction, cube_texel_solid_angles, direction_to_cube_texel
 from bakery.sphere.grid import SphericalSamples
 
 _MAX_SUBSAMPLES = 16
@@ -97,17 +97,17 @@ def environment_sample_bands(image: EnvironmentImage) -> Iterator[SphericalSampl
         r1 = min(h, r0 + band)
         keep = valid[r0:r1]
         rows, cols = np.meshgrid(np.arange(r0, r1) + 0.5, np.arange(w) + 0.5, indexing="ij")
-        yield SphericalSamples(directions=layout_directions_and_density(image.layout, rows[keep], cols[keep], h, w)[0],
-                               solid_angles=omega[r0:r1][keep],
+        directions = layout_directions_and_density(image.layout, rows[keep], cols[keep], h, w)[0]
+        yield SphericalSamples(directions=directions, solid_angles=omega[r0:r1][keep],
                                radiance=image.pixels[r0:r1][keep].astype(np.float64))
 
 
 def environment_samples(image: EnvironmentImage) -> SphericalSamples:
     """Full-resolution quadrature of the environment: one sample per valid texel (exact solid angles).
 
-    Built a band of rows at a time into the float64 arrays it returns: an 8192 × 4096 latlong needs those (1.9 GB)
-    and little more (the whole-image grids of positions and directions took 4.6 GB at the peak before). The bake
-    holds :func:`environment_reference` instead."""
+    Built band by band (:func:`environment_sample_bands`) and joined: an 8192 × 4096 latlong's samples are 1.9 GB
+    (the whole-image grids of positions and directions took 4.6 GB at the peak before). The bake holds
+    :func:`environment_reference` instead; the report and the benches use these."""
     bands = list(environment_sample_bands(image))
     return SphericalSamples(directions=np.concatenate([b.directions for b in bands]),
                             solid_angles=np.concatenate([b.solid_angles for b in bands]),
@@ -117,13 +117,13 @@ def environment_samples(image: EnvironmentImage) -> SphericalSamples:
 def environment_reference(image: EnvironmentImage) -> BinnedQuadrature:
     """The full-resolution quadrature of the environment as the bake's reference diagnostics read it
     (:class:`bakery.irradiance.reference.BinnedQuadrature`: the brightest texels as they are, the others binned),
-    built band by band: a few MB held per image and about 0.3 GB at the peak for an 8192 × 4096 latlong, whose
-    samples alone are 1.9 GB (a batch of 16 such images held 30 GB before)."""
+    built band by band: 1.4 MB held per image, whose samples would be 1.9 GB for an 8192 × 4096 latlong (a batch
+    of 16 such images held 30 GB before; ``docs/performance.md``, "Large images")."""
     omega = source_texel_solid_angles(image)
     valid = omega > 0
     band = max(1, _SAMPLE_BAND_TEXELS // max(1, image.width))
-    luminance = np.concatenate([image.pixels[r0:r0 + band][valid[r0:r0 + band]].astype(np.float64) @ LUMINANCE_WEIGHTS
-                                for r0 in range(0, image.height, band)])
+    luminance = np.concatenate([image.pixels[r0:r0 + band][valid[r0:r0 + band]].astype(np.float64)
+                                @ LUMINANCE_WEIGHTS for r0 in range(0, image.height, band)])
     return binned_quadrature_of_bands(environment_sample_bands(image), luminance * omega[valid])
 
 

@@ -4,8 +4,9 @@ Outcomes
     *could not run*  the stage cannot be opened: one "error" issue on "/" (the CLI exits non-zero);
     *failed*         any "error" issue: the bake refuses to run (its result could not be trusted);
     *warnings*       what a bake would silently change: documented fallbacks and approximations (textures read at
-                     the primvar reader's fallback st where a mesh has no texture coordinates, unreadable or missing textures, float textures without
-                     colour-space information, unmodelled material lobes and normal maps,
+                     the primvar reader's fallback st where a mesh has no texture coordinates, unreadable or
+                     missing textures, float textures without colour-space information, unmodelled material lobes
+                     and normal maps,
                      subdivision surfaces baked as their cage, unsupported gprims, light types and light inputs,
                      unauthored metersPerUnit, probes inside geometry, ...).
 
