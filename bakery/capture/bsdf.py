@@ -7,8 +7,9 @@ up to 1.2–1.3 there, docs/capture.md "Materials and colour") with D the GGX di
 Smith visibility G2/(4 (n·wo)(n·wi)) and F Schlick's Fresnel — exactly the terms of :mod:`bakery.brdf.ggx` that the
 reflection encodings use. F = F0 + (F90 − F0)(1 − c)⁵ with F90 = min(1, 50·luminance(F0)) (a surface with F0 = 0
 has no specular lobe at all, so a purely diffuse material is exactly Lambertian), or F90 (3, M) as given: a
-UsdPreviewSurface metal's, mix(F90, albedo, metallic), and a tinted lobe's (MaterialX specular weight and colour, a
-coat's colour), which scales F0 and F90 alike. α = roughness², clamped to ≥ :data:`MIN_ALPHA`.
+UsdPreviewSurface metal's, mix(F90, albedo, metallic), and a tinted lobe's (MaterialX specular weight and colour,
+a coat's colour: F0 scaled by the material's ``specular_tint``, F90 by its ``specular_edge_tint``, which
+:mod:`bakery.usd.mtlx` derives from the MaterialX graphs). α = roughness², clamped to ≥ :data:`MIN_ALPHA`.
 
 Clearcoat (UsdPreviewSurface ``clearcoat`` c, ``clearcoatRoughness`` r_c; MaterialX coat): a white GGX lobe with
 F0 = ((ior − 1)/(ior + 1))² of the coat's IOR (UsdPreviewSurface: its ``ior``; given per point, else 0.04) on top,
