@@ -86,11 +86,11 @@ def source_texel_solid_angles(image: EnvironmentImage) -> np.ndarray:
     return np.where(layout_inside("vertical_cross", rows, cols, h, w), face, 0.0)
 
 
-def environment_sample_bands(image: EnvironmentImage) -> Iterator[SphericalSamples]:
+def environment_sample_bands(image: EnvironmentImage, omega: np.ndarray | None = None) -> Iterator[SphericalSamples]:
     """The samples of :func:`environment_samples` as consecutive bands of rows (about ``_SAMPLE_BAND_TEXELS`` texels
-    each), in the same order."""
+    each), in the same order; ``omega``: the image's :func:`source_texel_solid_angles` if already computed."""
     h, w = image.height, image.width
-    omega = source_texel_solid_angles(image)
+    omega = source_texel_solid_angles(image) if omega is None else omega
     valid = omega > 0  # zero off the disc and in the cross's empty cells
     band = max(1, _SAMPLE_BAND_TEXELS // max(1, w))
     for r0 in range(0, h, band):
@@ -124,7 +124,7 @@ def environment_reference(image: EnvironmentImage) -> BinnedQuadrature:
     band = max(1, _SAMPLE_BAND_TEXELS // max(1, image.width))
     luminance = np.concatenate([image.pixels[r0:r0 + band][valid[r0:r0 + band]].astype(np.float64)
                                 @ LUMINANCE_WEIGHTS for r0 in range(0, image.height, band)])
-    return binned_quadrature_of_bands(environment_sample_bands(image), luminance * omega[valid])
+    return binned_quadrature_of_bands(environment_sample_bands(image, omega), luminance * omega[valid])
 
 
 def supersampling_factor(image: EnvironmentImage, face_size: int) -> int:

@@ -265,6 +265,7 @@ class UsdSceneSource(Source):
             up_axis=self._reading.up_axis, meters_per_unit=self._reading.meters_per_unit, protected=self._protected,
             encoding_settings={name: json.loads(group["attributes"]["settings"])
                                for name, group in contents.encodings.items() if "settings" in group["attributes"]},
+            instances=self._reading.instances,
         )
         return {"layer": str(layer_path)}
 

@@ -35,7 +35,8 @@ attribute                                   value
 A probe volume gets one ``over`` whose arrays hold its probes one after another in the volume's flat order
 (i fastest). A probe inside a native instance (an ``instanceable`` prim with a reference or payload, met as an
 instance proxy) is baked at its own composed path, but USD ignores opinions on prims inside instances: the layer
-therefore also authors ``instanceable = false`` on every instance above a baked probe (:func:`instance_ancestors`),
+therefore also authors ``instanceable = false`` on every instance above a baked probe (the reader's
+``SceneReading.instances``),
 so that each instance's probes carry their own values (those instances are no longer shared when composed).
 The layer copies the scene's ``upAxis`` and ``metersPerUnit`` (so it composes without metrics warnings), sets
 ``defaultPrim`` (the scene's, when it is one of the layer's roots) and records the scene and store in
@@ -50,14 +51,14 @@ import math
 import os
 import re
 from collections.abc import Iterator, Mapping
-from contextlib import contextmanager, nullcontext
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pxr import Gf, Sdf, Tf, Usd, UsdGeom, Vt
+from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
 from bakery.conventions import CONVENTIONS
 from bakery.errors import SceneError
@@ -226,36 +227,6 @@ def runtime_setting_values(encoding: str, settings: Mapping[str, Any]) -> dict[s
     return out
 
 
-def instance_ancestors(scene_path: str | os.PathLike[str], paths: list[str]) -> list[str]:
-    """The native instances (``instanceable`` prims with a composition arc) above the probe prims ``paths`` in the
-    composed scene, outermost first, nested instances included: USD ignores every opinion authored on a prim inside
-    an instance (an instance proxy's properties come from the shared prototype), so the layer's ``over`` of such a
-    probe would be silently dropped. The scene is opened masked to the probe paths (their ancestors and payloads
-    only). [] if it cannot be opened (a bake has read it: it can)."""
-    if not paths:
-        return []
-    mask = Usd.StagePopulationMask()
-    for path in paths:
-        mask.Add(Sdf.Path(path))
-    trap_type = getattr(Tf, "DiagnosticTrap", None)  # composition warnings were reported when the scene was read
-    try:
-        with trap_type() if trap_type is not None else nullcontext():
-            stage = Usd.Stage.OpenMasked(str(scene_path), mask, Usd.Stage.LoadAll)
-    except Exception as error:  # noqa: BLE001 - USD raises Tf errors for files it cannot open
-        if not type(error).__module__.startswith("pxr"):
-            raise
-        return []
-    if stage is None:
-        return []
-    found: set[Sdf.Path] = set()
-    for path in paths:
-        for ancestor in Sdf.Path(path).GetParentPath().GetPrefixes():
-            prim = stage.GetPrimAtPath(ancestor)
-            if prim and prim.IsInstance():
-                found.add(ancestor)
-    return [str(p) for p in sorted(found)]
-
-
 def _default_prim(prims: list[BakedPrim], scene_path: str | os.PathLike[str]) -> str:
     """The layer's defaultPrim: the scene's own when it is among the layer's root prims, else the first root."""
     roots = sorted({Sdf.Path(baked.path).GetPrefixes()[0].name for baked in prims})
@@ -282,10 +253,12 @@ def write_bake_layer(
     meters_per_unit: float = 1.0,
     protected: tuple[str, ...] = (),
     encoding_settings: Mapping[str, Mapping[str, Any]] | None = None,
+    instances: tuple[str, ...] = (),
 ) -> Path:
     """Write the baked-results layer atomically (temporary file + rename). Refuses to overwrite any path in
     ``protected`` (the scene's own layers). ``encoding_settings`` ({encoding: its stored settings}) adds the
     ``bakery:settings:<encoding>:<key>`` attributes of :func:`runtime_settings` to every prim carrying the encoding.
+    ``instances``: the scene's native instances above probe prims; those above a baked prim are de-instanced.
     Returns the layer path."""
     layer_path = Path(layer_path).resolve()
     if str(layer_path) in {str(Path(p).resolve()) for p in protected}:
@@ -353,8 +326,10 @@ def write_bake_layer(
             attr.default = value
     # a probe inside a native instance: de-instance the instance (and any nested one) in this layer, the only way
     # USD lets a per-instance opinion through (``instanceable = false`` over the scene's ``true``)
-    for path in instance_ancestors(scene_path, [baked.path for baked in prims]):
-        Sdf.CreatePrimInLayer(layer, Sdf.Path(path)).instanceable = False
+    baked_paths = [Sdf.Path(baked.path) for baked in prims]
+    for path in map(Sdf.Path, instances):
+        if any(p.HasPrefix(path) for p in baked_paths):
+            Sdf.CreatePrimInLayer(layer, path).instanceable = False
     layer_path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_replace(layer_path, suffix=layer_path.suffix) as tmp:  # USD picks the file format by extension
         if not layer.Export(str(tmp)):

@@ -105,6 +105,10 @@ class SceneReading:
     up_axis: str
     layers: tuple[str, ...] = ()
     assets: tuple[str, ...] = ()
+    #: native instances (``instanceable`` prims with a composition arc) above probe prims, nested ones included:
+    #: USD ignores opinions on prims inside an instance, so the baked layer de-instances them
+    #: (:func:`bakery.usd.layer.write_bake_layer`)
+    instances: tuple[str, ...] = ()
 
     @property
     def errors(self) -> tuple[Issue, ...]:
@@ -299,6 +303,8 @@ class SceneReader:
         self.materials = MaterialReader(time=self.time, load_textures=load_textures)
         self.load_textures = load_textures
         self.issues: list[Issue] = []
+        #: native instances above probe prims (:attr:`SceneReading.instances`)
+        self._instances: set[str] = set()
         self.meshes: list[Mesh] = []
         self.lights: list[Light] = []
         self.domes: list[Dome] = []
@@ -473,6 +479,7 @@ class SceneReader:
             up_axis=self.frame.up,
             layers=tuple(sorted({layer.realPath for layer in self.stage.GetUsedLayers() if layer.realPath})),
             assets=tuple(sorted(self._assets())),
+            instances=tuple(sorted(self._instances)),
         )
 
     def _used_textures(self) -> tuple:
@@ -559,6 +566,11 @@ class SceneReader:
         encodings = tuple(str(e) for e in (self._attr(prim, "bakery:encodings") or ()))
         rotation = tuple(map(tuple, self.frame.rotation(matrix).tolist()))
         path = str(prim.GetPath())
+        ancestor = prim.GetParent()  # met as an instance proxy: the instances above it
+        while ancestor and not ancestor.IsPseudoRoot():
+            if ancestor.IsInstance():
+                self._instances.add(str(ancestor.GetPath()))
+            ancestor = ancestor.GetParent()
         if type_name == "BakeryIrradianceProbeVolume":
             self._read_volume(prim, matrix, resolution, encodings)
             return
