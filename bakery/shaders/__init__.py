@@ -9,8 +9,8 @@ Files
     manifest.json           encoding name → entry point and its arguments (fields, settings, inputs, tables)
 
 ``tests/shaders/`` renders every manifest entry on a WebGL2 pipeline (headless Chromium) against
-``ProbeStore.evaluate_irradiance`` / ``evaluate_reflection`` and compiles the HLSL to SPIR-V. How an engine uses
-them: ``docs/engine-integration.md``.
+``ProbeStore.evaluate_irradiance`` / ``evaluate_reflection``, in GLSL and in HLSL (compiled to SPIR-V by glslang,
+translated to GLSL ES 3.00 by spirv-cross, run on the same page). How an engine uses them: ``docs/engine-integration.md``.
 """
 
 from __future__ import annotations

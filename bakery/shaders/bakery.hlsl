@@ -3,7 +3,8 @@
 //     #include "bakery.hlsl"      // this file: portability macros + bakery_core.glsl + bakery_textures.hlsl
 //
 // bakery_core.glsl is written once for both languages (through the BK_* macros below), so the HLSL evaluates
-// exactly the code that tests/shaders/ runs on a WebGL2 pipeline against bakery's Python API.
+// exactly the code that tests/shaders/ runs on a WebGL2 pipeline against bakery's Python API; this HLSL itself is run
+// there too (tests/shaders/test_hlsl_execution.py: glslang's HLSL front end → SPIR-V → spirv-cross → GLSL ES 3.00).
 // Conventions, layouts and formulas: schemas/store-v1.md, schemas/store-reflection.md, docs/engine-integration.md.
 
 #ifndef BAKERY_HLSL

@@ -1,8 +1,9 @@
 // bakery shader library — texture lookups (HLSL). Included by bakery.hlsl after bakery_core.glsl.
 //
 // Upload (schemas/store-reflection.md):
-//   dfg            64×64 DXGI_FORMAT_R32G32_FLOAT (or R16G16_FLOAT) Texture2D<float2>, width = n·v axis, height = α
-//                  axis (row i of the stored (64, 64, 2) array is texture row i), clamp addressing.
+//   dfg            64×64 DXGI_FORMAT_R32G32_FLOAT (or R16G16_FLOAT), width = n·v axis, height = α axis (row i of
+//                  the stored (64, 64, 2) array is texture row i), clamp addressing, declared Texture2D<float4> (the
+//                  lookups' parameter type; DXC need not convert a Texture2D<float2> to it).
 //                  fresnel_tail: the same with R32_FLOAT.
 //   splitsum       every level i as its own Texture2DArray of N_i × N_i with the 6 faces (+X, −X, +Y, −Y, +Z, −Z)
 //                  as slices 6·probe + face, rows top-down as stored, R16G16B16A16_FLOAT, clamp addressing; or a

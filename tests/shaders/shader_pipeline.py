@@ -5,6 +5,10 @@ uploaded as an engine would (float fields as RGBA32F texels, uint8 layouts as R3
 as RG32F/R32F textures, split-sum levels as RGBA16F face arrays), a generated fragment shader loads them and calls the
 manifest's entry point at per-pixel inputs (normal, view, α, F0), and ``readPixels`` reads the RGBA32F target back.
 All jobs run in one page, in one Chromium launch (:func:`run_jobs`).
+
+Each job also carries the same harness as an HLSL pixel shader over ``bakery.hlsl`` (``Job.hlsl``); :func:`hlsl_jobs`
+compiles it to SPIR-V (glslangValidator's HLSL front end) and translates that to GLSL ES 3.00 (spirv-cross), giving
+jobs that run the HLSL on the same page (tests/shaders/test_hlsl_execution.py).
 """
 
 from __future__ import annotations
@@ -32,6 +36,9 @@ CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-quic", "--no-first-ru
                   "--ignore-gpu-blocklist"]
 #: Hardware-filtering counterparts of the exact (texelFetch) lookups.
 SAMPLED_LOOKUP = {"bakery_dfg_fetch": "bakery_dfg_sample", "bakery_cube_fetch_bilinear": "bakery_cube_sample_bilinear"}
+#: The harness's GLSL types → HLSL.
+HLSL_TYPES = {"vec2": "float2", "vec3": "float3", "vec4": "float4", "uvec4": "uint4", "uint": "uint", "int": "int",
+              "float": "float", "bool": "bool"}
 #: BAKERY_HYBRID_MAX_LEVELS of bakery_core.glsl (the size of the level-α array).
 MAX_HYBRID_LEVELS = 16
 #: Tolerances of a GPU value against the API's (docs/engine-integration.md): exact lookups (texelFetch) to float32
@@ -111,6 +118,7 @@ class Job:
     mask: np.ndarray | None = None  # (P, N) samples compared (None: all)
     textures: list[dict] = field(default_factory=list)
     uniforms: list[dict] = field(default_factory=list)
+    hlsl: str = ""  # the same job as an HLSL pixel shader (bakery.hlsl), for hlsl_jobs()
 
     def page_entry(self) -> dict:
         return {"id": self.id, "fragment": self.fragment, "width": self.width, "height": self.height,
@@ -172,7 +180,11 @@ def _job(store, label: str, name: str, info, spec: dict, variant: str, probe: in
 
     decls: list[str] = []
     body: list[str] = []
-    call: list[str] = []
+    call: list[str] = []  # the entry point's arguments: the same variable names in the GLSL and the HLSL
+    hdecls: list[str] = []  # the HLSL counterparts of decls (resources, helper functions), body, settings
+    hbody: list[str] = []
+    hsettings: list[str] = []
+    hfunctions: list[str] = []
     textures: list[dict] = []
     uniforms: list[dict] = []
     float_texels: list[np.ndarray] = []  # per field (P, K, 4)
@@ -191,6 +203,11 @@ def _job(store, label: str, name: str, info, spec: dict, variant: str, probe: in
              "vec3 view = texelFetch(u_inputs, ivec2(s, 1), 0).xyz;",
              "vec4 alpha_f0 = texelFetch(u_inputs, ivec2(s, 2), 0);",
              "float alpha = alpha_f0.x;", "vec3 f0 = alpha_f0.yzw;"]
+    hdecls.append("Texture2D<float4> u_inputs;")
+    hbody += ["float3 normal = u_inputs.Load(int3(s, 0, 0)).xyz;",
+              "float3 view = u_inputs.Load(int3(s, 1, 0)).xyz;",
+              "float4 alpha_f0 = u_inputs.Load(int3(s, 2, 0));",
+              "float alpha = alpha_f0.x;", "float3 f0 = alpha_f0.yzw;"]
     float_offset = word_offset = 0
     field_vars: dict[str, str] = {}  # stored field → its GLSL variable
     for k, argument in enumerate(spec["arguments"]):
@@ -208,16 +225,21 @@ def _job(store, label: str, name: str, info, spec: dict, variant: str, probe: in
                 texels = np.concatenate([texels, np.zeros((count, texels.shape[1], 4 - width), np.float32)], axis=-1)
                 float_texels.append(texels)
                 swizzle = "xyz" if width == 3 else "xy"
+                hbase = HLSL_TYPES[base]
                 if size is None:
                     body.append(f"{base} {var} = texelFetch(u_fields, ivec2({float_offset}, probe), 0).{swizzle};")
+                    hbody.append(f"{hbase} {var} = u_fields.Load(int3({float_offset}, probe, 0)).{swizzle};")
                 else:
                     body.append(f"{base} {var}[{size}]; for (int i = 0; i < {size}; ++i) "
                                 f"{var}[i] = texelFetch(u_fields, ivec2({float_offset} + i, probe), 0).{swizzle};")
+                    hbody.append(f"{hbase} {var}[{size}]; for (int i = 0; i < {size}; ++i) "
+                                 f"{var}[i] = u_fields.Load(int3({float_offset} + i, probe, 0)).{swizzle};")
                 float_offset += texels.shape[1]
             elif base == "int":  # a (1,) integer field, uploaded as one R32UI word (two's complement)
                 assert data.shape[1:] == (1,) and data.dtype.kind in "iu", f"{name}.{argument['field']}: {data.dtype}"
                 word_texels.append(data.astype("<i4").view("<u4").reshape(count, 1))
                 body.append(f"int {var} = int(texelFetch(u_words, ivec2({word_offset}, probe), 0).x);")
+                hbody.append(f"int {var} = asint(u_words.Load(int3({word_offset}, probe, 0)));")
                 word_offset += 1
             else:  # uint words of the uint8 layout, little-endian
                 assert data.dtype == np.uint8, f"{name}.{argument['field']}: {data.dtype}"
@@ -226,11 +248,15 @@ def _job(store, label: str, name: str, info, spec: dict, variant: str, probe: in
                 assert words.shape[1] == n_words, f"{name}.{argument['field']}: {words.shape[1]} words, shader {n_words}"
                 word_texels.append(words)
                 fetch = [f"texelFetch(u_words, ivec2({word_offset + i}, probe), 0).x" for i in range(n_words)]
+                hfetch = [f"u_words.Load(int3({word_offset + i}, probe, 0))" for i in range(n_words)]
                 if base == "uvec4":
                     body.append(f"uvec4 {var} = uvec4({', '.join(fetch)});")
+                    hbody.append(f"uint4 {var} = uint4({', '.join(hfetch)});")
                 else:
                     body.append(f"uint {var}[{n_words}]; for (int i = 0; i < {n_words}; ++i) "
                                 f"{var}[i] = texelFetch(u_words, ivec2({word_offset} + i, probe), 0).x;")
+                    hbody.append(f"uint {var}[{n_words}]; for (int i = 0; i < {n_words}; ++i) "
+                                 f"{var}[i] = u_words.Load(int3({word_offset} + i, probe, 0));")
                 word_offset += n_words
             call.append(var)
         elif "setting" in argument:
@@ -240,6 +266,7 @@ def _job(store, label: str, name: str, info, spec: dict, variant: str, probe: in
                 value = len(value)
             uniform = f"u_setting_{argument['setting']}"
             decls.append(f"uniform {argument['type']} {uniform};")
+            hsettings.append(f"{HLSL_TYPES[argument['type']]} {uniform};")
             kind = argument["type"]
             uniforms.append({"name": uniform, "type": kind,
                              "value": [float(v) for v in value] if kind == "vec2" else float(value) if kind == "float"
@@ -254,10 +281,13 @@ def _job(store, label: str, name: str, info, spec: dict, variant: str, probe: in
             textures.append({"uniform": uniform, "target": "2D", "internal": internal, "width": table.shape[1],
                              "height": table.shape[0], "filter": "LINEAR", "data": _b64(table)})
             decls.append(f"uniform highp sampler2D {uniform};")
+            hdecls.append(f"Texture2D<float4> {uniform};")
             lookup = argument["lookup"]
             if variant == "sample":
                 lookup = SAMPLED_LOOKUP.get(lookup, lookup)
             body.append(f"{argument['type']} {var} = {lookup}({uniform}, dot(normal, view), alpha);")
+            sampler = f"{uniform}, u_linear_clamp" if lookup in SAMPLED_LOOKUP.values() else uniform
+            hbody.append(f"{HLSL_TYPES[argument['type']]} {var} = {lookup}({sampler}, dot(normal, view), alpha);")
             call.append(var)
         elif "chain" in argument:
             hybrid = "level_alphas" in argument
@@ -266,6 +296,7 @@ def _job(store, label: str, name: str, info, spec: dict, variant: str, probe: in
                 levels = len(level_alphas)
                 first = np.asarray(fields[argument["first_level"]]).reshape(-1)
                 decls.append(f"uniform float u_level_alphas[{MAX_HYBRID_LEVELS}];")
+                hsettings.append(f"float u_level_alphas[{MAX_HYBRID_LEVELS}];")
                 uniforms.append({"name": "u_level_alphas", "type": "float[]",
                                  "value": level_alphas + [1.0] * (MAX_HYBRID_LEVELS - levels)})
             else:
@@ -275,6 +306,7 @@ def _job(store, label: str, name: str, info, spec: dict, variant: str, probe: in
             if variant == "sample":
                 lookup = SAMPLED_LOOKUP.get(lookup, lookup)
             branches = []
+            hbranches = []
             sizes = []
             for i in range(levels):
                 level = np.asarray(fields[f"{argument['chain']}{i}"])  # (P, 6, N, N, 3) float16
@@ -289,13 +321,21 @@ def _job(store, label: str, name: str, info, spec: dict, variant: str, probe: in
                 if variant == "cube":
                     decls.append(f"uniform highp samplerCube u_level{i};")
                     branches.append(f"    if (level == {i}) return bakery_cube_sample_seamless(u_level{i}, d);")
+                    hdecls.append(f"TextureCube<float4> u_level{i};")
+                    hbranches.append(f"    if (level == {i}) "
+                                     f"return bakery_cube_sample_seamless(u_level{i}, u_linear_clamp, d);")
                 else:
                     decls.append(f"uniform highp sampler2DArray u_level{i};")
                     branches.append(f"    if (level == {i}) return {lookup}(u_level{i}, first_layer, d);")
+                    hdecls.append(f"Texture2DArray<float4> u_level{i};")
+                    sampler = f"u_level{i}, u_linear_clamp" if lookup in SAMPLED_LOOKUP.values() else f"u_level{i}"
+                    hbranches.append(f"    if (level == {i}) return {lookup}({sampler}, first_layer, d);")
             if variant == "cube":  # seamless filtering differs within half a texel of a face edge
                 mask = _inner_face_mask(inputs, sizes, levels, first, level_alphas if hybrid else None)
             decls.append("vec3 bk_chain(int level, int first_layer, vec3 d)\n{\n" + "\n".join(branches)
                          + "\n    return vec3(0.0, 0.0, 0.0);\n}")
+            hfunctions.append("float3 bk_chain(int level, int first_layer, float3 d)\n{\n" + "\n".join(hbranches)
+                              + "\n    return float3(0.0, 0.0, 0.0);\n}")
             coordinate = (f"bakery_hybrid_levels(alpha, u_level_alphas, {levels}, {field_vars[argument['first_level']]}, "
                           if hybrid else f"bakery_splitsum_levels(alpha, {levels}, ")
             body += [f"int {var}_i0, {var}_i1; float {var}_f;",
@@ -303,6 +343,11 @@ def _job(store, label: str, name: str, info, spec: dict, variant: str, probe: in
                      f"vec3 {var}_r = bakery_chain_direction(view, normal);",
                      f"vec3 {var}_c0 = bk_chain({var}_i0, 6 * probe, {var}_r);",
                      f"vec3 {var}_c1 = bk_chain({var}_i1, 6 * probe, {var}_r);"]
+            hbody += [f"int {var}_i0, {var}_i1; float {var}_f;",
+                      f"{coordinate}{var}_i0, {var}_i1, {var}_f);",
+                      f"float3 {var}_r = bakery_chain_direction(view, normal);",
+                      f"float3 {var}_c0 = bk_chain({var}_i0, 6 * probe, {var}_r);",
+                      f"float3 {var}_c1 = bk_chain({var}_i1, 6 * probe, {var}_r);"]
             call += [f"{var}_c0", f"{var}_c1", f"{var}_f"]
         else:
             raise ValueError(f"{name}: unknown manifest argument {argument}")
@@ -311,19 +356,29 @@ def _job(store, label: str, name: str, info, spec: dict, variant: str, probe: in
         textures.append({"uniform": "u_fields", "target": "2D", "internal": "RGBA32F", "width": packed.shape[1],
                          "height": count, "filter": "NEAREST", "data": _b64(packed)})
         decls.append("uniform highp sampler2D u_fields;")
+        hdecls.append("Texture2D<float4> u_fields;")
     if word_texels:
         packed = np.concatenate(word_texels, axis=1).astype("<u4")
         textures.append({"uniform": "u_words", "target": "2D", "internal": "R32UI", "width": packed.shape[1],
                          "height": count, "filter": "NEAREST", "data": _b64(packed)})
         decls.append("uniform highp usampler2D u_words;")
+        hdecls.append("Texture2D<uint> u_words;")
     fragment = "\n".join([
         "#version 300 es", glsl_library(), "// ---- test harness (tests/shaders/shader_pipeline.py)", *decls,
         "out vec4 o_value;", "void main()", "{", "    int s = int(gl_FragCoord.x);",
         "    int probe = int(gl_FragCoord.y);" if probe is None else "    int probe = 0;",
         *("    " + line for line in body), f"    o_value = vec4({spec['entry']}({', '.join(call)}), 1.0);", "}", ""])
+    hlsl = "\n".join([
+        '#include "bakery.hlsl"', "// ---- test harness (tests/shaders/shader_pipeline.py)", *hdecls,
+        "SamplerState u_linear_clamp;", *(["cbuffer Settings", "{", *("    " + m for m in hsettings), "};"]
+                                          if hsettings else []),
+        *hfunctions, "float4 main(float4 position : SV_Position) : SV_Target", "{", "    int s = int(position.x);",
+        "    int probe = int(position.y);" if probe is None else "    int probe = 0;",
+        *("    " + line for line in hbody), f"    return float4({spec['entry']}({', '.join(call)}), 1.0);", "}", ""])
     suffix = "" if probe is None else f"/probe{probe}"
     return Job(id=f"{label}/{name}/{variant}{suffix}", encoding=name, store=label, variant=variant, fragment=fragment,
-               width=samples, height=count, reference=reference, mask=mask, textures=textures, uniforms=uniforms)
+               width=samples, height=count, reference=reference, mask=mask, textures=textures, uniforms=uniforms,
+               hlsl=hlsl)
 
 
 def _inner_face_mask(inputs: dict, sizes: list[int], levels: int, first: np.ndarray,
@@ -464,3 +519,96 @@ def hlsl_test_entry() -> str:
 
 def hlsl_include_dir() -> Path:
     return SHADER_DIR
+
+
+# ------------------------------------------------------------------------------------------------------ HLSL, executed
+# The HLSL of each job (Job.hlsl: the same harness as the GLSL one, over bakery.hlsl) is compiled by glslang's HLSL
+# front end to SPIR-V, SPIR-V is turned into GLSL ES 3.00 by spirv-cross, and that runs in the same WebGL2 page.
+# spirv-cross does not re-derive anything: it writes out the SPIR-V instructions the HLSL compiled to (glslang has
+# already inlined the library into main), so a difference from the GLSL library is a difference of the HLSL.
+HLSL_TO_SPIRV = ("-D", "-V", "-S", "frag", "-e", "main")
+#: ES 3.00 for WebGL2; the cbuffer as a plain uniform struct (the page sets uniforms, not uniform buffers).
+SPIRV_TO_ESSL = ("--es", "--version", "300", "--glsl-emit-ubo-as-plain-uniforms")
+#: spirv-cross names each (texture, sampler) pair it combines SPIRV_Cross_Combined<texture><sampler>; Load() pairs the
+#: texture with a dummy sampler.
+_COMBINED = re.compile(r"^uniform\s+(?:(?:highp|mediump|lowp)\s+)?\w+\s+"
+                       r"(SPIRV_Cross_Combined(\w+?)(u_linear_clamp|SPIRV_Cross_DummySampler));$", re.M)
+_SETTINGS = re.compile(r"^struct Settings\n\{\n(.*?)\n\};\n.*?^uniform Settings (\w+);$", re.M | re.S)
+_MEMBER = re.compile(r"^\s*(?:(?:highp|mediump|lowp)\s+)?(\w+)\s+(\w+)(\[\d+\])?;$", re.M)
+
+
+def spirv_cross_binary() -> str | None:
+    return shutil.which("spirv-cross")
+
+
+class TranslationError(RuntimeError):
+    """glslangValidator or spirv-cross refused a job's HLSL."""
+
+
+def hlsl_to_essl(source: str, workdir: Path) -> str:
+    """``source`` (an HLSL pixel shader, entry ``main``, including bakery.hlsl) → SPIR-V → GLSL ES 3.00."""
+    digest = hashlib.sha256(source.encode()).hexdigest()[:16]
+    hlsl, spirv, essl = (workdir / f"{digest}{ext}" for ext in (".hlsl", ".spv", ".frag"))
+    hlsl.write_text(source)
+    steps = ([glslang_binary(), *HLSL_TO_SPIRV, f"-I{SHADER_DIR}", "-o", str(spirv), str(hlsl)],
+             [spirv_cross_binary(), str(spirv), *SPIRV_TO_ESSL, "--output", str(essl)])
+    for command in steps:
+        result = subprocess.run(command, capture_output=True, text=True, timeout=120, cwd=workdir)
+        if result.returncode != 0:
+            raise TranslationError(f"{Path(command[0]).name}: {result.stdout[-2000:]}{result.stderr[-2000:]}")
+    text = essl.read_text()
+    # spirv-cross declares ES fragment floats mediump by default (and qualifies what SPIR-V does not mark relaxed as
+    # highp); the HLSL is float32 throughout (no min16float), so the default is highp as well.
+    return re.sub(r"^precision mediump float;$", "precision highp float;", text, flags=re.M)
+
+
+def _hlsl_job(job: Job, essl: str) -> Job:
+    """``job`` with its fragment shader replaced by ``essl`` (hlsl_to_essl of job.hlsl): each texture is bound to
+    every combined sampler spirv-cross made of it, each setting to its member of the Settings struct."""
+    by_name = {t["uniform"]: t for t in job.textures}
+    textures = []
+    for combined, texture, _ in _COMBINED.findall(essl):
+        if texture not in by_name:
+            raise TranslationError(f"{job.id}: spirv-cross sampler {combined} of an unknown texture")
+        textures.append({**by_name[texture], "uniform": combined})
+    uniforms = []
+    if job.uniforms:
+        match = _SETTINGS.search(essl)
+        if match is None:
+            raise TranslationError(f"{job.id}: no Settings struct in the spirv-cross output")
+        members = {name: (kind, array) for kind, name, array in _MEMBER.findall(match.group(1))}
+        for uniform in job.uniforms:
+            kind, _ = members[uniform["name"]]
+            runner_type = "uint" if kind == "uint" else uniform["type"]  # an HLSL bool in a cbuffer is a uint
+            uniforms.append({**uniform, "name": f"{match.group(2)}.{uniform['name']}", "type": runner_type})
+    return Job(id=f"hlsl:{job.id}", encoding=job.encoding, store=job.store, variant=job.variant, fragment=essl,
+               width=job.width, height=job.height, reference=job.reference, mask=job.mask, textures=textures,
+               uniforms=uniforms, hlsl=job.hlsl)
+
+
+def hlsl_jobs(jobs: list[Job], workdir: Path) -> tuple[list[Job], dict[str, str]]:
+    """The HLSL counterparts of ``jobs`` (ids "hlsl:<id>", the same inputs, textures, settings and reference), and
+    the ids of those whose HLSL did not translate → the error. Identical sources are translated once."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    workdir.mkdir(parents=True, exist_ok=True)
+    sources = sorted({job.hlsl for job in jobs})
+
+    def translate(source: str) -> str | TranslationError:
+        try:
+            return hlsl_to_essl(source, workdir)
+        except TranslationError as error:
+            return error
+
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        translated = dict(zip(sources, pool.map(translate, sources), strict=True))
+    result, errors = [], {}
+    for job in jobs:
+        essl = translated[job.hlsl]
+        try:
+            if isinstance(essl, TranslationError):
+                raise essl
+            result.append(_hlsl_job(job, essl))
+        except TranslationError as error:
+            errors[f"hlsl:{job.id}"] = str(error)
+    return result, errors

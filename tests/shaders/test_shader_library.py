@@ -21,7 +21,8 @@ arrays / RG32F tables with LINEAR filtering, and the split-sum levels as cube te
 bilinear tap crosses a face edge). All of it runs in one Chromium launch per test session.
 
 The same GLSL is validated by ``glslangValidator`` (GLSL ES 3.00), and the HLSL (the same core through
-``bakery.hlsl``) is compiled to SPIR-V by its HLSL front end.
+``bakery.hlsl``) is compiled to SPIR-V by its HLSL front end; ``test_hlsl_execution.py`` runs that HLSL on the same
+stores and rows (SPIR-V → GLSL ES 3.00 by spirv-cross → this WebGL2 page).
 """
 
 from __future__ import annotations
@@ -61,8 +62,24 @@ HYBRID_VARIANTS = {
 BROWSER_SECONDS = 60.0
 
 
+#: The baked stores, once per test session (shared with tests/shaders/test_hlsl_execution.py).
+STORES_KEY = pytest.StashKey[dict]()
+
+
 @pytest.fixture(scope="session")
-def stores(tmp_path_factory):
+def stores(request, tmp_path_factory):
+    return example_stores(request.config, tmp_path_factory)
+
+
+def example_stores(config: pytest.Config, tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """label → :class:`bakery.api.ProbeStore` of :data:`SOURCES`, :data:`VARIANT_SETTINGS` and
+    :data:`HYBRID_VARIANTS`, baked on the first call of a test session."""
+    if STORES_KEY not in config.stash:
+        config.stash[STORES_KEY] = _bake_stores(tmp_path_factory)
+    return config.stash[STORES_KEY]
+
+
+def _bake_stores(tmp_path_factory: pytest.TempPathFactory) -> dict:
     folder = tmp_path_factory.mktemp("shader_stores")
     everything = tuple(ENCODINGS)
     result = {}
