@@ -11,6 +11,21 @@ UsdPreviewSurface metal's, mix(F90, albedo, metallic), and a tinted lobe's (Mate
 a coat's colour: F0 scaled by the material's ``specular_tint``, F90 by its ``specular_edge_tint``, which
 :mod:`bakery.usd.mtlx` derives from the MaterialX graphs). α = roughness², clamped to ≥ :data:`MIN_ALPHA`.
 
+MaterialX metals (:class:`Fresnel`, given as ``f90``): F(μ) = F0 + (F90 − F0)(1 − μ)⁵ − b·μ(1 − μ)⁶ + w ⊙ F_c(μ; η, κ),
+both extra terms linear in the shares that carry them:
+    * open_pbr_surface's ``metal_bsdf`` (generalized_schlick_bsdf, weight ``specular_weight`` w_m, color0 F0_m =
+      base_weight·base_color, color82 ``specular_color``, color90 1, exponent 5): ``mx_fresnel_hoffman_schlick``,
+      Schlick(F0_m, 1) − a·μ(1 − μ)⁶ with a = Schlick(F0_m, 1)(1/7)·(1 − F82)/((1/7)(6/7)⁶) — F(1/7) (θ = 81.8°) is
+      F82 × Schlick's value there (Hoffman 2023, OpenPBR's F82-tint metal); the metallic share m contributes
+      m·w_m·F0_m to F0, m·w_m to F90 and b = m·w_m·a. F is clamped at 0 (a dark F0 under a dark tint takes
+      Hoffman's curve below 0 around μ ≈ 0.3; the graph does not clamp).
+    * standard_surface's ``metal_bsdf`` (conductor_bsdf of the ``artistic_ior`` node's ior and extinction):
+      F_c = ``mx_fresnel_conductor``(μ, η, κ), the exact unpolarised Fresnel of a conductor (Lagarde's memo), of
+      weight w = m (the metallic share), η = mix(n_max, n_min, g), κ² = ((η + 1)²r − (η − 1)²)/(1 − r) from the
+      reflectivity r = clamp(base·base_color, 0, 0.99) and the edge colour g (Gulbrandsen 2014), so F_c(1) = r.
+    Either is scaled by the coat's tint like the rest of the base. MaterialX's GLSL also multiplies these lobes by
+    a multiple-scattering compensation 1 + F(1 − E)/E (Turquin); the capture's GGX lobes are all single-scattering.
+
 Clearcoat (UsdPreviewSurface ``clearcoat`` c, ``clearcoatRoughness`` r_c; MaterialX coat): a white GGX lobe with
 F0 = ((ior − 1)/(ior + 1))² of the coat's IOR (UsdPreviewSurface: its ``ior``; given per point, else 0.04) on top,
 F_c = c·Schlick(F0_c, v·h), α_c = r_c² (≥ MIN_ALPHA); the base lobes are weighted by 1 − F_c (the
@@ -75,6 +90,59 @@ class Sheen:
     zeltner: np.ndarray | None = None
 
 
+@dataclass(frozen=True)
+class Fresnel:
+    """A specular lobe's Fresnel at M points beyond Schlick's F0 and F90 (module docstring "MaterialX metals"),
+    passed to :class:`Bsdf` as its ``f90``: F90 (3, M); the F82 term's coefficient b (3, M) (F −= b·μ(1 − μ)⁶), or
+    None; and the conductor term's weight w, η and κ (3, M) each (F += w ⊙ F_c(μ; η, κ)), or None."""
+
+    f90: np.ndarray
+    f82: np.ndarray | None = None
+    conductor: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+
+#: cos θ of the F82 tint's angle (θ = 81.79°) and 1/(μ(1 − μ)⁶) there (MaterialX ``mx_fresnel_hoffman_schlick``)
+F82_COS = 1.0 / 7.0
+F82_FACTOR = 1.0 / (F82_COS * (1.0 - F82_COS) ** 6)
+
+
+def f82_coefficient(f0: np.ndarray, f82: np.ndarray) -> np.ndarray:
+    """a of ``mx_fresnel_hoffman_schlick`` (F90 = 1, exponent 5): Schlick(F0, 1)(1/7)·(1 − F82)/((1/7)(6/7)⁶), so
+    that Schlick(F0, 1)(μ) − a·μ(1 − μ)⁶ is F82 × Schlick's value at μ = 1/7."""
+    return (f0 + (1 - f0) * (1 - F82_COS) ** 5) * (1 - f82) * F82_FACTOR
+
+
+def artistic_ior(reflectivity: np.ndarray, edge_color: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """MaterialX ``artistic_ior`` (``mx_artistic_ior``, Gulbrandsen 2014, "Artist Friendly Metallic Fresnel"): the
+    complex IOR (η, κ) whose conductor Fresnel has normal-incidence reflectance r = clamp(reflectivity, 0, 0.99), η
+    mixed from n_max = (1 + √r)/(1 − √r) (edge colour 0) to n_min = (1 − r)/(1 + r) (edge colour 1)."""
+    r = np.clip(reflectivity, 0, 0.99)
+    root = np.sqrt(r)
+    n_min = (1 - r) / (1 + r)
+    n_max = (1 + root) / (1 - root)
+    eta = n_max + (n_min - n_max) * edge_color
+    k2 = ((eta + 1) ** 2 * r - (eta - 1) ** 2) / (1 - r)
+    return eta, np.sqrt(np.maximum(k2, 0))
+
+
+def fresnel_conductor(c: np.ndarray, eta: np.ndarray, kappa: np.ndarray) -> np.ndarray:
+    """MaterialX ``mx_fresnel_conductor``: the exact unpolarised Fresnel reflectance ½(R_s + R_p) of a conductor of
+    complex IOR η + iκ under air at cos θ = c (clamped to [0, 1]; 0 where it is 0/0: η = 1, κ = 0 at grazing)."""
+    c = np.clip(c, 0, 1)
+    c2 = c * c
+    s2 = 1 - c2
+    n2, k2 = eta * eta, kappa * kappa
+    t0 = n2 - k2 - s2
+    ab = np.sqrt(t0 * t0 + 4 * n2 * k2)
+    t1 = ab + c2
+    t2 = 2 * np.sqrt(np.maximum(0.5 * (ab + t0), 0)) * c
+    rs = (t1 - t2) / np.maximum(t1 + t2, TINY)  # t1 + t2 = 0 only where t1 = t2 = 0
+    t3 = c2 * ab + s2 * s2
+    t4 = t2 * s2
+    # ½(R_s + R_p), R_p = R_s·(t3 − t4)/(t3 + t4); at 0 where rounding leaves −ε (η = 1, κ = 0: no reflection)
+    return np.maximum(0.5 * rs * (1 + (t3 - t4) / np.maximum(t3 + t4, TINY)), 0)
+
+
 def _pow5(x: np.ndarray) -> np.ndarray:
     x2 = x * x
     return x2 * x2 * x
@@ -82,7 +150,8 @@ def _pow5(x: np.ndarray) -> np.ndarray:
 
 class Bsdf:
     """The BSDF at M shading points, structure-of-arrays (:mod:`bakery.capture.vec`): normals n (3, M) facing wo,
-    outgoing directions wo (3, M) (towards the viewer), diffuse albedo (3, M), F0 (3, M) and roughness (M,).
+    outgoing directions wo (3, M) (towards the viewer), diffuse albedo (3, M), F0 (3, M) and roughness (M,); ``f90``
+    (M,) or (3, M), or a :class:`Fresnel` (a MaterialX metal's terms beyond Schlick).
 
     The GGX terms are those of :func:`bakery.brdf.ggx.ggx_distribution`, :func:`~bakery.brdf.ggx.
     smith_visibility_correlated` and the VNDF of :mod:`bakery.brdf.sampling`, written out for (3, M) arrays: with
@@ -93,7 +162,7 @@ class Bsdf:
 
     def __init__(self, normals: np.ndarray, wo: np.ndarray, albedo: np.ndarray, f0: np.ndarray,
                  roughness: np.ndarray, geometric: np.ndarray | None = None,
-                 coat: tuple[np.ndarray, np.ndarray] | None = None, f90: np.ndarray | None = None,
+                 coat: tuple[np.ndarray, np.ndarray] | None = None, f90: np.ndarray | Fresnel | None = None,
                  sheen: Sheen | None = None,
                  rough_diffuse: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         self.n = normals
@@ -131,6 +200,23 @@ class Bsdf:
         self.rough_diffuse = None
         if rough_diffuse is not None and bool(np.any(rough_diffuse[0] > 0)):
             self.rough_diffuse = (rough_diffuse[0].astype(albedo.dtype, copy=False), rough_diffuse[1])
+        #: the F82 term's coefficient b (3, M) (F −= b·μ(1 − μ)⁶, F clamped at 0), or None; the conductor term
+        #: (points (K,) or None for all, w, η, κ (3, K)), or None (module docstring "MaterialX metals")
+        self.f82 = self.conductor = None
+        conductor_lobe = None
+        if isinstance(f90, Fresnel):
+            self.f82 = f90.f82
+            if f90.conductor is not None:
+                weight = f90.conductor[0]
+                conductor_lobe = vmax(weight) > 0
+                idx = np.flatnonzero(conductor_lobe)
+                if idx.size == 0:
+                    conductor_lobe = None
+                elif idx.size == conductor_lobe.size:
+                    self.conductor = (None, *f90.conductor)
+                else:
+                    self.conductor = (idx, *(np.take(a, idx, axis=-1) for a in f90.conductor))
+            f90 = f90.f90
         #: F90 (M,) from F0 (module docstring), or (3, M) as given (a tinted specular lobe: Surfaces.params_soa)
         self.f90 = np.minimum(1, 50 * luminance(f0)) if f90 is None else f90
         alpha = np.maximum(roughness * roughness, MIN_ALPHA)
@@ -140,6 +226,8 @@ class Bsdf:
         nv = np.clip(self.nv_raw, 1e-6, 1)
         self.nv = nv
         specular = self.f90 > 0 if self.f90.ndim == 1 else vmax(self.f90) > 0
+        if conductor_lobe is not None:
+            specular = specular | conductor_lobe
         diffuse = vmax(lobe_albedo) > 0
         self.any_specular = bool(specular.any())
         #: points (indices) whose lobe is sharp enough (α < 0.03) for float32 cancellation in D's denominator to
@@ -174,8 +262,23 @@ class Bsdf:
             self.coat = (amount, alpha_c, a2c, np.sqrt(nv * nv * (1 - a2c) + a2c), self.p_coat * g1c / (4 * nv),
                          np.flatnonzero((amount > 0) & (alpha_c < 0.03)), f0c)
 
-    def _fresnel(self, c: np.ndarray) -> np.ndarray:
-        return self.f0 + (self.f90 - self.f0) * _pow5(1 - np.clip(c, 0, 1))
+    def _fresnel(self, c: np.ndarray, e=lambda a: a) -> np.ndarray:  # noqa: ANN001
+        """F (3, ..., M) at cosines c (..., M) between the viewer (or light) and the microfacet normal; ``e`` expands
+        per-point (…, M) arrays to c's shape (:meth:`_lobes`)."""
+        c = np.clip(c, 0, 1)
+        f0 = e(self.f0)
+        one_minus = 1 - c
+        f = f0 + (e(self.f90) - f0) * _pow5(one_minus)
+        if self.f82 is not None:  # mx_fresnel_hoffman_schlick's −a·μ(1 − μ)⁶ on the metallic share
+            six = _pow5(one_minus) * one_minus
+            f = np.maximum(f - e(self.f82) * (c * six), 0)
+        if self.conductor is not None:  # w ⊙ mx_fresnel_conductor(μ, η, κ) of the metallic share
+            idx, weight, eta, kappa = self.conductor
+            if idx is None:
+                f = f + e(weight) * fresnel_conductor(c, e(eta), e(kappa))
+            else:  # f is a fresh (3, ..., M) array
+                f[..., idx] += e(weight) * fresnel_conductor(np.take(c, idx, axis=-1), e(eta), e(kappa))
+        return f
 
     def evaluate(self, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """f·cos θi (3, ..., M) and the sampling pdf (..., M) (solid angle) for directions wi (3, M) or (3, J, M)
@@ -203,8 +306,11 @@ class Bsdf:
         c = dot(wo, wi)
         inv_h = 1 / np.sqrt(np.maximum(2 + 2 * c, TINY))
         vh = np.clip((1 + c) * inv_h, 0, 1)
-        f0 = e(self.f0)
-        f = f0 + (e(self.f90) - f0) * _pow5(1 - vh)
+        if self.f82 is None and self.conductor is None:
+            f0 = e(self.f0)
+            f = f0 + (e(self.f90) - f0) * _pow5(1 - vh)
+        else:
+            f = self._fresnel(vh, e)
         if self.rough_diffuse is None:
             diffuse = e(self.albedo_pi) * (1 - f) * nlc
         else:  # Oren–Nayar (module docstring "Rough diffuse"): ρ/π × the qualitative factor, or EON's π·f / π

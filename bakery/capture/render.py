@@ -121,8 +121,10 @@ DEFAULT_BOUNCES = 64
 #: 5: MaterialX surface audit (tests/capture/test_mtlx_surface_spec.py): open_pbr_surface's specular_weight scales
 #: the dielectric's F0 alone through the modulated IOR (was F0 and F90) and a coated base reflects at the
 #: specular/coat IOR ratio (was specular_ior); MaterialX dielectrics' Schlick F90 is the exact Fresnel's
-#: hemispherical-mean one (IORs below ≈ 1.34; was min(1, 50·F0)).
-CAPTURE_MODEL_VERSION = 5
+#: hemispherical-mean one (IORs below ≈ 1.34; was min(1, 50·F0)). 6: MaterialX metals as their graphs wire them
+#: (bakery.capture.bsdf "MaterialX metals"): open_pbr's F82 tint and specular_weight, standard_surface's conductor
+#: of the artistic IOR (was Schlick(base_color, 1) for both), gltf_pbr's dielectric F90 = specular at every IOR.
+CAPTURE_MODEL_VERSION = 6
 #: A visible light shape whose bounding sphere's angular radius, seen from the probe, is at most this many texel
 #: half-widths is seen through a splat of its sampled flux instead of by the probe's camera rays (module docstring
 #: "Small lights").

@@ -188,6 +188,20 @@ class Material:
             KHR_materials_specular: F0 × specular·specular_color, F90 × specular); None: ``specular_tint``.
         coat_tint: (3,) what the coat lets through to the base, both ways (MaterialX mix(1, coat_color, coat)): it
             scales the base's diffuse and specular lobes.
+        dielectric_f90: (3,) the dielectric share's Schlick F90 as the graph gives it, whatever the IOR (gltf_pbr's
+            ``dielectric_f90`` = ``specular``: white at every IOR, where min(1, 50·F0(ior)) would dim it below
+            1.33); None: min(1, 50·F0(ior)) × ``specular_edge_tint``.
+        metal_weight: the metallic share's weight (open_pbr_surface ``metal_bsdf``, a generalized_schlick_bsdf of
+            weight ``specular_weight``): it scales the metal's whole Fresnel curve.
+        metal_f82: (3,) the metal's F82 tint (open_pbr_surface ``metal_bsdf`` color82 = ``specular_color``): the
+            metallic share's Fresnel is ``mx_fresnel_hoffman_schlick``(F0 = diffuse, F82, F90 = 1), Schlick(F0, 1)
+            − a·μ(1 − μ)⁶ with F(1/7) = F82·Schlick(F0, 1)(1/7); None: the tint 1 (Schlick).
+        metal_edge_color: (3,) the metal's edge colour (standard_surface ``artistic_ior`` edge_color =
+            ``specular``·``specular_color``): the metallic share is ``conductor_bsdf`` of the complex IOR that
+            ``artistic_ior`` (Gulbrandsen 2014) makes of reflectivity = diffuse and this edge colour, with the
+            exact conductor Fresnel (``mx_fresnel_conductor``); None: Schlick (``metal_weight``, ``metal_f82``).
+            Any of these four fields away from its default makes the material's F0 and F90 explicit, share by share
+            (:mod:`bakery.capture.surfaces`).
         maps: textured inputs, each a dict {"input": name, "texture": index into CaptureScene.textures,
             "channels": "rgb" | "r" | "g" | "b" | "a", "scale": (4,), "bias": (4,), "fallback": (4,),
             "wrap": (wrapS, wrapT)} and optionally "st_transform": ((a, b, tx), (c, d, ty)), the affine map
@@ -223,6 +237,18 @@ class Material:
     specular_tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
     specular_edge_tint: tuple[float, float, float] | None = None
     coat_tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    dielectric_f90: tuple[float, float, float] | None = None
+    metal_weight: float = 1.0
+    metal_f82: tuple[float, float, float] | None = None
+    metal_edge_color: tuple[float, float, float] | None = None
+
+    @property
+    def explicit_fresnel(self) -> bool:
+        """Whether the specular lobe's F0 and F90 are built share by share (a MaterialX metal's weight, F82 tint or
+        conductor edge, or a dielectric F90 given as is), not from the capture's min(1, 50·luminance(F0)) rule."""
+        return (self.dielectric_f90 is not None or self.metal_weight != 1.0 or self.metal_f82 is not None
+                or self.metal_edge_color is not None) and not self.use_specular_workflow \
+            and not self.metal_edge_albedo
 
     @property
     def emits(self) -> bool:
@@ -237,7 +263,8 @@ class Material:
 
     @property
     def f0(self) -> np.ndarray:
-        """(3,) normal-incidence specular reflectance."""
+        """(3,) normal-incidence specular reflectance of the metallic workflow's Schlick lobe (UsdPreviewSurface; a
+        MaterialX metal's explicit terms, ``explicit_fresnel``, are :mod:`bakery.capture.surfaces`')."""
         if self.use_specular_workflow:
             return np.clip(np.asarray(self.specular, dtype=np.float64), 0.0, 1.0)
         dielectric = ((self.ior - 1.0) / (self.ior + 1.0)) ** 2 if self.ior > 0 else 0.0

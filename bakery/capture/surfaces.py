@@ -9,6 +9,16 @@ colour per vertex instead (the mesh's ``colors`` at the hit's barycentrics); one
 its texel by it
 (``value = scale · texel · colour + bias``: a MaterialX ``multiply`` of an image graph by a ``geompropvalue``).
 
+Explicit Fresnel (``Material.explicit_fresnel``: a MaterialX metal's weight, F82 tint or conductor edge, or a
+dielectric F90 given as is)
+    F0 and F90 are built share by share — the dielectric share (1 − m): F0(ior)·specular_tint and F90 =
+    ``dielectric_f90``, else min(1, 50·F0(ior))·specular_edge_tint; the metallic share m, of reflectivity F0_m =
+    clamp(diffuse, 0, 1): open_pbr's ``metal_bsdf`` m·w·F0_m and m·w (F90 = 1) with the F82 term b = m·w·a(F0_m,
+    F82), or standard_surface's conductor of weight m and complex IOR ``artistic_ior``(F0_m, edge colour) — all
+    times the coat's tint (:class:`bakery.capture.bsdf.Fresnel`). Per hit from the textured diffuse and metallic in
+    both paths (:meth:`Surfaces._point`, :meth:`Surfaces._textured_soa`); materials without these fields keep
+    F90 = min(1, 50·luminance(F0)) of the mixed F0, as before.
+
 Filtering
     Textures are mip-mapped (2×2 box pyramid, built once per texture) and looked up trilinearly. The level of detail
     comes from the ray's footprint: a ray of angular spread σ (the probe texel's angular size for primary rays,
@@ -34,7 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bakery.capture.bsdf import SHEEN_LAYERS, Sheen
+from bakery.capture.bsdf import SHEEN_LAYERS, Fresnel, Sheen, artistic_ior, f82_coefficient
 from bakery.capture.scene import CaptureScene, Material
 from bakery.conventions import LUMINANCE_WEIGHTS, stage_to_bake_axes
 
@@ -54,6 +64,10 @@ class SurfacePoint:
     opacity: np.ndarray
     threshold: np.ndarray
     f90: np.ndarray | None = None
+    #: the metal terms (M, 3) each, when some material has them (:class:`bakery.capture.bsdf.Fresnel`): the F82
+    #: term's coefficient b, and the conductor's weight, η and κ; None otherwise
+    f82: np.ndarray | None = None
+    conductor: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
 
 def transformed_st(entry: dict, s: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
@@ -263,6 +277,25 @@ def _channels(rgba: np.ndarray, channels: str) -> np.ndarray:
     return rgba[:, :3]
 
 
+def _explicit_fresnel(metallic, reflectivity, dielectric, spec, edge, coat, weight, f82,  # noqa: ANN001
+                      f90_given, has_f90, conductor, edge_color) -> tuple[np.ndarray, ...]:
+    """F0, F90, the F82 term's b, and the conductor's weight, η, κ, channel-major (3, M) each, of the module
+    docstring's "Explicit Fresnel": per hit metallic m (M,), reflectivity F0_m = clamp(diffuse, 0, 1) (3, M) and the
+    dielectric F0(ior) (M,); per material (3, M) or (3, 1) the specular tint, edge tint, coat tint, F82 tint, F90
+    given and edge colour, the metal weight (M,) or scalar, whether F90 is given and whether the metal is a
+    conductor ((M,) bool or scalar)."""
+    share = 1 - metallic
+    f90_d = np.where(has_f90, f90_given, np.minimum(1, 50 * dielectric) * edge)
+    schlick = metallic * weight  # open_pbr metal_bsdf: Schlick(F0_m, 1)·w on the metallic share
+    metal = np.where(conductor, 0, schlick)
+    f0 = np.clip(coat * (share * dielectric * spec + metal * reflectivity), 0, 1)
+    f90 = coat * (share * f90_d + metal)
+    b = coat * (metal * f82_coefficient(reflectivity, f82))
+    eta, kappa = artistic_ior(reflectivity, edge_color)
+    cw = coat * np.where(conductor, metallic, 0)
+    return f0, f90, b, cw, eta, kappa
+
+
 class Surfaces:
     """Per-hit material parameters of a scene (see module docstring)."""
 
@@ -288,8 +321,28 @@ class Surfaces:
         self.metal_edge = np.array([m.metal_edge_albedo and not m.use_specular_workflow for m in mats], dtype=bool)
         metal_edge = any(edge and (m.metallic > 0 or any(entry.get("input") == "metallic" for entry in m.maps))
                          for edge, m in zip(self.metal_edge, mats))
-        if metal_edge or any(tuple(m.specular_tint) != (1.0, 1.0, 1.0) or tuple(m.coat_tint) != (1.0, 1.0, 1.0)
-                             or m.specular_edge_tint is not None for m in mats):
+        #: (N,) bool: the material's F0 and F90 are built share by share (module docstring "Explicit Fresnel")
+        self.explicit = np.array([m.explicit_fresnel for m in mats], dtype=bool)
+        #: per-material explicit Fresnel inputs (metal weight (N,), F82 tint (N, 3), F90 given (N, 3) and whether
+        #: (N,), conductor (N,) and its edge colour (N, 3)), or None when no material's Fresnel is explicit
+        self.explicit_inputs = None
+        #: whether some material has a metal's F82 or conductor term: params_soa's F90 is then a Fresnel
+        self.metal_terms = False
+        if self.explicit.any():
+            white = (1.0, 1.0, 1.0)
+            self.explicit_inputs = (
+                np.array([m.metal_weight for m in mats], dtype=np.float64),
+                np.array([white if m.metal_f82 is None else m.metal_f82 for m in mats], dtype=np.float64),
+                np.array([white if m.dielectric_f90 is None else m.dielectric_f90 for m in mats], dtype=np.float64),
+                np.array([m.dielectric_f90 is not None for m in mats], dtype=bool),
+                np.array([m.metal_edge_color is not None for m in mats], dtype=bool),
+                np.array([white if m.metal_edge_color is None else m.metal_edge_color for m in mats],
+                         dtype=np.float64))
+            self.metal_terms = any(x and (m.metal_f82 is not None or m.metal_edge_color is not None)
+                                   for x, m in zip(self.explicit, mats))
+        if metal_edge or self.explicit.any() or any(
+                tuple(m.specular_tint) != (1.0, 1.0, 1.0) or tuple(m.coat_tint) != (1.0, 1.0, 1.0)
+                or m.specular_edge_tint is not None for m in mats):
             self.specular_tint = np.array([m.specular_tint for m in mats], dtype=np.float64).reshape(-1, 3)
             self.coat_tint = np.array([m.coat_tint for m in mats], dtype=np.float64).reshape(-1, 3)
             self.edge_tint = np.array([m.specular_tint if m.specular_edge_tint is None else m.specular_edge_tint
@@ -337,7 +390,8 @@ class Surfaces:
         point = self._point({name: array.copy() for name, array in self.base.items()}, np.arange(len(mats)))
         self.table = np.ascontiguousarray(np.concatenate(
             [point.albedo.T, point.f0.T, point.roughness[None], point.emission.T]
-            + ([] if point.f90 is None else [point.f90.T])), dtype=np.float32)
+            + ([] if point.f90 is None else [point.f90.T])
+            + ([] if point.f82 is None else [point.f82.T, *(a.T for a in point.conductor)])), dtype=np.float32)
         self.emissive = any(m.emits for m in self.materials)
         self.mesh_of_soa = np.ascontiguousarray(self.mesh_of, dtype=np.int32)
         #: (2, materials) float32 clearcoat amount and roughness — and a third row, the coat's F0, when some coat's
@@ -476,13 +530,16 @@ class Surfaces:
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
         """BSDF parameters at hits as float32 structure-of-arrays: albedo (3, M), F0 (3, M), roughness (M,),
         emission (3, M) (None when no material emits) and F90 (3, M) (None when no material's specular is tinted:
-        the BSDF derives it from F0)."""
+        the BSDF derives it from F0) — a :class:`~bakery.capture.bsdf.Fresnel` holding it and the metal terms when
+        some material has them (:attr:`metal_terms`)."""
         mi = np.take(self.mesh_of_soa, prim) if len(self.materials) else np.zeros(prim.shape, dtype=np.int32)
-        rows = [*range(7), *(range(7, 10) if self.emissive else ()), *(range(10, 13) if self.tinted else ())]
+        rows = [*range(7), *(range(7, 10) if self.emissive else ()), *(range(10, 13) if self.tinted else ()),
+                *(range(13, 25) if self.metal_terms else ())]
         cols = {c: np.take(self.table[c], mi) for c in rows}
         albedo, f0, rough = np.stack([cols[c] for c in (0, 1, 2)]), np.stack([cols[c] for c in (3, 4, 5)]), cols[6]
         emission = np.stack([cols[c] for c in (7, 8, 9)]) if self.emissive else None
         f90 = np.stack([cols[c] for c in (10, 11, 12)]) if self.tinted else None
+        metal = np.stack([cols[c] for c in range(13, 25)]) if self.metal_terms else None
         for k in self.textured:
             sel = np.flatnonzero(mi == k)
             if sel.size:
@@ -493,8 +550,15 @@ class Surfaces:
                 rough[sel] = r
                 if emission is not None:
                     emission[:, sel] = e
+                if isinstance(f9, Fresnel):
+                    metal[:, sel] = np.concatenate([f9.f82, *f9.conductor])
+                    f9 = f9.f90
+                elif metal is not None:
+                    metal[:, sel] = 0
                 if f90 is not None:
                     f90[:, sel] = f9
+        if metal is not None:
+            f90 = Fresnel(f90, metal[0:3], (metal[3:6], metal[6:9], metal[9:12]))
         return albedo, f0, rough, emission, f90
 
     @property
@@ -505,7 +569,8 @@ class Surfaces:
     def _textured_soa(self, k: int, prim: np.ndarray, bu: np.ndarray, bv: np.ndarray, t: np.ndarray, spread: float
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
         """:meth:`at` (textures, then :meth:`_point`) for hits on material ``k``, float32 (3, M) / (M,); F90 (3, M)
-        when some material is tinted."""
+        when some material is tinted, a :class:`~bakery.capture.bsdf.Fresnel` when material ``k``'s metal has
+        terms beyond Schlick (module docstring "Explicit Fresnel")."""
         m = prim.shape[0]
         dtype = t.dtype
         uv = [np.take(self._uvs_soa_f32()[i], prim) for i in range(6)]
@@ -571,6 +636,17 @@ class Surfaces:
                 f0 = (1 - metallic) * dielectric * spec + metallic * diffuse
             f0, albedo = np.clip(coat * f0, 0, 1), albedo * coat
             f90 = np.broadcast_to(f90, shape)
+            if self.explicit[k]:  # the shares' own F0 and F90 (module docstring "Explicit Fresnel")
+                weight, f82, given, has_f90, conductor, edge_colour = self.explicit_inputs
+
+                def column(a: np.ndarray) -> np.ndarray:
+                    return a[k].astype(dtype).reshape(3, 1)
+
+                f0, f90, b, cw, eta, kappa = (np.broadcast_to(x, shape) for x in _explicit_fresnel(
+                    metallic, np.clip(diffuse, 0, 1), dielectric, spec, edge, coat, dtype.type(weight[k]),
+                    column(f82), column(given), bool(has_f90[k]), bool(conductor[k]), column(edge_colour)))
+                if self.metal_terms and (self.materials[k].metal_f82 is not None or conductor[k]):
+                    f90 = Fresnel(f90, b, (cw, eta, kappa))
         return (np.broadcast_to(np.clip(albedo, 0, 1), shape), np.broadcast_to(f0, shape),
                 np.broadcast_to(np.clip(get("roughness"), 0, 1), (m,)),
                 np.broadcast_to(np.maximum(get("emissiveColor"), 0), shape), f90)
@@ -701,8 +777,24 @@ class Surfaces:
             tinted = (1.0 - metallic)[:, None] * dielectric[:, None] * spec + metallic[:, None] * diffuse
             f0 = np.clip(coat * np.where(spec_wf[:, None], f0, tinted), 0.0, 1.0)
             albedo = albedo * coat
+        f82 = conductor = None
+        explicit = self.explicit[mi] & ~spec_wf if self.explicit_inputs is not None else None
+        if explicit is not None and explicit.any():  # the shares' own F0 and F90 (module docstring)
+            weight, tint82, given, has_f90, metal_conductor, edge_colour = self.explicit_inputs
+            f0_x, f90_x, b, cw, eta, kappa = _explicit_fresnel(
+                metallic, np.clip(diffuse, 0.0, 1.0).T, dielectric, spec.T, edge.T, coat.T, weight[mi],
+                tint82[mi].T, given[mi].T, has_f90[mi], metal_conductor[mi], edge_colour[mi].T)
+            f0 = np.where(explicit[:, None], f0_x.T, f0)
+            f90 = np.where(explicit[:, None], f90_x.T, f90)
+            if self.metal_terms:
+                zero = np.zeros_like(f0)
+                f82 = np.where(explicit[:, None], b.T, zero)
+                conductor = tuple(np.where(explicit[:, None], x.T, zero) for x in (cw, eta, kappa))
+        elif self.metal_terms:
+            zero = np.zeros((mi.shape[0], 3))
+            f82, conductor = zero, (zero, zero, zero)
         return SurfacePoint(
             albedo=np.clip(albedo, 0.0, 1.0), f0=f0, roughness=np.clip(v["roughness"], 0.0, 1.0),
             emission=np.maximum(v["emissiveColor"], 0.0), opacity=np.clip(v["opacity"], 0.0, 1.0),
-            threshold=self.threshold[mi], f90=f90,
+            threshold=self.threshold[mi], f90=f90, f82=f82, conductor=conductor,
         )

@@ -165,6 +165,11 @@ def _material_fields(material) -> dict:  # noqa: ANN001 - bakery.capture.scene.M
     for tint in ("transmission_tint", "specular_tint", "coat_tint"):
         if tuple(fields.get(tint, (1.0, 1.0, 1.0))) == (1.0, 1.0, 1.0):
             fields.pop(tint, None)
+    for name in ("dielectric_f90", "metal_f82", "metal_edge_color"):  # MaterialX's explicit Fresnel terms
+        if fields.get(name) is None:
+            fields.pop(name, None)
+    if fields.get("metal_weight", 1.0) == 1.0:
+        fields.pop("metal_weight", None)
     return fields
 
 

@@ -271,6 +271,10 @@ class MaterialReader:
             specular_edge_tint=(None if surface.values.get("specular_edge_tint") is None else
                                 tuple(float(x) for x in surface.values["specular_edge_tint"])),
             coat_tint=tuple(float(x) for x in surface.values.get("coat_tint", (1.0, 1.0, 1.0))),
+            dielectric_f90=_optional_color(surface.values.get("dielectric_f90")),
+            metal_weight=float(surface.values.get("metal_weight", 1.0)),
+            metal_f82=_optional_color(surface.values.get("metal_f82")),
+            metal_edge_color=_optional_color(surface.values.get("metal_edge_color")),
         )
         numbers = {name: value for name, value in material.__dict__.items() if isinstance(value, float) or (
             isinstance(value, tuple) and value and all(isinstance(x, (int, float)) for x in value))}
@@ -593,6 +597,11 @@ def _range_notes(values: dict[str, object]) -> list[str]:
 
 def _color(value) -> tuple[float, float, float]:  # noqa: ANN001
     return tuple(float(x) for x in np.broadcast_to(np.asarray(value, dtype=np.float64), 3))
+
+
+def _optional_color(value) -> tuple[float, float, float] | None:  # noqa: ANN001
+    """A colour (3,) of floats, or None (the Material field's default)."""
+    return None if value is None else _color(value)
 
 
 def _value4(value, fallback) -> np.ndarray:  # noqa: ANN001

@@ -18,6 +18,8 @@ Mapping (metallic workflow of the capture; see ``docs/capture.md``)
     coat (clearcoat)     coat, coat_roughness, F0 from coat_IOR          coat_weight, coat_roughness, coat_ior
     specular_tint        specular · specular_color (F0 and F90)          specular_color, F0 of modulated_eta_s
                                                                      (specular_weight, coat IOR ratio)
+    metal (Material.     conductor_bsdf of artistic_ior(base·base_color,  generalized_schlick_bsdf: weight
+    metal_*)             edge specular·specular_color)                   specular_weight, F82 specular_color
     coat_tint            mix(1, coat_color, coat)                        mix(1, coat_color, coat_weight)
     diffuse roughness    diffuse_roughness (qualitative Oren–Nayar)      base_diffuse_roughness (EON)
     subsurface           diffuse limit: mix(diffuse, subsurface_color)   the same, subsurface_weight
@@ -311,7 +313,9 @@ def _gltf_alpha_mode(values: dict[str, object], surface: Surface) -> None:
 def _gltf_specular(values: dict[str, object], maps: dict[str, dict], surface: Surface) -> None:
     """KHR_materials_specular (gltf_pbr ``specular``, ``specular_color``; the stdlib graph's dielectric_f0 and
     dielectric_f90): F0 = min(F0(ior)·specular_color, 1)·specular and F90 = specular, so the dielectric lobe's F0 is
-    tinted by specular·specular_color and its F90 by specular alone. Textured: their means, reported."""
+    tinted by specular·specular_color and its F90 by specular alone — at every IOR (KHR_materials_ior: F90 = 1
+    whatever the IOR; below 1.33, where the capture's min(1, 50·F0) rule would dim it, and under a textured IOR,
+    Material.dielectric_f90 = specular carries it as is). Textured: their means, reported."""
     def constant(name: str) -> np.ndarray:
         value = values.get(name, 1.0)
         if name in maps:
@@ -326,6 +330,8 @@ def _gltf_specular(values: dict[str, object], maps: dict[str, dict], surface: Su
     if np.any(weight * colour != 1.0) or np.any(weight != 1.0):
         surface.values["specular_tint"] = tuple(float(x) for x in np.clip(weight * colour, 0.0, None))
         surface.values["specular_edge_tint"] = tuple(float(x) for x in np.clip(weight, 0.0, None))
+    if "ior" in maps or min(1.0, 50.0 * f0) < 1.0:  # the capture's rule would dim F90 below IOR 1.33: F90 = specular
+        surface.values["dielectric_f90"] = tuple(float(x) for x in np.clip(weight, 0.0, None))
 
 
 def _subsurface_as_diffuse(category: str, values: dict[str, object], maps: dict[str, dict],
@@ -365,7 +371,7 @@ def _specular_and_coat_tints(category: str, values: dict[str, object], maps: dic
     """Material.specular_tint / specular_edge_tint: the dielectric lobe's Schlick F0 and F90 relative to the
     capture's F0(ior), min(1, 50·F0(ior)) — standard_surface: specular × specular_color on both, F90 that of
     :func:`_dielectric_f90`; open_pbr_surface: specular_color on both, F0 and F90 those of the graph's
-    modulated IOR (:func:`_open_pbr_dielectric`); the metal lobes' specular terms are reported — and
+    modulated IOR (:func:`_open_pbr_dielectric`); the metal lobes' own terms by :func:`_metal_terms` — and
     Material.coat_tint = mix(1, coat colour, coat weight) (what the coat passes to the base; the coat's own lobe is
     the capture's clearcoat). Textured: their means, reported."""
     weight_input, colour_input, coat_input, coat_colour_input = _TINTS[category]
@@ -380,15 +386,8 @@ def _specular_and_coat_tints(category: str, values: dict[str, object], maps: dic
     coat = min(max(float(np.mean(constant(coat_input, 0.0))), 0.0), 1.0)
     weight, colour = constant(weight_input, 1.0), np.clip(constant(colour_input, 1.0), 0.0, None)
     metal_input = "base_metalness" if category == "open_pbr_surface" else "metalness"
-    if (metal_input in maps or _mean(values.get(metal_input, 0.0)) > 0) and (
-            np.any(weight != 1.0) or np.any(colour != 1.0)):  # the metal's lobe: Material has no terms for it
-        surface.notes.append(
-            f"{category} {weight_input} and {colour_input} on the metal are not modelled: " + (
-                "the graph weights the metal lobe by specular_weight and tints its F82 edge by specular_color "
-                "(generalized_schlick_bsdf); the capture's metal is Schlick F0 = base_weight·base_color, F90 = 1"
-                if category == "open_pbr_surface" else
-                "the graph's metal is a conductor of the artistic IOR of (base·base_color, specular·specular_color); "
-                "the capture's is Schlick F0 = base·base_color, F90 = 1"))
+    if metal_input in maps or _mean(values.get(metal_input, 0.0)) > 0:  # the metal lobe's own terms
+        _metal_terms(category, weight, colour, surface)
     ior_input = "specular_ior" if category == "open_pbr_surface" else "specular_IOR"
     ior = _mean(maps[ior_input].get("_mean", values.get(ior_input, 1.5)) if ior_input in maps
                 else values.get(ior_input, 1.5))
@@ -419,6 +418,39 @@ def _specular_and_coat_tints(category: str, values: dict[str, object], maps: dic
         passed = passed * _open_pbr_coat_darkening(values, maps, coat)
     if np.any(passed != 1.0):
         surface.values["coat_tint"] = tuple(float(x) for x in passed)
+
+
+def _metal_terms(category: str, weight: np.ndarray, colour: np.ndarray, surface: Surface) -> None:
+    """The metal lobe of a surface with some metalness, as its stdlib graph wires it (Material.metal_*):
+
+    * open_pbr_surface (NG_open_pbr_surface_surfaceshader): ``metal_bsdf`` = generalized_schlick_bsdf(weight =
+      ``specular_weight``, color0 = ``metal_reflectivity`` = base_color·base_weight, color82 = ``specular_color``,
+      color90 = 1, exponent 5) — ``mx_fresnel_hoffman_schlick``, the F82-tint Fresnel (Hoffman 2023; OpenPBR's
+      metal): Material.metal_weight = specular_weight, Material.metal_f82 = specular_color, each only away from 1
+      (at 1 the lobe is Schlick(F0, 1), the capture's metal as before);
+    * standard_surface (NG_standard_surface_surfaceshader_100): ``metal_bsdf`` = conductor_bsdf(weight 1, ior and
+      extinction of ``artistic_ior``(reflectivity = ``metal_reflectivity`` = base_color·base, edge_color =
+      ``metal_edgecolor`` = specular_color·specular)), the exact conductor Fresnel of Gulbrandsen's complex IOR:
+      Material.metal_edge_color = specular·specular_color, always (the default edge colour 1 is not Schlick's
+      curve: a hemispherical mean of 0.595 against 0.524 at F0 0.5).
+
+    ``weight`` and ``colour`` (3,) are the surface's specular weight and colour (textured: their means, reported by
+    the caller). Colours are clipped to [0, 1] (the inputs' range; an F82 tint above 1 would lift the curve above 1,
+    an edge colour above 1 extrapolate the artistic IOR below n_min), reported."""
+    if category == "open_pbr_surface":
+        w = max(float(np.mean(weight)), 0.0)
+        if w != 1.0:
+            surface.values["metal_weight"] = w
+        if np.any(colour != 1.0):
+            if np.any(colour > 1.0):
+                surface.notes.append(f"{category} specular_color above 1 on the metal is clipped to 1 (its F82 tint)")
+            surface.values["metal_f82"] = tuple(float(x) for x in np.clip(colour, 0.0, 1.0))
+        return
+    edge = np.clip(weight * colour, 0.0, None)
+    if np.any(edge > 1.0):
+        surface.notes.append(f"{category} specular·specular_color above 1 on the metal is clipped to 1 (the "
+                             "artistic IOR's edge colour)")
+    surface.values["metal_edge_color"] = tuple(float(x) for x in np.clip(edge, 0.0, 1.0))
 
 
 def _ior_f0(ior: float) -> float:

@@ -382,9 +382,12 @@ def test_preview_surface_clearcoat_uses_ior(tmp_path):
     np.testing.assert_allclose(coat[2], [((1 - n) / (1 + n)) ** 2 for n in (1.5, 2.0, 1.2)], rtol=1e-6)
 
 
-def test_materialx_standard_surface_metal_keeps_a_white_edge(tmp_path):
-    """The metal F90 = albedo rule is UsdPreviewSurface's alone: standard_surface's metal is a conductor of edge
-    colour specular·specular_color (white), so its F90 stays 1 (Schlick, F0 = base·base_color)."""
+def test_materialx_standard_surface_metal_is_a_conductor_not_the_albedo_edge(tmp_path):
+    """The metal F90 = albedo rule is UsdPreviewSurface's alone: standard_surface's ``metal_bsdf`` is a conductor_bsdf
+    of the complex IOR ``artistic_ior`` makes of reflectivity base·base_color and edge colour specular·specular_color
+    (white here): the capture carries it as the conductor term of the BSDF's Fresnel (weight 1 = metalness), its
+    Schlick part empty (the dielectric share is 0), and the conductor's normal-incidence reflectance
+    ((η − 1)² + κ²)/((η + 1)² + κ²) is the reflectivity (Gulbrandsen's construction)."""
     text = header() + """
 def Material "Steel"
 {
@@ -401,12 +404,17 @@ def Material "Steel"
 """ + _quad("Q", 0.0, "/Steel") + probe("P", (0.0, 1.0, 0.0))
     reading = read_scene(write(tmp_path / "steel.usda", text))
     assert not reading.errors, reading.errors
-    assert not reading.scene.meshes[0].material.metal_edge_albedo
+    material_ = reading.scene.meshes[0].material
+    assert not material_.metal_edge_albedo and material_.metal_edge_color == (1.0, 1.0, 1.0)
     surfaces = Surfaces(reading.scene, SceneTracer(reading.scene))
     zeros = np.zeros(1, dtype=np.float32)
-    _, f0, _, _, f90 = surfaces.params_soa(np.zeros(1, dtype=np.int64), zeros, zeros, zeros + 1, 0.0)
-    np.testing.assert_allclose(f0[:, 0], (1.0, 0.78, 0.34), rtol=1e-6)
-    assert f90 is None or np.allclose(f90, 1.0)
+    _, f0, _, _, fresnel = surfaces.params_soa(np.zeros(1, dtype=np.int64), zeros, zeros, zeros + 1, 0.0)
+    np.testing.assert_allclose(f0[:, 0], 0.0, atol=1e-9)
+    np.testing.assert_allclose(fresnel.f90[:, 0], 0.0, atol=1e-9)
+    weight, eta, kappa = (np.asarray(x[:, 0], dtype=np.float64) for x in fresnel.conductor)
+    np.testing.assert_allclose(weight, 1.0, rtol=1e-7)
+    normal = ((eta - 1) ** 2 + kappa**2) / ((eta + 1) ** 2 + kappa**2)
+    np.testing.assert_allclose(normal, np.minimum((1.0, 0.78, 0.34), 0.99), rtol=2e-6)
 
 
 # ---------------------------------------------------------------------------------------------------------------
