@@ -44,26 +44,34 @@ def build_report(store_path: str | os.PathLike[str], environment: str | os.PathL
     store = open_store(store_path)
     references = quality.load_reference_samples(store, environment)
     memory = memory_summary(store)
+    directions = quality.quality_directions(store)
     errors = quality.irradiance_errors(store, references)
     for name in quality.encodings_of_kind(store, "reflection"):
         stored = quality._per_probe(store, f"reference_error/{name}", name)
         if stored is not None:
-            errors[name] = stored
+            errors[name] = quality._measurable(store, stored, quality.probe_rows(store, name))
     negatives = quality.negative_shares(store)
     quantization = quality.quantization_errors(store)
     curves = quality.reflection_alpha_curves(store, references)
+    # (P_k,) per probe: the plain mean of its relative MSE over the len(CURVE_ALPHAS) α of the grid (not an integral
+    # over α: the grid is denser below 0.25) and both materials; NaN (not measured) if any cell is (black reference)
     reflection_errors = {name: np.mean([np.asarray(c[m]) for m in quality.MATERIALS], axis=(0, 2))
-                         for name, c in curves.get("encodings", {}).items()}  # (P_k,) mean over α and materials
-    for name, v in reflection_errors.items():
-        errors.setdefault(name, v)
+                         for name, c in curves.get("encodings", {}).items()}
+    for name, v in reflection_errors.items():  # measured here: replaces a stored diagnostic (the label is this one)
+        errors[name] = v
     data: dict[str, Any] = {
         "store": str(store_path), "format_version": store.format_version,
         "bakery_version": bakery.__version__, "store_bakery_version": store.attributes.get("bakery_version"),
         "settings_hash": store.attributes.get("settings_hash"),
         "probes": len(store.probe_names), "reference_available": references is not None,
+        # the capture the quality figures were measured against (re-read image), and whether it is the one baked
+        "reference": ({"path": references[0].path, "flux_matches_store": references[0].flux_matches_store}
+                      if references and isinstance(references[0], quality.CaptureReference) else None),
+        "quality_directions": directions,
         "memory": memory,
-        "errors": {n: {"kind": store.encodings[n].kind, "metric": _metric(store, n, reflection_errors),
-                       "summary": quality.summarise(v), "per_probe": v} for n, v in errors.items()},
+        "errors": {n: {"kind": store.encodings[n].kind, "metric": _metric(store, n, reflection_errors, directions),
+                       "probes": int(np.asarray(v).size), "summary": quality.summarise(v), "per_probe": v}
+                   for n, v in errors.items()},
         "worst_probes": quality.worst_probes(store, errors),
         "negative_share": {n: {"summary": quality.summarise(v), "per_probe": v} for n, v in negatives.items()},
         "deringing": _deringing(store, negatives),
@@ -83,7 +91,8 @@ def build_report(store_path: str | os.PathLike[str], environment: str | os.PathL
     }
     plots: dict[str, str] = {}
     for kind, suffix, ylabel in (("irradiance", "", "relative RMSE vs exact irradiance"),
-                                 ("reflection", "-reflection", "relative MSE vs reference (mean over α, materials)")):
+                                 ("reflection", "-reflection",
+                                  "relative MSE vs reference (mean over α grid, materials)")):
         points = []
         chosen = {n: v for n, v in errors.items() if store.encodings[n].kind == kind}
         for name, v in chosen.items():
@@ -103,12 +112,13 @@ def build_report(store_path: str | os.PathLike[str], environment: str | os.PathL
         [(n, float(e["bytes_per_probe"])) for n, e in memory["encodings"].items()]
         + [(k, float(c["bytes_per_probe"])) for k, c in memory["comparisons"].items()], "bytes per probe")
     if negatives:
-        plots["negative-share"] = svg.bar_plot(
+        plots["negative-share"] = svg.bar_plot(  # the table's mean (summarise: over the measured probes)
             "negative-share", "Mean share of normals with negative irradiance",
-            [(n, float(np.mean(v))) for n, v in negatives.items()], "share of directions", log=False)
+            [(n, float(quality.summarise(v).get("mean", math.nan))) for n, v in negatives.items()],
+            "share of directions", log=False)
     if curves:
-        for material in quality.MATERIALS:
-            series = {n: [(a, float(np.mean(np.asarray(c[material])[:, j]))) for j, a in enumerate(curves["alphas"])]
+        for material in quality.MATERIALS:  # the per-α table's means (over the measured probes)
+            series = {n: list(zip(curves["alphas"], quality._measured_mean(c[material]), strict=True))
                       for n, c in curves["encodings"].items()}
             plots[f"alpha-{material}"] = svg.line_plot(
                 f"alpha-{material}", f"Reflection error per α ({material}, F0 = {quality.MATERIALS[material]})",
@@ -142,11 +152,13 @@ def _deringing(store: Any, negatives: dict[str, np.ndarray]) -> dict[str, dict[s
     return out
 
 
-def _metric(store: Any, name: str, reflection_errors: dict[str, Any]) -> str:
+def _metric(store: Any, name: str, reflection_errors: dict[str, Any], directions: int) -> str:
+    """What an encoding's error figure is (quality module doc)."""
     if store.encodings[name].kind == "irradiance":
-        return "relative RMSE vs exact irradiance"
+        return f"relative RMSE vs exact irradiance ({directions} directions, RGB)"
     if name in reflection_errors:
-        return "relative MSE vs brute-force reflection, mean over α and chrome/glass"
+        return (f"relative MSE vs reference reflection, mean over the {len(quality.CURVE_ALPHAS)} α of the grid "
+                "and chrome/glass")
     return "stored reference_error diagnostic"
 
 

@@ -3,6 +3,13 @@
 Per encoding: bytes per probe (the store's ``bytes_per_probe``: the sum of its per-probe fields, shared tables
 excluded) × its probe count. Per probe kind (``irradiance``, ``reflection``): the sum over that kind's encodings.
 
+Shared tables (``/encodings/<name>/shared/*``, e.g. the 64×64×2 float32 ``dfg`` table = 32 768 bytes of every
+reflection encoding, ``schemas/store-reflection.md``): not per probe, so not in any per-probe figure or per-kind
+total. Listed per encoding (``shared_bytes``: Σ dtype size × element count of its shared datasets) and counted
+**once per distinct content** in ``shared_tables`` / ``shared_bytes`` (tables with byte-identical contents —
+every reflection encoding's ``dfg`` — are one upload for an engine), and ``total_bytes_with_shared`` = the
+per-probe total + that. Encodings with no probe are not counted (nothing of theirs is uploaded).
+
 Uploaded bytes per probe (what an engine uploads): each encoding's :meth:`~bakery.encodings.base.Encoding.upload_bytes`
 of its stored fields — ``bytes_per_probe``, except for ``shexp_hybrid`` (``schemas/store-reflection.md``), whose levels
 below a probe's ``first_level`` are zero-filled in the fixed layout and not uploaded: a probe that needs no chain
@@ -99,6 +106,28 @@ def upload_bytes(store: Any, name: str) -> np.ndarray:
     return get_encoding(name).from_settings(info.settings).upload_bytes(store.fields(name))
 
 
+def shared_tables(store: Any) -> list[dict[str, Any]]:
+    """Distinct shared tables of the encodings that hold probes (module doc): [{"tables": ["<enc>/shared/<name>",
+    …], "dtype", "shape", "bytes"}], one entry per distinct (dtype, shape, content)."""
+    from bakery.files import sha256_bytes
+
+    distinct: dict[tuple[str, tuple[int, ...], str], dict[str, Any]] = {}
+    for name, info in store.encodings.items():
+        if info.probe_count == 0:
+            continue
+        try:
+            tables = store.shared(name)
+        except Exception:  # noqa: BLE001 - an encoding this bakery cannot read: no shared tables to show
+            continue
+        for key in sorted(tables):
+            array = np.ascontiguousarray(tables[key])
+            digest = sha256_bytes(array.tobytes())
+            entry = distinct.setdefault((array.dtype.str, tuple(array.shape), digest), {
+                "tables": [], "dtype": array.dtype.name, "shape": list(array.shape), "bytes": int(array.nbytes)})
+            entry["tables"].append(f"{name}/shared/{key}")
+    return list(distinct.values())
+
+
 def memory_summary(store: Any) -> dict[str, Any]:
     """Memory table of a store (see module doc): per encoding, per kind, and the comparison sizes."""
     kinds = [k.split(",") for k in store.probe_kinds]
@@ -108,8 +137,12 @@ def memory_summary(store: Any) -> dict[str, Any]:
     for name, info in store.encodings.items():
         total = info.bytes_per_probe * info.probe_count
         uploads = upload_bytes(store, name)
+        try:
+            shared = sum(int(np.asarray(a).nbytes) for a in store.shared(name).values())
+        except Exception:  # noqa: BLE001 - unreadable (newer) encoding
+            shared = None
         encodings[name] = {"kind": info.kind, "bytes_per_probe": info.bytes_per_probe,
-                           "probes": info.probe_count, "total_bytes": total,
+                           "probes": info.probe_count, "total_bytes": total, "shared_bytes": shared,
                            "upload_bytes_per_probe": ({"mean": float(uploads.mean()), "min": int(uploads.min()),
                                                        "max": int(uploads.max())} if uploads.size else None),
                            "upload_total_bytes": int(uploads.sum())}
@@ -128,9 +161,13 @@ def memory_summary(store: Any) -> dict[str, Any]:
             "vs_sh3_float": e["bytes_per_probe"] / SH3_FLOAT_BYTES,
             **{f"vs_split_sum_{k}": e["bytes_per_probe"] / v for k, v in per_probe_chain.items()},
         }
+    tables = shared_tables(store)
+    shared_once = sum(t["bytes"] for t in tables)
     return {
         "probes": len(store.probe_names), "probes_of_kind": probes_of_kind, "encodings": encodings,
         "total_bytes_per_kind": per_kind, "total_bytes": sum(per_kind.values()),
+        "shared_tables": tables, "shared_bytes": shared_once,
+        "total_bytes_with_shared": sum(per_kind.values()) + shared_once,
         "split_sum_chain": {"face_size": chain.face_size, "n_levels": chain.n_levels,
                             "min_face_size": chain.min_face_size, "cube_sizes": chain.cube_sizes(),
                             "octahedral_sizes": chain.octahedral_sizes()},

@@ -23,8 +23,12 @@ code{background:#eee;padding:0 3px}
 """
 
 
+#: What a cell of a measured figure says when nothing was measured (null in the JSON; never a made-up 0).
+NOT_MEASURED = "not measured"
+
+
 def _fmt(v: Any, digits: int = 4) -> str:
-    if v is None or isinstance(v, float) and not math.isfinite(v):  # unmeasured (null in the JSON)
+    if v is None or isinstance(v, float) and not math.isfinite(v):  # unmeasured or not applicable (null in the JSON)
         return "–"
     if isinstance(v, float):
         return f"{v:.{digits}g}"
@@ -49,7 +53,13 @@ def _memory_section(m: dict[str, Any]) -> str:
                    *[f"× {k.removeprefix('split_sum_')}" for k in chains]], rows, left=2)]
     out.append(_table(["probe kind", "probes", "total bytes (stored encodings)"],
                       [[k, m["probes_of_kind"].get(k, 0), m["total_bytes_per_kind"].get(k, 0)]
-                       for k in ("irradiance", "reflection")]))
+                       for k in ("irradiance", "reflection")]
+                      + [["shared tables (once)", None, m.get("shared_bytes", 0)],
+                         ["all", m["probes"], m.get("total_bytes_with_shared", m["total_bytes"])]]))
+    if m.get("shared_tables"):
+        out.append(_table(["shared table (identical contents counted once)", "dtype", "shape", "bytes"],
+                          [[", ".join(t["tables"]), t["dtype"], " × ".join(map(str, t["shape"])), t["bytes"]]
+                           for t in m["shared_tables"]]))
     c = m["split_sum_chain"]
     out.append(_table(["alternative", "bytes/probe", "total for the same probes"],
                       [[k, v["bytes_per_probe"], v.get("total_bytes_irradiance_probes",
@@ -60,8 +70,16 @@ def _memory_section(m: dict[str, Any]) -> str:
                f'Totals for split-sum count the store\'s reflection probes, SH3 its irradiance probes. Ratios are of '
                f'the stored bytes/probe. Uploaded bytes/probe: what an engine uploads (mean over the probes; '
                f'<code>shexp_hybrid</code> probes do not upload the chain levels below their '
-               f'<code>first_level</code>, none for a probe that needs no chain).</p>')
+               f'<code>first_level</code>, none for a probe that needs no chain). Bytes/probe exclude shared '
+               f'tables (e.g. the DFG table of the reflection encodings), which are counted once per distinct '
+               f'content in "shared tables"; the octahedral chain\'s floor is the paper\'s {c["min_face_size"]}² '
+               f'octahedral map, not twice the cube floor.</p>')
     return "\n".join(out)
+
+
+def _measured(v: Any) -> Any:
+    """A measured figure's cell value: the number, or NOT_MEASURED where nothing was measured (null)."""
+    return NOT_MEASURED if v is None or isinstance(v, float) and not math.isfinite(v) else v
 
 
 def _upload(e: dict[str, Any]) -> Any:
@@ -83,9 +101,9 @@ def _percent(b: float) -> str:
 
 
 def _alpha_cell(mse: float | None, bias: float | None) -> str:
-    """"0.12 (+3%)"; "–" for an unmeasured or unbounded value (a NaN/inf cell is null in the JSON)."""
+    """"0.12 (+3%)"; NOT_MEASURED for an unmeasured or unbounded value (a NaN/inf cell is null in the JSON)."""
     if mse is None or not math.isfinite(mse):
-        return "–"
+        return NOT_MEASURED
     if bias is None or not math.isfinite(bias):
         return f"{mse:.3g}"
     return f"{mse:.3g} ({_percent(bias)})"
@@ -103,10 +121,20 @@ def _alpha_table(curves: dict[str, Any]) -> str:
         rows.append([row["encoding"], row["material"],
                      *[_alpha_cell(m, b) for m, b in zip(row["relative_mse"], bias, strict=True)]])
     table = _table(["encoding", "material", *[f"α={a:g}" for a in alphas]], rows, left=2)
+    methods = curves.get("reference") or []
+    if methods:
+        table += _table(["reference integration", *[f"α={m['alpha']:g}" for m in methods]],
+                        [["method", *[m["method"] for m in methods]],
+                         ["sub-texels per texel side", *[m["subdivision"] if m["method"] == "texels" else None
+                                                         for m in methods]],
+                         ["samples (per row)", *[m["samples"] for m in methods]]])
     return (table + '<p class="note">Cells: relative MSE ΣΔE²/ΣE<sub>ref</sub>² over '
-            f'{curves.get("rows_per_alpha", 0)} (v, n) rows (signed brightness bias ΣE/ΣE<sub>ref</sub> − 1), mean '
-            "over probes; reference: brute force over the full-resolution capture (α = 0: the mirror). "
-            "–: not measurable (the reference is black over every row).</p>")
+            f'{curves.get("rows_per_alpha", 0)} (v, n) rows and RGB (signed brightness bias ΣE/ΣE<sub>ref</sub> − 1), '
+            "mean over the measured probes. Reference: the integral over the full-resolution capture, every texel's "
+            "radiance constant over its footprint — brute force over sub-texels (each texel split so that "
+            "sub-texels are at most α/16 wide), GGX visible-normal importance sampling of the same texels where "
+            "that would take too many sub-texels, the nearest texel for α = 0 (the mirror). "
+            f"{NOT_MEASURED}: the reference is black over every row (a relative error is not measurable).</p>")
 
 
 def _preview_section(title: str, previews: dict[str, Any]) -> str:
@@ -121,6 +149,15 @@ def _preview_section(title: str, previews: dict[str, Any]) -> str:
     return "\n".join(out)
 
 
+def _reference_note(reference: dict[str, Any] | None) -> str:
+    """Which image the quality figures were measured against, and whether it is the one the store was baked from."""
+    if not reference:
+        return ""
+    match = {True: "its flux matches the store's input", False: "<b>not the image this store was baked from</b> "
+             "(its flux differs from the store's input)", None: "the store records no input flux to check it"}
+    return f' (<code>{escape(str(reference["path"]))}</code>; {match[reference["flux_matches_store"]]})'
+
+
 def render_page(data: dict[str, Any], plots: dict[str, str], previews: dict[str, Any]) -> str:
     """The HTML page for report ``data`` with ready SVG ``plots`` and preview image rows."""
     parts = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
@@ -132,7 +169,8 @@ def render_page(data: dict[str, Any], plots: dict[str, str], previews: dict[str,
              f'store format {escape(str(data["format_version"]))}, '
              f'baked by bakery {escape(str(data["store_bakery_version"]))}; report by bakery '
              f'{escape(str(data["bakery_version"]))}; settings hash <code>{escape(str(data["settings_hash"])[:16])}'
-             f'</code>. Reference capture available: {"yes" if data["reference_available"] else "no"}.</p>']
+             f'</code>. Reference capture available: {"yes" if data["reference_available"] else "no"}'
+             f'{_reference_note(data.get("reference"))}.</p>']
     if data.get("failed_probes"):
         failed = data["failed_probes"]
         parts.append(f"<h2>Failed probes</h2><p class=\"note\">{len(failed)} probe(s) failed in the bake and are "
@@ -142,33 +180,44 @@ def render_page(data: dict[str, Any], plots: dict[str, str], previews: dict[str,
     parts.append(_memory_section(data["memory"]))
     parts.append('<div class="plots">' + plots.get("memory", "") + "</div>")
     parts.append("<h2>Quality</h2>")
+    directions = data.get("quality_directions", 1024)
+    curves = data.get("reflection_alpha_curves") or {}
+    grid = ", ".join(f"{a:g}" for a in curves.get("alphas", []))
     if data["errors"]:
-        rows = [[n, e["metric"], data["memory"]["encodings"][n]["bytes_per_probe"], e["summary"].get("count", 0),
-                 e["summary"].get("mean"), e["summary"].get("median"), e["summary"].get("p90"), e["summary"].get("max")]
+        rows = [[n, e["metric"], data["memory"]["encodings"][n]["bytes_per_probe"],
+                 e.get("probes", e["summary"].get("count", 0)), e["summary"].get("count", 0),
+                 *[_measured(e["summary"].get(k)) for k in ("mean", "median", "p90", "max")]]
                 for n, e in data["errors"].items()]
-        parts.append(_table(["encoding", "metric", "bytes/probe", "probes", "mean", "median", "p90", "max"], rows,
-                            left=2))
-        parts.append('<p class="note">Irradiance: relative RMSE √Σ(E−E<sub>ref</sub>)²/√ΣE<sub>ref</sub>² over 1024 '
-                     'Fibonacci normals and RGB against the brute-force irradiance of the full-resolution capture. '
-                     'Reflection: relative MSE ΣΔE²/ΣE<sub>ref</sub>² over 128 (v, n) rows per α, averaged over '
-                     'α ∈ [0, 1] and chrome/glass (seed 000 Fig. 4–7 protocol, extended to α < 0.25).</p>')
+        parts.append(_table(["encoding", "metric", "bytes/probe", "probes", "measured", "mean", "median", "p90",
+                             "max"], rows, left=2))
+        parts.append(f'<p class="note">Irradiance: relative RMSE √Σ(E−E<sub>ref</sub>)²/√ΣE<sub>ref</sub>² over '
+                     f'{directions} Fibonacci normals and RGB against the brute-force irradiance of the '
+                     'full-resolution capture (the store\'s <code>reference_error</code> diagnostics where it has '
+                     'them). Reflection: relative MSE ΣΔE²/ΣE<sub>ref</sub>² over '
+                     f'{curves.get("rows_per_alpha", 128)} (v, n) rows and RGB per α, the plain mean over the α '
+                     f'grid ({grid}) and chrome/glass (seed 000 Fig. 4–7 protocol, extended to α &lt; 0.25). '
+                     'Statistics are over the measured probes: a probe whose reference is black has no relative '
+                     'error ("not measurable", not 0).</p>')
         parts.append('<div class="plots">' + "".join(plots.get(k, "") for k in (
             "error-vs-memory", "error-distribution", "error-vs-memory-reflection", "error-distribution-reflection"))
             + "</div>")
         parts.append("<h3>Worst probes</h3>")
-        worst = [[n, w["probe"], w["error"], ", ".join(f"{x:.3g}" for x in w["position"])]
+        short = {"irradiance": "relative RMSE", "reflection": "relative MSE"}
+        worst = [[n, w["probe"], short.get(data["errors"][n]["kind"], "error"), w["error"],
+                  ", ".join(f"{x:.3g}" for x in w["position"])]
                  for n, ws in data["worst_probes"].items() for w in ws[:3]]
-        parts.append(_table(["encoding", "probe (prim path)", "error", "position"], worst, left=2))
+        parts.append(_table(["encoding", "probe (prim path)", "metric", "error", "position"], worst, left=3))
     else:
         parts.append('<p class="note">No reference errors: the store has no <code>reference_error/*</code> '
                      "diagnostics and no capture to compute them from.</p>")
     if data["negative_share"]:
         parts.append("<h3>Negative irradiance</h3>")
-        rows = [[n, s["summary"].get("mean"), s["summary"].get("max")] for n, s in data["negative_share"].items()]
+        rows = [[n, _measured(s["summary"].get("mean")), _measured(s["summary"].get("max"))]
+                for n, s in data["negative_share"].items()]
         parts.append(_table(["encoding", "mean share", "max share"], rows))
-        parts.append('<p class="note">Share of 1024 Fibonacci normals where any channel of the reconstructed '
-                     "irradiance is negative (compare an encoding with its <code>_deringed</code> variant: before "
-                     "and after deringing).</p>")
+        parts.append(f'<p class="note">Share of {directions} Fibonacci normals where any channel of the '
+                     "reconstructed irradiance is negative (compare an encoding with its <code>_deringed</code> "
+                     "variant: before and after deringing).</p>")
         if data.get("deringing"):
             rows = [[d["before"], n, d["mean_before"], d["mean_after"], d["max_before"], d["max_after"]]
                     for n, d in data["deringing"].items()]
@@ -207,9 +256,12 @@ def render_page(data: dict[str, Any], plots: dict[str, str], previews: dict[str,
                      "<code>doubleSided</code> on open sheets seen from both sides.</p>")
     if data["quantization"]:
         parts.append("<h3>Quantization error</h3>")
-        rows = [[n, q["source"], q["summary"].get("mean"), q["summary"].get("max")]
+        rows = [[n, q["source"], _measured(q["summary"].get("mean")), _measured(q["summary"].get("max"))]
                 for n, q in data["quantization"].items()]
         parts.append(_table(["quantized", "float source", "mean rel. RMSE", "max rel. RMSE"], rows, left=2))
+        parts.append(f'<p class="note">Relative RMSE of the quantized encoding\'s irradiance against its float '
+                     f"source's over {directions} Fibonacci normals and RGB (the quantization alone, not the error "
+                     "against the capture), over the probes both hold.</p>")
     if data["reflection_alpha_curves"]:
         parts.append("<h3>Reflection error per roughness</h3>")
         parts.append(_alpha_table(data["reflection_alpha_curves"]))

@@ -3,21 +3,58 @@ error, per-α reflection error, and the worst/median probes. Everything is read 
 
 Notation
     E_ref(n)    exact irradiance: brute-force cosine convolution of the probe's full-resolution capture
-    relative RMSE  √Σ(E − E_ref)² / √ΣE_ref² over a 1024-point Fibonacci set of normals and RGB (the store's metric)
-    relative MSE (reflection)  Σ(E − E_ref)² / ΣE_ref² over the (v, n) rows of one α and one F0 (seed 000 Fig. 4–7
-                uses MSE; normalising by ΣE_ref² makes probes of different brightness comparable)
+    relative RMSE  √Σ(E − E_ref)² / √ΣE_ref² over the store's quality directions (root ``settings``
+                ``quality_directions``, 1024 by default: ``schemas/store-v1.md`` "Quality directions") and RGB
+    relative MSE (reflection)  Σ(E − E_ref)² / ΣE_ref² over the (v, n) rows of one α and one F0 and RGB (seed 000
+                Fig. 4–7 uses MSE; normalising by ΣE_ref² makes probes of different brightness comparable)
+    bias (reflection)  ΣE / ΣE_ref − 1 over the same rows and RGB (signed brightness error)
+
+Not measurable is not zero
+    A relative figure against a reference that is 0 everywhere is NaN (null in the JSON, "–" on the page) and left
+    out of every summary. The store's ``reference_error/<enc>`` diagnostics say 0 (encoding black too) or +inf
+    (encoding not black) for a black reference (``schemas/store-v1.md``, ``/diagnostics``); the report reads both as
+    not measurable (:func:`_measurable`).
+
+Reflection reference (:func:`reference_reflection`)
+    E0 = ∫ L f_DV ⟨n, l⟩ dl and E1 = ∫ L f_DV (1 − v·h)⁵ ⟨n, l⟩ dl of the capture's texels, each texel's radiance
+    constant over its exact footprint ([SHExp] Eq. 5–8, ``bakery.reflection.reference``). A quadrature at texel
+    centres is only exact when the GGX lobe spans many texels: on a 32 × 16 latlong with a one-texel sun it is
+    off by a relative MSE of 0.93 at α = 0.02 and still 0.01–0.8 at α = 0.25…1, and even a 512 × 256 image
+    gives a white furnace between 0.37 and 1.23 at α = 0.02 (measured against the sub-texel quadrature below; a
+    uniform sky on 32 × 16 texels, which the encodings reproduce to ~1e-5, was reported at 0.85–0.94). So:
+    * every texel is split into f × f sub-texels of the same radiance (the image upsampled f× by repetition, exact
+      sub-texel solid angles), f = ⌈REFLECTION_TEXELS_PER_LOBE · d / α⌉ with d = √(largest texel solid angle):
+      sub-texels at most α/16 wide. Measured against f = 48 on the one-texel-sun sky (α = 0.04 … 1), f·α/d ≥ 10
+      keeps the relative MSE of E (chrome and glass) below ~1e-3 (16: margin);
+    * where that needs more than REFLECTION_SAMPLE_BUDGET sub-texels (narrow lobes on coarse images), GGX
+      visible-normal importance sampling ([Hei18]) of the same texels instead: REFLECTION_VNDF_SAMPLES
+      deterministic (Fibonacci-lattice) samples per row, weight G2/G1(v) (and × (1 − v·h)⁵ for E1), radiance of
+      the texel nearest to l (relative MSE ≤ 6e-4 against f = 48 at α ≤ 0.1 on the same sky);
+    * α = 0 (the mirror): E0 = L(r), E1 = L(r)(1 − n·v)⁵, L of the texel nearest to r.
 
 Reference availability
     A store baked from an environment image records its ``source``; the capture is then re-read (and sanitised the
-    same way as in the bake) to compute references the store does not hold. Scene stores do not keep captures:
-    their reference errors come only from the stored diagnostics and preview renders are shown without reference.
+    same way as in the bake) to compute references the store does not hold. It is used only if its flux ∫L dω
+    equals the store's ``input/flux_source`` (the image the store was baked from, not another file of that name
+    or the same file read with another layout; a fingerprint of three numbers: a mirrored or rotated copy of the
+    image passes; an image given with ``--environment`` is used anyway, with a warning and the page saying so); a
+    relative ``source`` is looked up from the working directory, then beside the store. Scene
+    stores do not keep captures: their reference errors come only from the stored diagnostics and preview renders
+    are shown without reference.
+
+References
+    [SHExp] Silvennoinen et al., HPG 2025 (seed 000).
+    [Hei18] Heitz, "Sampling the GGX Distribution of Visible Normals", JCGT 7(4), 2018.
 """
 
 from __future__ import annotations
 
+import json
 import math
 import warnings
 import weakref
+from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -26,8 +63,14 @@ import numpy as np
 from bakery.errors import UnsupportedEncodingWarning
 from bakery.sphere.fibonacci import fibonacci_directions
 
-#: Normals of the quality metrics (same size as the bake's default diagnostics).
+#: Normals of the quality metrics when the store does not record its ``quality_directions`` (the bake's default).
 QUALITY_DIRECTIONS = 1024
+#: Reflection reference (module doc): sub-texels per GGX α, largest sub-texel count, importance samples per row.
+REFLECTION_TEXELS_PER_LOBE = 16
+REFLECTION_SAMPLE_BUDGET = 1 << 20
+REFLECTION_VNDF_SAMPLES = 4096
+#: Relative tolerance of the re-read capture's flux against the store's ``input/flux_source``.
+FLUX_TOLERANCE = 1e-4
 #: GGX α of the per-α curves: the reflection bench's grid over the whole range (issue 12: 0 … 1, not only the paper's
 #: α ≥ 0.25), α = 0 the mirror.
 CURVE_ALPHAS = (0.0, 0.02, 0.04, 0.0625, 0.1, 0.16, 0.25, 0.36, 0.49, 0.64, 0.81, 1.0)
@@ -82,8 +125,65 @@ def _per_probe(store: Any, key: str, encoding: str) -> np.ndarray | None:
     return None
 
 
-def load_reference_samples(store: Any, environment: str | Path | None = None) -> list[Any] | None:
-    """Per-probe full-resolution quadratures, or None when no capture is available (module doc)."""
+def quality_directions(store: Any) -> int:
+    """N of the store's quality directions (root ``settings`` JSON ``quality_directions``; 1024 when absent): the
+    normals its ``reference_error`` / ``negative_fraction`` diagnostics were measured at, and the report's."""
+    try:
+        value = json.loads(str(store.attributes.get("settings") or "{}")).get("quality_directions")
+    except (TypeError, ValueError, AttributeError):
+        value = None
+    return int(value) if isinstance(value, int) and value > 0 else QUALITY_DIRECTIONS
+
+
+@dataclass
+class CaptureReference:
+    """The full-resolution capture of one probe: the image and its quadrature (one sample per texel, exact solid
+    angles), with the sub-texel quadratures and the nearest-texel lookup of the reflection reference (module doc)."""
+
+    image: Any  # bakery.environment.layouts.EnvironmentImage
+    samples: Any  # bakery.sphere.grid.SphericalSamples
+    path: str | None = None
+    #: whether its flux equals the store's input/flux_source (None: the store has none, e.g. a scene store)
+    flux_matches_store: bool | None = None
+    _subdivided: dict[int, Any] = field(default_factory=dict, repr=False)
+
+    @cached_property
+    def texel_size(self) -> float:
+        """d = √(largest texel solid angle), radians."""
+        return float(np.sqrt(np.max(self.samples.solid_angles)))
+
+    @cached_property
+    def black(self) -> bool:
+        return not np.any(np.asarray(self.samples.radiance) > 0)
+
+    @cached_property
+    def tree(self) -> Any:
+        from scipy.spatial import cKDTree
+
+        return cKDTree(np.asarray(self.samples.directions, dtype=np.float64))
+
+    def nearest_radiance(self, directions: np.ndarray) -> np.ndarray:
+        """(M, C) radiance of the texel whose centre is nearest to each unit direction (M, 3)."""
+        _, index = self.tree.query(np.asarray(directions, dtype=np.float64).reshape(-1, 3))
+        return np.asarray(self.samples.radiance, dtype=np.float64)[index]
+
+    def subdivided(self, factor: int) -> Any:
+        """The quadrature of every texel split into factor × factor sub-texels of its radiance."""
+        if factor <= 1:
+            return self.samples
+        if factor not in self._subdivided:
+            from bakery.environment.layouts import EnvironmentImage
+            from bakery.environment.resample import environment_samples
+
+            pixels = np.repeat(np.repeat(self.image.pixels, factor, axis=0), factor, axis=1)
+            # one subdivision held at a time (≤ REFLECTION_SAMPLE_BUDGET samples): the curves go α by α
+            self._subdivided = {factor: environment_samples(EnvironmentImage(pixels, self.image.layout))}
+        return self._subdivided[factor]
+
+
+def load_reference_samples(store: Any, environment: str | Path | None = None) -> list[CaptureReference] | None:
+    """Per-probe full-resolution captures (:class:`CaptureReference`), or None when no capture is available or the
+    image found is not the one the store was baked from (module doc)."""
     if environment is not None and not Path(environment).is_file():
         from bakery.errors import ImageError
 
@@ -91,30 +191,52 @@ def load_reference_samples(store: Any, environment: str | Path | None = None) ->
     source = environment or store.attributes.get("source")
     if source is None or str(store.attributes.get("source_kind", "image")) == "usd" and environment is None:
         return None
-    path = Path(str(source))
+    from bakery.errors import BakeryWarning
+
     if len(store.probe_names) != 1:
         if environment is not None:  # asked for, and not used: say so rather than report "no reference" silently
-            from bakery.errors import BakeryWarning
-
             warnings.warn(f"{environment}: --environment gives the capture of a one-probe store; "
                           f"{getattr(store, 'path', 'the store')} has {len(store.probe_names)} probes, so the report "
                           "uses their stored diagnostics only", BakeryWarning, stacklevel=2)
         return None
-    if not path.is_file():
+    candidates = [Path(str(source))]
+    store_path = getattr(store, "path", None)
+    if environment is None and not candidates[0].is_absolute() and store_path is not None:
+        candidates.append(Path(store_path).parent / candidates[0])
+    candidates = [c for c in dict.fromkeys(candidates) if c.is_file()]
+    if not candidates:
         return None
     from bakery.environment.io import read_environment
     from bakery.environment.resample import environment_samples
 
     layout = store.attributes.get("source_layout")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        image, _ = read_environment(path, layout=str(layout) if layout else None)
-    return [environment_samples(image)]
+    expected = (np.asarray(store.diagnostics["input/flux_source"], dtype=np.float64).reshape(-1, 3)[0]
+                if "input/flux_source" in store.diagnostics else None)
+    for path in candidates:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            image, _ = read_environment(path, layout=str(layout) if layout else None)
+        samples = environment_samples(image)
+        flux = np.asarray(samples.flux(), dtype=np.float64)
+        matches = None if expected is None else bool(np.all(
+            np.abs(flux - expected) <= FLUX_TOLERANCE * max(float(np.max(np.abs(expected))), 1e-30)))
+        if matches is not False:
+            return [CaptureReference(image, samples, str(path), matches)]
+        mismatch = (f"{path}: not the image {getattr(store, 'path', 'the store')} was baked from (its flux "
+                    f"{flux.round(6).tolist()} differs from the store's input/flux_source "
+                    f"{expected.round(6).tolist()})")
+        if environment is not None:  # asked for: used, and the page says it is not the baked image
+            warnings.warn(f"{mismatch}; the report measures against it as asked (--environment)", BakeryWarning,
+                          stacklevel=2)
+            return [CaptureReference(image, samples, str(path), False)]
+        warnings.warn(f"{mismatch}; not used as the report's reference", BakeryWarning, stacklevel=2)
+    return None
 
 
-def reference_irradiance_for(samples: Any, normals: np.ndarray) -> np.ndarray:
+def reference_irradiance_for(reference: Any, normals: np.ndarray) -> np.ndarray:
     from bakery.irradiance.reference import reference_irradiance
 
+    samples = reference.samples if isinstance(reference, CaptureReference) else reference
     return reference_irradiance(samples, normals, dtype=np.float32)
 
 
@@ -126,29 +248,56 @@ def _relative_rmse(values: np.ndarray, reference: np.ndarray) -> np.ndarray:
     return np.where(den > 0, num / np.where(den > 0, den, 1.0), np.nan)
 
 
+def black_references(store: Any, rows: np.ndarray) -> np.ndarray:
+    """(len(rows),) bool: probes whose reference radiance is 0 everywhere, from the store's diagnostics (image bakes:
+    ``input/flux_source`` = 0 in every channel; else ``band_energy`` of band 0 = 0, i.e. a capture with no DC: all
+    zero, radiance being ≥ 0 after sanitising); False where the store does not say."""
+    out = np.zeros(len(rows), dtype=bool)
+    for key, black in (("input/flux_source", lambda v: np.all(v == 0, axis=1)),
+                       ("band_energy", lambda v: v[:, 0] == 0)):
+        if key in store.diagnostics:
+            values = np.asarray(store.diagnostics[key], dtype=np.float64)
+            values = values.reshape(len(values), -1)
+            if values.shape[0] == len(store.probe_names):
+                out |= np.asarray(black(values[rows]), dtype=bool) & np.all(np.isfinite(values[rows]), axis=1)
+    return out
+
+
+def _measurable(store: Any, values: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """A stored relative error with the not-measurable cases as NaN (module doc): +inf and anything against a black
+    reference (the store writes 0 there when the encoding is black too)."""
+    values = np.asarray(values, dtype=np.float64).copy()
+    values[np.isinf(values) | black_references(store, rows)] = np.nan
+    return values
+
+
 def irradiance_errors(store: Any, references: list[Any] | None) -> dict[str, np.ndarray]:
-    """{encoding: (P_k,) relative RMSE vs E_ref}: stored diagnostics, else computed from the capture."""
+    """{encoding: (P_k,) relative RMSE vs E_ref}: stored diagnostics, else computed from the capture at the store's
+    quality directions; NaN where not measurable (module doc)."""
     out: dict[str, np.ndarray] = {}
-    normals = fibonacci_directions(QUALITY_DIRECTIONS)
+    normals = fibonacci_directions(quality_directions(store))
     cache: dict[int, np.ndarray] = {}
     for name in encodings_of_kind(store, "irradiance"):
+        rows = probe_rows(store, name)
         stored = _per_probe(store, f"reference_error/{name}", name)
+        if stored is not None:
+            stored = _measurable(store, stored, rows)
         if stored is not None and (references is None or np.all(np.isfinite(stored))):
-            # NaN rows (probes baked without a reference) stay NaN: unmeasured, not counted in the summary
-            if np.any(np.isfinite(stored)):
-                out[name] = stored
+            # NaN rows (probes baked without a reference, black references) stay NaN: unmeasured, not counted in
+            # the summary, but the encoding is listed (with no measured probe: "–")
+            out[name] = stored
             continue
         if references is None:
             continue
-        rows = probe_rows(store, name)
         ref = np.stack([cache.setdefault(int(i), reference_irradiance_for(references[i], normals)) for i in rows])
         out[name] = _relative_rmse(store.evaluate_irradiance(name, normals), ref)
     return out
 
 
 def negative_shares(store: Any) -> dict[str, np.ndarray]:
-    """{encoding: (P_k,) share of normals where any channel's irradiance < 0} (stored, else computed)."""
-    normals = fibonacci_directions(QUALITY_DIRECTIONS)
+    """{encoding: (P_k,) share of the store's quality directions where any channel's irradiance < 0} (stored, else
+    computed at the same directions)."""
+    normals = fibonacci_directions(quality_directions(store))
     out = {}
     for name in encodings_of_kind(store, "irradiance"):
         stored = _per_probe(store, f"negative_fraction/{name}", name)
@@ -172,7 +321,7 @@ def quantization_errors(store: Any) -> dict[str, dict[str, Any]]:
     """{quantized: {"source", "relative_rmse": (P_k,)}} of quantized irradiance vs its float source, aligned with the
     quantized encoding's rows; NaN for a probe the source does not hold (each probe of a scene may list its own
     encodings)."""
-    normals = fibonacci_directions(QUALITY_DIRECTIONS)
+    normals = fibonacci_directions(quality_directions(store))
     out = {}
     for name in encodings_of_kind(store, "irradiance"):
         source = quantization_source(store, name)
@@ -192,36 +341,97 @@ def quantization_errors(store: Any) -> dict[str, dict[str, Any]]:
 
 
 def curve_rows(count: int = 128, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Deterministic (v, n) pairs: Fibonacci normals, views uniform on each normal's hemisphere (n·v ≥ 0.05)."""
+    """Deterministic (v, n) pairs: Fibonacci normals, views uniform on each normal's hemisphere, those closer than
+    n·v = 0.05 to the horizon tilted up to n·v = 0.05 exactly (same azimuth)."""
     n = fibonacci_directions(count)
     rng = np.random.default_rng(seed)
     v = rng.normal(size=(count, 3))
     v /= np.linalg.norm(v, axis=1, keepdims=True)
     v = np.where(np.sum(v * n, axis=1, keepdims=True) < 0, -v, v)
-    v = v + n * np.maximum(0.05 - np.sum(v * n, axis=1, keepdims=True), 0.0)
+    nv = np.sum(v * n, axis=1, keepdims=True)
+    tangent = v - nv * n
+    tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-300)
+    low = 0.05
+    v = np.where(nv < low, low * n + np.sqrt(1.0 - low * low) * tangent, v)
     return v / np.linalg.norm(v, axis=1, keepdims=True), n
 
 
-def _reference_reflection(samples: Any, v: np.ndarray, n: np.ndarray, alpha: float) -> tuple[np.ndarray, np.ndarray]:
-    """(E0, E1) (M, C) of the brute-force reference; α = 0: the mirror, L(r) of the nearest full-resolution sample."""
+def reference_method(reference: CaptureReference, alpha: float) -> dict[str, Any]:
+    """How :func:`reference_reflection` integrates at ``alpha`` (module doc): {"method": "mirror" | "texels" |
+    "importance", "subdivision": f (sub-texels per texel side; importance: the f it would have needed),
+    "samples": quadrature samples (texels × f², or importance samples per row)}."""
+    if alpha <= 0:
+        return {"method": "mirror", "subdivision": 1, "samples": 1}
+    factor = max(1, math.ceil(REFLECTION_TEXELS_PER_LOBE * reference.texel_size / alpha))
+    count = reference.samples.count
+    if factor == 1 or count * factor * factor <= max(REFLECTION_SAMPLE_BUDGET, count):
+        return {"method": "texels", "subdivision": factor, "samples": count * factor * factor}
+    return {"method": "importance", "subdivision": factor, "samples": REFLECTION_VNDF_SAMPLES}
+
+
+def _importance_reflection(reference: CaptureReference, v: np.ndarray, n: np.ndarray, alpha: float,
+                           count: int = REFLECTION_VNDF_SAMPLES) -> tuple[np.ndarray, np.ndarray]:
+    """(E0, E1) (M, C) by GGX visible-normal sampling ([Hei18]) of the capture's texels (module doc)."""
+    from bakery.brdf.ggx import ggx_lambda
+    from bakery.brdf.sampling import sample_ggx_vndf, to_local, to_world
+    from bakery.sphere.fibonacci import GOLDEN_ANGLE
+
+    k = np.arange(count, dtype=np.float64)
+    u1 = (k + 0.5) / count
+    u2 = (k * GOLDEN_ANGLE / (2.0 * np.pi)) % 1.0
+    channels = np.asarray(reference.samples.radiance).shape[1]
+    e0 = np.zeros((len(v), channels))
+    e1 = np.zeros_like(e0)
+    step = max(1, (1 << 16) // count)
+    for s in range(0, len(v), step):
+        vs, ns = v[s : s + step], n[s : s + step]
+        local = to_local(vs, ns)  # (m, 3), z = n·v
+        local[:, 2] = np.maximum(local[:, 2], 1e-6)
+        local /= np.linalg.norm(local, axis=1, keepdims=True)
+        view = np.broadcast_to(local[:, None, :], (len(vs), count, 3))
+        h = sample_ggx_vndf(view, u1[None, :], u2[None, :], alpha)
+        vh = np.sum(view * h, axis=-1)
+        light = 2.0 * vh[..., None] * h - view
+        nl = light[..., 2]
+        lambda_v = ggx_lambda(view[..., 2], alpha)
+        # f_DV⟨n,l⟩ / pdf(l) = G2(v, l) / G1(v), height-correlated G2 = 1 / (1 + Λ(v) + Λ(l))
+        weight = np.where(nl > 0, (1.0 + lambda_v) / (1.0 + lambda_v + ggx_lambda(np.maximum(nl, 1e-12), alpha)),
+                          0.0)
+        radiance = reference.nearest_radiance(to_world(light, ns[:, None, :])).reshape(len(vs), count, channels)
+        e0[s : s + step] = np.einsum("mk,mkc->mc", weight, radiance) / count
+        tail = weight * np.clip(1.0 - vh, 0.0, 1.0) ** 5
+        e1[s : s + step] = np.einsum("mk,mkc->mc", tail, radiance) / count
+    return e0, e1
+
+
+def reference_reflection(reference: Any, v: np.ndarray, n: np.ndarray, alpha: float) -> tuple[np.ndarray, np.ndarray]:
+    """(E0, E1) (M, C) of the capture's texels at GGX ``alpha`` (module doc: sub-texel brute force, importance
+    sampling where that is too large, α = 0 the mirror)."""
     from bakery.brdf.ggx import reflect
     from bakery.reflection.reference import integrate_reflection
 
-    if alpha > 0:
-        return integrate_reflection(samples, v, n, np.full(len(v), alpha))
-    r = reflect(v, n)
-    directions = np.asarray(samples.directions, dtype=np.float32).T
-    nearest = np.concatenate([np.argmax(r[s : s + 16].astype(np.float32) @ directions, axis=1)
-                              for s in range(0, len(r), 16)])
-    radiance = np.asarray(samples.radiance, dtype=np.float64)[nearest]
-    nv = np.clip(np.sum(v * n, axis=1), 0.0, 1.0)[:, None]
-    return radiance, radiance * (1.0 - nv) ** 5
+    if not isinstance(reference, CaptureReference):  # bare samples (no image): centres only, as before
+        reference = CaptureReference(None, reference)
+    v = np.asarray(v, dtype=np.float64).reshape(-1, 3)
+    n = np.asarray(n, dtype=np.float64).reshape(-1, 3)
+    channels = np.asarray(reference.samples.radiance).shape[1]
+    if reference.black:
+        return np.zeros((len(v), channels)), np.zeros((len(v), channels))
+    if alpha <= 0:
+        radiance = reference.nearest_radiance(reflect(v, n))
+        nv = np.clip(np.sum(v * n, axis=1), 0.0, 1.0)[:, None]
+        return radiance, radiance * (1.0 - nv) ** 5
+    method = reference_method(reference, alpha)
+    if method["method"] == "importance" and reference.image is not None:
+        return _importance_reflection(reference, v, n, alpha)
+    samples = reference.subdivided(method["subdivision"]) if reference.image is not None else reference.samples
+    return integrate_reflection(samples, v, n, np.full(len(v), alpha))
 
 
 def reflection_alpha_curves(store: Any, references: list[Any] | None, rows_per_alpha: int = 128) -> dict[str, Any]:
     """Per reflection encoding, material and α: relative MSE and signed brightness bias (Σ E / Σ E_ref − 1) vs the
-    brute-force reference (needs the capture): ``encodings[name][material]`` and ``bias[name][material]``, each
-    (P_k, len(alphas))."""
+    reference of the capture (:func:`reference_reflection`; needs the capture): ``encodings[name][material]`` and
+    ``bias[name][material]``, each (P_k, len(alphas)); ``reference`` says how each α was integrated (first probe)."""
     names = encodings_of_kind(store, "reflection")
     if not names or references is None:
         return {}
@@ -230,6 +440,9 @@ def reflection_alpha_curves(store: Any, references: list[Any] | None, rows_per_a
     v, n = curve_rows(rows_per_alpha)
     out: dict[str, Any] = {"alphas": list(CURVE_ALPHAS), "rows_per_alpha": rows_per_alpha, "encodings": {},
                            "bias": {}}
+    first = references[0] if isinstance(references[0], CaptureReference) else None
+    if first is not None:
+        out["reference"] = [{"alpha": a, **reference_method(first, a)} for a in CURVE_ALPHAS]
     cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
     for name in names:
         rows = probe_rows(store, name)
@@ -240,7 +453,7 @@ def reflection_alpha_curves(store: Any, references: list[Any] | None, rows_per_a
             for r, i in enumerate(rows):
                 key = (int(i), j)
                 if key not in cache:
-                    cache[key] = _reference_reflection(references[i], v, n, alpha)
+                    cache[key] = reference_reflection(references[i], v, n, alpha)
                 e0, e1 = cache[key]
                 for material, f0 in MATERIALS.items():
                     ref = reflected_radiance(e0, e1, np.full(len(v), f0))
@@ -283,29 +496,37 @@ def _measured_mean(values: Any) -> list[float]:
     return np.where(count > 0, total / np.maximum(count, 1), np.nan).tolist()
 
 
+#: Preview role of the probe shown when no error of the kind was measured (it is neither "worst" nor "median").
+UNRANKED_ROLE = "first (no error measured)"
+
+
 def pick_probes(store: Any, errors: dict[str, np.ndarray], kind: str) -> dict[str, int]:
-    """{"worst": probe, "median": probe} by the median over ``kind``'s encodings of each probe's error."""
+    """{"worst": probe, "median": probe} by the median over ``kind``'s encodings of each probe's measured error;
+    {UNRANKED_ROLE: first probe of the kind} when no error of the kind was measured (not called worst or median)."""
     names = [n for n in encodings_of_kind(store, kind) if n in errors]
+    rows = [i for i, k in enumerate(store.probe_kinds) if kind in k.split(",")]
+    unranked = {UNRANKED_ROLE: rows[0]} if rows else {}
     if not names:
-        rows = [i for i, k in enumerate(store.probe_kinds) if kind in k.split(",")]
-        return {"worst": rows[0], "median": rows[0]} if rows else {}
+        return unranked
     score = np.full(len(store.probe_names), np.nan)
     stacks: dict[int, list[float]] = {}
     for name in names:
         for i, e in zip(probe_rows(store, name), errors[name], strict=True):
             stacks.setdefault(int(i), []).append(float(e))
-    for i, values in stacks.items():
-        score[i] = float(np.median(values))
+    for i, values in stacks.items():  # median over the encodings that measured the probe
+        finite = [x for x in values if math.isfinite(x)]
+        score[i] = float(np.median(finite)) if finite else math.nan
     valid = np.flatnonzero(np.isfinite(score))
     if valid.size == 0:
-        return {}
+        return unranked
     order = valid[np.argsort(score[valid], kind="stable")]
     return {"worst": int(order[-1]), "median": int(order[(len(order) - 1) // 2])}
 
 
 def worst_probes(store: Any, errors: dict[str, np.ndarray], count: int = 5) -> dict[str, list[dict[str, Any]]]:
     """{encoding: up to ``count`` probes with the largest error, largest first}; unmeasured (NaN) probes are not
-    listed, unbounded (inf) ones first."""
+    listed (errors come through :func:`irradiance_errors` / :func:`reflection_alpha_curves`, where a black
+    reference's 0 or +inf is NaN)."""
     out = {}
     for name, values in errors.items():
         rows = probe_rows(store, name)

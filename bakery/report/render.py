@@ -42,9 +42,9 @@ def irradiance_previews(store: Any, probe: str, encodings: list[str], reference:
     normals, mask = sphere_geometry(size)
     images: dict[str, np.ndarray] = {}
     if reference is not None:
-        from bakery.irradiance.reference import reference_irradiance
+        from bakery.report.quality import reference_irradiance_for
 
-        images["reference"] = _image(reference_irradiance(reference, normals, dtype=np.float32) / np.pi, mask)
+        images["reference"] = _image(reference_irradiance_for(reference, normals) / np.pi, mask)
     for name in encodings:
         images[name] = _image(store.evaluate_irradiance(name, normals, probes=[probe])[0] / np.pi, mask)
     return render_row(images, mask, "reference")
@@ -57,10 +57,11 @@ def reflection_previews(store: Any, probe: str, encodings: list[str], reference:
     alphas = np.full(len(normals), alpha)
     f0s = np.full(len(normals), f0)
     images: dict[str, np.ndarray] = {}
-    if reference is not None:
-        from bakery.reflection.reference import integrate_reflection, reflected_radiance
+    if reference is not None:  # the reference of the per-α figures (bakery.report.quality.reference_reflection)
+        from bakery.reflection.reference import reflected_radiance
+        from bakery.report.quality import reference_reflection
 
-        e0, e1 = integrate_reflection(reference, view, normals, alphas)
+        e0, e1 = reference_reflection(reference, view, normals, alpha)
         images["reference"] = _image(reflected_radiance(e0, e1, f0s), mask)
     for name in encodings:
         images[name] = _image(store.evaluate_reflection(name, view, normals, alphas, f0s, probes=[probe])[0], mask)

@@ -173,7 +173,7 @@ def test_failed_probes_are_listed_by_report_and_inspect(tmp_path):
 # --------------------------------------------------------------------------------------------------- black capture
 def test_relative_errors_against_a_black_capture_are_unmeasured_not_zero(tmp_path):
     """A relative error against a reference that is 0 everywhere is 0/0 (the SH exponential leaves ~1e-12, an
-    infinite relative error): null in the JSON, "–" on the page, never a made-up 0 (or "+0%")."""
+    infinite relative error): null in the JSON, "not measured" on the page, never a made-up 0 (or "+0%")."""
     write_exr(tmp_path / "black.exr", np.zeros((16, 32, 3), np.float32), half=False)
     with pytest.warns(UserWarning, match="black"):
         bake_image(tmp_path / "black.exr", tmp_path / "b.h5", face_size=8, encodings=("zh3", "shexp"))
