@@ -3,24 +3,36 @@
 Per reflection probe ``<slug>.gltf`` with a node at the probe's position (name = probe, ``extras.bakery``), one scene
 referencing the light, and the light [EXT]:
 
-``irradianceCoefficients``  9 × 3 **irradiance** SH: bakery radiance SH × (π, 2π/3, π/4) per band, in bakery's
-                            basis (real, orthonormal, Condon–Shortley signs: Y1,−1 = −c·y …, index l(l+1)+m) — the
-                            basis Babylon's ``SphericalHarmonics`` uses (its loader applies
-                            ``convertIrradianceToLambertianRadiance``, i.e. ÷π, itself). The radiance SH come from the
-                            probe's irradiance encoding when it has one (:mod:`bakery.export.source`), else from the
-                            kept capture.
+``irradianceCoefficients``  9 × 3 **irradiance** SH: bakery radiance SH × (π, 2π/3, π/4) per band, in Babylon's
+                            basis (real, orthonormal, Condon–Shortley signs, order l00, l1−1, l10, l11, l2−2 …:
+                            babylon.js ``SH3ylmBasisConstants``; its loader divides by π itself,
+                            ``convertIrradianceToLambertianRadiance``) and in Babylon's left-handed world (below):
+                            coefficients 3, 4 and 7 (odd in x) negated (:func:`irradiance_coefficients`). The radiance
+                            SH come from the probe's irradiance encoding when it has one (:mod:`bakery.export.source`),
+                            else from the kept capture.
 ``specularImageSize``       face size of mip 0: a power of two (Babylon loads no other), by default the largest
                             ≤ the kept capture's (an N = 12 bake exports 8², resampled preserving flux)
 ``specularImages``          M × 6 image indices, mips of halving sizes, faces +X −X +Y −Y +Z −Z, each a 4-channel PNG
                             in Babylon's RGBD packing (below), re-prefiltered at the profile's α per mip (default
                             profile ``babylon``: the loader sets lodGenerationScale = (M − 1)/log2 N)
-``intensity``, ``rotation`` 1, identity
+``intensity``, ``rotation`` 1, identity (always written: Babylon's loader multiplies the SH by ``light.intensity``
+                            unguarded, so an absent one — 1 by [EXT] — would make them NaN)
 
-Face images: "each saved image must be flipped about its vertical axis to correspond with the way glTF references
-texture space" [EXT]: every face image is bakery's face (OpenGL orientation) mirrored left↔right, faces in the
-standard order (:func:`flip_images`). Babylon uploads the PNGs as they are; its read-back of every face and mip
-(``RawCubeTexture.readPixels``, rows bottom-up) matches these images decoded, texel for texel (headless Chromium
-test). The irradiance SH are not mirrored: Babylon's shader SH evaluated at n equals the store's E(n)/π.
+Orientation: [EXT] names no coordinate system for the cube or the SH and says "each saved image must be flipped about
+its vertical axis to correspond with the way glTF references texture space". What Babylon.js 9.28 (the extension's
+runtime) does, measured by rendering (``tests/export/test_export_conventions.py``): its glTF loader puts the asset
+under ``__root__``, which in its default left-handed scene maps glTF (x, y, z) to world (−x, y, z); the loader leaves
+the IBL alone, and the PBR and skybox shaders look the cube and the SH up with that world direction
+(``RawCubeTexture`` uploads each PNG with its top row at t = 1, Babylon's ``invertY``). So a glTF asset sees the
+store's environment only if the file holds it in Babylon's world, mirrored in x: every face image is the face, in
+the standard (OpenGL) orientation, of the mirrored environment — bakery's faces with ±X swapped, each left↔right (the
+flip [EXT] asks for) — saved upside down (glTF's texture space runs top-down), i.e. ±X swapped and every face rotated
+180° (:data:`FACE_TRANSFORM`); the SH are mirrored likewise. Written as the text alone reads (left↔right only in
+glTF's frame, bakery before 2026-12-07), Babylon turned each face's content 180° about the face's axis in its world —
+a light at glTF (x, a, b) on +X appeared at (−x, −a, −b), one on +Y at (x, y, −z), one on +Z at (x, −y, z), seams
+broken — and mirrored the diffuse light in x. In a right-handed Babylon scene (``useRightHandedSystem``) Babylon
+negates z of the lookup instead, so the same file shows the environment turned 180° about +Y: Babylon's two modes
+disagree for any EXT_lights_image_based file.
 
 RGBD (Babylon's ``toRGBD``/``fromRGBD``, 8-bit PNG): D = ⌊max(255 / max(r, g, b), 1)⌋ / 255 (clamped to [1/255, 1]),
 RGB = round(255 · (c·D)^(1/2.2)), A = round(255 · D); decoded c = (RGB/255)^2.2 / (A/255). Range: up to 255 (values
@@ -70,18 +82,26 @@ def decode_rgbd(rgbd: np.ndarray) -> np.ndarray:
     return (q[..., :3] ** GAMMA) / np.maximum(q[..., 3:4], 1.0 / 255.0)
 
 
-def flip_images(cube: np.ndarray) -> np.ndarray:
-    """Every face image flipped about its vertical axis (left↔right), faces in place: what [EXT] requires."""
-    return np.ascontiguousarray(np.asarray(cube)[:, :, ::-1])
+#: Babylon's left-handed world is glTF's mirrored in x: the face order after mirroring (+X ↔ −X).
+MIRROR_X_FACES = [1, 0, 2, 3, 4, 5]
+#: Sign of each SH coefficient under x → −x (Y1,1 ∝ x, Y2,−2 ∝ xy, Y2,1 ∝ xz change sign).
+MIRROR_X_SIGNS = np.array([1, 1, 1, -1, -1, 1, 1, -1, 1], dtype=np.float64)
 
 
-#: The face transform applied to every exported mip level (module docstring).
-FACE_TRANSFORM = flip_images
+def babylon_faces(cube: np.ndarray) -> np.ndarray:
+    """(6, N, N, C) bakery faces (OpenGL orientation) → the face images Babylon renders as the same environment in
+    its default left-handed scene (module docstring "Orientation"): the faces of the environment mirrored in x (±X
+    swapped, each left↔right), each saved upside down — together, ±X swapped and every face rotated 180°."""
+    return np.ascontiguousarray(np.asarray(cube)[MIRROR_X_FACES][:, ::-1, ::-1])
+
+
+#: The face transform applied to every exported mip level (module docstring "Orientation").
+FACE_TRANSFORM = babylon_faces
 
 
 def irradiance_coefficients(radiance: np.ndarray) -> np.ndarray:
-    """Irradiance SH (9, 3) = radiance SH × A_l (bakery basis)."""
-    return np.asarray(radiance, np.float64)[:9] * COSINE_BANDS[sh_bands(2)][:, None]
+    """Irradiance SH (9, 3) = radiance SH × A_l, mirrored in x for Babylon's left-handed world (module docstring)."""
+    return np.asarray(radiance, np.float64)[:9] * (COSINE_BANDS[sh_bands(2)] * MIRROR_X_SIGNS)[:, None]
 
 
 @register_format
@@ -132,7 +152,8 @@ class GltfExport(ExportFormat):
             position = context.store.probe_positions[context.store.probe_names.index(name)]
             extras = {"bakery": {**context.provenance(), "probe": name, "profile": record,
                                  "irradiance_source": sh_source, "encoding": "RGBD (Babylon), 8-bit PNG",
-                                 "faces": "bakery (OpenGL) faces, each image flipped left-right as EXT_lights_image_based requires",
+                                 "faces": "Babylon's left-handed world (glTF mirrored in x): +X/-X swapped, each "
+                                          "image rotated 180 degrees (left-right and upside down)",
                                  **({"validity": v} if (v := context.validity([name]).get(name)) else {})}}
             light = {"name": name, "intensity": 1.0, "rotation": [0.0, 0.0, 0.0, 1.0],
                      "irradianceCoefficients": [[float(v) for v in row] for row in

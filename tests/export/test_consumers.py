@@ -130,7 +130,9 @@ def test_babylon_loads_the_gltf_in_headless_chromium(stores, exports, tmp_path):
     root = exports["root"]
     assets = [str(p.relative_to(root)) for p in sorted(root.rglob("*.gltf"))]
     shot = tmp_path / "babylon.png"
-    request = {"root": str(root), "assets": assets, "normals": NORMALS.tolist(),
+    # Babylon's default scene is left-handed: its glTF loader maps glTF (x, y, z) to world (−x, y, z), and its
+    # shaders evaluate the SH at world normals (bakery/export/gltf.py, "Orientation")
+    request = {"root": str(root), "assets": assets, "normals": (NORMALS * [-1.0, 1.0, 1.0]).tolist(),
                "screenshot": {"asset": "sun/gltf/environment.gltf", "path": str(shot)}}
     (tmp_path / "req.json").write_text(json.dumps(request))
     report = run_node("babylon_check.mjs", tmp_path / "req.json", packages=("babylonjs", "babylonjs-loaders",
@@ -143,7 +145,8 @@ def test_babylon_loads_the_gltf_in_headless_chromium(stores, exports, tmp_path):
         store = bakery.open_store(stores[scene])
         document = json.loads((root / asset).read_text())
         probe = document["nodes"][0]["name"]
-        # irradiance: Babylon's own SH (what its PBR shader evaluates) = E/π of the store, within 1 %
+        # irradiance: Babylon's own SH (what its PBR shader evaluates at the world normal) = E/π of the store at the
+        # glTF normal, within 1 %
         from bakery.export.source import irradiance_encoding, radiance_sh_from_capture
 
         encoding = irradiance_encoding(store, probe)
