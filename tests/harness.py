@@ -54,3 +54,15 @@ def bake_image(image, path, **options) -> Baked:  # noqa: ANN001
     """Bake an environment image (one distant probe) into ``path``."""
     summary = bakery.bake(image, path, **options)
     return Baked(Path(path), summary, bakery.open_store(path))
+
+
+def single_scattering(scene):  # noqa: ANN001, ANN201 - bakery.capture.scene.CaptureScene
+    """``scene`` with its MaterialX materials combining their lobes as UsdPreviewSurface does (``layering =
+    "preview"``: no layering throughput, no multiple-scattering compensation; bakery.capture.bsdf "MaterialX
+    layering"), for tests of what the reader maps a MaterialX surface onto (F0, F90, tints, normal maps) against a
+    UsdPreviewSurface twin or a model linear in F0."""
+    from dataclasses import replace
+
+    return replace(scene, meshes=tuple(replace(mesh, material=replace(mesh.material, layering="preview",
+                                                                      specular_layer=None))
+                                       for mesh in scene.meshes))

@@ -124,7 +124,10 @@ DEFAULT_BOUNCES = 64
 #: hemispherical-mean one (IORs below ≈ 1.34; was min(1, 50·F0)). 6: MaterialX metals as their graphs wire them
 #: (bakery.capture.bsdf "MaterialX metals"): open_pbr's F82 tint and specular_weight, standard_surface's conductor
 #: of the artistic IOR (was Schlick(base_color, 1) for both), gltf_pbr's dielectric F90 = specular at every IOR.
-CAPTURE_MODEL_VERSION = 6
+#: 7: MaterialX layering and energy compensation (bakery.capture.bsdf "MaterialX layering"): the base under the
+#: specular layer and under the coat keeps 1 − w·E(θo)·(1 + k·F) (was 1 − F(v·h)), and GGX lobes carry Turquin's
+#: 1 + k·F; UsdPreviewSurface unchanged.
+CAPTURE_MODEL_VERSION = 7
 #: A visible light shape whose bounding sphere's angular radius, seen from the probe, is at most this many texel
 #: half-widths is seen through a splat of its sampled flux instead of by the probe's camera rays (module docstring
 #: "Small lights").

@@ -202,6 +202,17 @@ class Material:
             exact conductor Fresnel (``mx_fresnel_conductor``); None: Schlick (``metal_weight``, ``metal_f82``).
             Any of these four fields away from its default makes the material's F0 and F90 explicit, share by share
             (:mod:`bakery.capture.surfaces`).
+        layering: how the lobes combine (:mod:`bakery.capture.bsdf`): ``"preview"`` (UsdPreviewSurface, Hydra Storm's
+            model: the diffuse lobe weighted by 1 − F(v·h), the base by 1 − F_coat(v·h), single-scattering GGX
+            lobes) or ``"materialx"`` (MaterialX's pbrlib ``layer``: what lies under the specular lobe and under
+            the coat keeps 1 − weight·E(θo)·(1 + k·F), the GGX lobes times Turquin's compensation 1 + k·F,
+            k = (1 − E_ss)/E_ss; "MaterialX layering").
+        specular_layer: (u0, u90, w): a MaterialX ``dielectric_bsdf`` specular layer's own Fresnel and weight, which
+            its layering needs apart from the tint that scales the lobe (standard_surface: weight ``specular``, tint
+            ``specular_color``; open_pbr_surface: weight 1, tint ``specular_color``): its Schlick F0 = F0(ior)·u0,
+            F90 = min(1, 50·F0(ior))·u90, and w. None: the lobe's own Schlick terms (``specular_tint``,
+            ``specular_edge_tint``, ``dielectric_f90``) and weight 1 — a ``generalized_schlick_bsdf`` (gltf_pbr), or a
+            ``dielectric_bsdf`` of white tint and weight 1.
         maps: textured inputs, each a dict {"input": name, "texture": index into CaptureScene.textures,
             "channels": "rgb" | "r" | "g" | "b" | "a", "scale": (4,), "bias": (4,), "fallback": (4,),
             "wrap": (wrapS, wrapT)} and optionally "st_transform": ((a, b, tx), (c, d, ty)), the affine map
@@ -241,6 +252,8 @@ class Material:
     metal_weight: float = 1.0
     metal_f82: tuple[float, float, float] | None = None
     metal_edge_color: tuple[float, float, float] | None = None
+    layering: str = "preview"
+    specular_layer: tuple[float, float, float] | None = None
 
     @property
     def explicit_fresnel(self) -> bool:

@@ -19,6 +19,15 @@ dielectric F90 given as is)
     both paths (:meth:`Surfaces._point`, :meth:`Surfaces._textured_soa`); materials without these fields keep
     F90 = min(1, 50·luminance(F0)) of the mixed F0, as before.
 
+MaterialX layering (``Material.layering`` "materialx"; :mod:`bakery.capture.bsdf` "MaterialX layering")
+    Per hit in both paths, what the BSDF's :class:`~bakery.capture.bsdf.Layering` needs beyond F0 and F90: the
+    dielectric specular layer's share of the lobe's Schlick terms, coat·(1 − m)·F0(ior)·specular_tint and
+    coat·(1 − m)·F90_d (F90_d = ``dielectric_f90``, else min(1, 50·F0(ior))·specular_edge_tint); that layer's own
+    Schlick terms and weight — ``Material.specular_layer`` (u0, u90, w): F0(ior)·u0, min(1, 50·F0(ior))·u90 and w,
+    else the share's own F0(ior)·specular_tint, F90_d and 1 —; and the metal share's weight coat·m·``metal_weight``
+    (the specular workflow: the whole lobe is the layer's, of weight 1). Materials without it get zeros and no
+    flag: their points shade as before.
+
 Filtering
     Textures are mip-mapped (2×2 box pyramid, built once per texture) and looked up trilinearly. The level of detail
     comes from the ray's footprint: a ray of angular spread σ (the probe texel's angular size for primary rays,
@@ -44,7 +53,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bakery.capture.bsdf import SHEEN_LAYERS, Fresnel, Sheen, artistic_ior, f82_coefficient
+from bakery.capture.bsdf import SHEEN_LAYERS, Fresnel, Layering, Sheen, artistic_ior, f82_coefficient
 from bakery.capture.scene import CaptureScene, Material
 from bakery.conventions import LUMINANCE_WEIGHTS, stage_to_bake_axes
 
@@ -68,6 +77,14 @@ class SurfacePoint:
     #: term's coefficient b, and the conductor's weight, η and κ; None otherwise
     f82: np.ndarray | None = None
     conductor: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    #: MaterialX's layering terms when some material has them (module docstring "MaterialX layering"): the
+    #: dielectric share's Schlick F0 and F90, the layer's own F0 and F90 (M, 3) each, its weight (M,), the metal's
+    #: weight (M, 3) and whether the hit is layered (M,) bool; None otherwise
+    layering: tuple[np.ndarray, ...] | None = None
+
+
+#: rows of a layering block (share F0, share F90, own F0, own F90, weight, metal weight, flag)
+LAYER_ROWS = 17
 
 
 def transformed_st(entry: dict, s: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
@@ -296,6 +313,23 @@ def _explicit_fresnel(metallic, reflectivity, dielectric, spec, edge, coat, weig
     return f0, f90, b, cw, eta, kappa
 
 
+def _layer_terms(metallic, dielectric, spec, edge, coat, f90_given, has_f90, metal_weight, given,  # noqa: ANN001
+                 layer) -> tuple[np.ndarray, ...]:
+    """The module docstring's "MaterialX layering" terms, channel-major: the dielectric share's Schlick F0 and F90,
+    the layer's own F0 and F90 (3, M) each, its weight (M,) and the metal's weight (3, M), from per hit metallic m
+    and the dielectric F0(ior) (M,), per material (3, M) or (3, 1) the specular, edge and coat tints and the F90
+    given, the layer's (u0, u90, w) (3 rows of (M,) or scalars), and (M,) or scalar whether F90 is given, the
+    metal weight and whether the layer's own terms are given (``Material.specular_layer``)."""
+    share = 1 - metallic
+    rule = np.minimum(1, 50 * dielectric)
+    f90_d = np.where(has_f90, f90_given, rule * edge)
+    u0, u90, w = layer
+    own0 = np.where(given, dielectric * u0, dielectric * spec)
+    own90 = np.where(given, rule * u90, f90_d)
+    return (coat * (share * dielectric * spec), coat * (share * f90_d), own0, own90,
+            np.where(given, w, 1) * np.ones_like(share), coat * (metallic * metal_weight))
+
+
 class Surfaces:
     """Per-hit material parameters of a scene (see module docstring)."""
 
@@ -347,6 +381,19 @@ class Surfaces:
             self.coat_tint = np.array([m.coat_tint for m in mats], dtype=np.float64).reshape(-1, 3)
             self.edge_tint = np.array([m.specular_tint if m.specular_edge_tint is None else m.specular_edge_tint
                                        for m in mats], dtype=np.float64).reshape(-1, 3)
+        #: (N,) bool: the material shades with MaterialX's layering (module docstring "MaterialX layering")
+        self.layered = np.array([m.layering == "materialx" for m in mats], dtype=bool)
+        #: per-material layering inputs (the specular layer's (u0, u90, w) (N, 3) and whether given (N,), the metal
+        #: weight (N,), the dielectric F90 given (N, 3) and whether (N,)), or None when no material is layered
+        self.layer_inputs = None
+        if self.layered.any():
+            white = (1.0, 1.0, 1.0)
+            self.layer_inputs = (
+                np.array([white if m.specular_layer is None else m.specular_layer for m in mats], dtype=np.float64),
+                np.array([m.specular_layer is not None for m in mats], dtype=bool),
+                np.array([m.metal_weight for m in mats], dtype=np.float64),
+                np.array([white if m.dielectric_f90 is None else m.dielectric_f90 for m in mats], dtype=np.float64),
+                np.array([m.dielectric_f90 is not None for m in mats], dtype=bool))
         self.threshold = np.array([m.opacity_threshold for m in mats], dtype=np.float64)
         self.textured = [i for i, m in enumerate(self.materials) if m.maps]
         #: materials of partial presence: opacity < 1 (or textured) without an opacityThreshold — a hit passes
@@ -391,7 +438,11 @@ class Surfaces:
         self.table = np.ascontiguousarray(np.concatenate(
             [point.albedo.T, point.f0.T, point.roughness[None], point.emission.T]
             + ([] if point.f90 is None else [point.f90.T])
-            + ([] if point.f82 is None else [point.f82.T, *(a.T for a in point.conductor)])), dtype=np.float32)
+            + ([] if point.f82 is None else [point.f82.T, *(a.T for a in point.conductor)])
+            + ([] if point.layering is None else [np.atleast_2d(np.asarray(a, dtype=np.float64).T)
+                                                  for a in point.layering])), dtype=np.float32)
+        #: the table's first layering row (module docstring "MaterialX layering"), or None
+        self.layer_row = None if point.layering is None else 10 + 3 * self.tinted + 12 * self.metal_terms
         self.emissive = any(m.emits for m in self.materials)
         self.mesh_of_soa = np.ascontiguousarray(self.mesh_of, dtype=np.int32)
         #: (2, materials) float32 clearcoat amount and roughness — and a third row, the coat's F0, when some coat's
@@ -533,13 +584,16 @@ class Surfaces:
         the BSDF derives it from F0) — a :class:`~bakery.capture.bsdf.Fresnel` holding it and the metal terms when
         some material has them (:attr:`metal_terms`)."""
         mi = np.take(self.mesh_of_soa, prim) if len(self.materials) else np.zeros(prim.shape, dtype=np.int32)
+        first = self.layer_row
         rows = [*range(7), *(range(7, 10) if self.emissive else ()), *(range(10, 13) if self.tinted else ()),
-                *(range(13, 25) if self.metal_terms else ())]
+                *(range(13, 25) if self.metal_terms else ()),
+                *(() if first is None else range(first, first + LAYER_ROWS))]
         cols = {c: np.take(self.table[c], mi) for c in rows}
         albedo, f0, rough = np.stack([cols[c] for c in (0, 1, 2)]), np.stack([cols[c] for c in (3, 4, 5)]), cols[6]
         emission = np.stack([cols[c] for c in (7, 8, 9)]) if self.emissive else None
         f90 = np.stack([cols[c] for c in (10, 11, 12)]) if self.tinted else None
         metal = np.stack([cols[c] for c in range(13, 25)]) if self.metal_terms else None
+        layer = None if first is None else np.stack([cols[c] for c in range(first, first + LAYER_ROWS)])
         for k in self.textured:
             sel = np.flatnonzero(mi == k)
             if sel.size:
@@ -550,15 +604,29 @@ class Surfaces:
                 rough[sel] = r
                 if emission is not None:
                     emission[:, sel] = e
+                terms = None
                 if isinstance(f9, Fresnel):
-                    metal[:, sel] = np.concatenate([f9.f82, *f9.conductor])
+                    if metal is not None:
+                        metal[:, sel] = 0 if f9.f82 is None else np.concatenate([f9.f82, *f9.conductor])
+                    terms = f9.layering
                     f9 = f9.f90
                 elif metal is not None:
                     metal[:, sel] = 0
+                if layer is not None:
+                    layer[:, sel] = 0 if terms is None else np.concatenate(
+                        [terms.share0, terms.share90, terms.own0, terms.own90, terms.weight[None], terms.metal,
+                         np.ones((1, sel.size), dtype=layer.dtype)])
                 if f90 is not None:
                     f90[:, sel] = f9
         if metal is not None:
             f90 = Fresnel(f90, metal[0:3], (metal[3:6], metal[6:9], metal[9:12]))
+        if layer is not None:  # module docstring "MaterialX layering"; hits on other materials as they were
+            flag = layer[16] > 0
+            if flag.any():
+                layering = Layering(None if flag.all() else flag, layer[0:3], layer[3:6], layer[6:9], layer[9:12],
+                                    layer[12], layer[13:16])
+                f90 = (Fresnel(f90.f90, f90.f82, f90.conductor, layering) if isinstance(f90, Fresnel)
+                       else Fresnel(f90, layering=layering))
         return albedo, f0, rough, emission, f90
 
     @property
@@ -647,6 +715,22 @@ class Surfaces:
                     column(f82), column(given), bool(has_f90[k]), bool(conductor[k]), column(edge_colour)))
                 if self.metal_terms and (self.materials[k].metal_f82 is not None or conductor[k]):
                     f90 = Fresnel(f90, b, (cw, eta, kappa))
+        if self.layered[k]:  # module docstring "MaterialX layering"
+            u, given, metal_weight, f90_given, has_f90 = (a[k] for a in self.layer_inputs)
+            one = np.ones((3, 1), dtype=dtype)
+            if self.specular_workflow[k]:  # the whole lobe is the layer's
+                lobe90 = (np.minimum(1, 50 * np.tensordot(LUMINANCE_WEIGHTS.astype(dtype), np.asarray(f0), axes=1))
+                          if f90 is None else (f90.f90 if isinstance(f90, Fresnel) else f90))
+                terms = (f0, lobe90, f0, lobe90, np.ones(m, dtype=dtype), np.zeros(shape, dtype=dtype))
+            else:
+                tints = (one, one, one) if not self.tinted else tuple(
+                    t[k].astype(dtype).reshape(3, 1) for t in (self.specular_tint, self.edge_tint, self.coat_tint))
+                terms = _layer_terms(metallic, dielectric, *tints, f90_given.astype(dtype).reshape(3, 1),
+                                     bool(has_f90), dtype.type(metal_weight), bool(given), u.astype(dtype))
+            layering = Layering(None, *(np.broadcast_to(t, shape if i != 4 else (m,)).astype(dtype, copy=False)
+                                        for i, t in enumerate(terms)))
+            f90 = (Fresnel(f90.f90, f90.f82, f90.conductor, layering) if isinstance(f90, Fresnel)
+                   else Fresnel(f90, layering=layering))
         return (np.broadcast_to(np.clip(albedo, 0, 1), shape), np.broadcast_to(f0, shape),
                 np.broadcast_to(np.clip(get("roughness"), 0, 1), (m,)),
                 np.broadcast_to(np.maximum(get("emissiveColor"), 0), shape), f90)
@@ -793,8 +877,21 @@ class Surfaces:
         elif self.metal_terms:
             zero = np.zeros((mi.shape[0], 3))
             f82, conductor = zero, (zero, zero, zero)
+        layering = None
+        if self.layer_inputs is not None:  # module docstring "MaterialX layering"
+            layered = self.layered[mi]
+            u, given, metal_weight, f90_given, has_f90 = (a[mi] for a in self.layer_inputs)
+            one = np.ones((3, 1))
+            spec_t, edge_t, coat_t = (one, one, one) if not self.tinted else (spec.T, edge.T, coat.T)
+            terms = _layer_terms(metallic, dielectric, spec_t, edge_t, coat_t, f90_given.T, has_f90, metal_weight,
+                                 given, u.T)
+            if spec_wf.any():  # the specular workflow: the whole lobe is the layer's
+                edge90 = np.minimum(1.0, 50.0 * (f0 @ LUMINANCE_WEIGHTS))[:, None] * np.ones(3) if f90 is None else f90
+                whole = (f0.T, edge90.T, f0.T, edge90.T, np.ones(mi.shape), np.zeros((3, mi.shape[0])))
+                terms = tuple(np.where(spec_wf, w, t) for w, t in zip(whole, terms))
+            layering = tuple(np.where(layered, t, 0.0).T for t in terms) + (layered,)
         return SurfacePoint(
             albedo=np.clip(albedo, 0.0, 1.0), f0=f0, roughness=np.clip(v["roughness"], 0.0, 1.0),
             emission=np.maximum(v["emissiveColor"], 0.0), opacity=np.clip(v["opacity"], 0.0, 1.0),
-            threshold=self.threshold[mi], f90=f90, f82=f82, conductor=conductor,
+            threshold=self.threshold[mi], f90=f90, f82=f82, conductor=conductor, layering=layering,
         )

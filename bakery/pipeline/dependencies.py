@@ -170,6 +170,10 @@ def _material_fields(material) -> dict:  # noqa: ANN001 - bakery.capture.scene.M
             fields.pop(name, None)
     if fields.get("metal_weight", 1.0) == 1.0:
         fields.pop("metal_weight", None)
+    if fields.get("layering", "preview") == "preview":  # UsdPreviewSurface's lobe combination (hashes as before)
+        fields.pop("layering", None)
+    if fields.get("specular_layer") is None:
+        fields.pop("specular_layer", None)
     return fields
 
 

@@ -275,6 +275,8 @@ class MaterialReader:
             metal_weight=float(surface.values.get("metal_weight", 1.0)),
             metal_f82=_optional_color(surface.values.get("metal_f82")),
             metal_edge_color=_optional_color(surface.values.get("metal_edge_color")),
+            layering=str(surface.values.get("layering", "preview")),
+            specular_layer=_optional_color(surface.values.get("specular_layer")),
         )
         numbers = {name: value for name, value in material.__dict__.items() if isinstance(value, float) or (
             isinstance(value, tuple) and value and all(isinstance(x, (int, float)) for x in value))}

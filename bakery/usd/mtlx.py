@@ -27,6 +27,11 @@ Mapping (metallic workflow of the capture; see ``docs/capture.md``)
                          diffuse lobe (Imageworks)                       over the coat (Zeltner's LTC)
     ===================  ==============================================  ==========================================
 
+    standard_surface, open_pbr_surface and gltf_pbr shade with MaterialX's layering and energy compensation
+    (Material.layering "materialx"; the dielectric_bsdf's own Fresnel and weight apart from its tint:
+    Material.specular_layer, :func:`_specular_and_coat_tints`); ``UsdPreviewSurface`` nodes keep Hydra Storm's
+    model, as a native UsdPreviewSurface.
+
     ``UsdPreviewSurface`` nodes map input for input; ``gltf_pbr`` maps base_color, metallic, roughness, ior,
     emissive, clearcoat, KHR specular (:func:`_gltf_specular`), KHR sheen (over diffuse and specular, under the
     coat; :func:`_sheen`) and alpha as its ``alpha_mode`` says. Inputs connected to ``image``/``tiledimage`` nodes
@@ -63,6 +68,10 @@ from bakery.usd.materials import (
 from bakery.usd.mtlx_graph import GraphAccess, GraphError, flatten_graph
 
 _SUPPORTED = ("standard_surface", "open_pbr_surface", "UsdPreviewSurface", "gltf_pbr")
+#: Surfaces shaded with MaterialX's layering and energy compensation (Material.layering "materialx": pbrlib's
+#: ``layer``, ``dielectric_bsdf``/``generalized_schlick_bsdf`` throughput, ``mx_ggx_energy_compensation``); a
+#: UsdPreviewSurface, native or as a MaterialX node, keeps Hydra Storm's model
+_LAYERED = ("standard_surface", "open_pbr_surface", "gltf_pbr")
 #: Lobe weights the capture does not model: (input, neutral value).
 _UNMODELLED = {
     "standard_surface": (("thin_film_thickness", 0.0), ("specular_anisotropy", 0.0),
@@ -242,6 +251,8 @@ def _to_surface(category: str, values: dict[str, object], maps: dict[str, dict],
     """Map a MaterialX surface's inputs (values and texture maps by input name) onto the capture's model."""
     d = {**_defaults(category), **values}
     surface = Surface(notes=list(notes), kind=category)
+    if category in _LAYERED:  # MaterialX's layer() and energy compensation (Material.layering)
+        surface.values["layering"] = "materialx"
     for name, neutral in _UNMODELLED.get(category, ()):
         if name in maps or (name in d and abs(_mean(d[name]) - neutral) > 1e-6):
             surface.notes.append(f"{category} {name} is not modelled by the capture")
@@ -373,7 +384,10 @@ def _specular_and_coat_tints(category: str, values: dict[str, object], maps: dic
     :func:`_dielectric_f90`; open_pbr_surface: specular_color on both, F0 and F90 those of the graph's
     modulated IOR (:func:`_open_pbr_dielectric`); the metal lobes' own terms by :func:`_metal_terms` — and
     Material.coat_tint = mix(1, coat colour, coat weight) (what the coat passes to the base; the coat's own lobe is
-    the capture's clearcoat). Textured: their means, reported."""
+    the capture's clearcoat). With a tint, Material.specular_layer (u0, u90, w): the dielectric_bsdf's own Schlick
+    F0 = F0(ior)·u0, F90 = min(1, 50·F0(ior))·u90 and its weight w, which MaterialX's layering takes without the
+    tint (standard_surface: u0 = 1, w = specular; open_pbr_surface: u0 = F0(modulated_eta_s)/F0(ior), w = 1).
+    Textured: their means, reported."""
     weight_input, colour_input, coat_input, coat_colour_input = _TINTS[category]
 
     def constant(name: str, fallback):  # noqa: ANN001, ANN202
@@ -397,7 +411,9 @@ def _specular_and_coat_tints(category: str, values: dict[str, object], maps: dic
         if f0 > 0 and f0_ior <= 0:
             surface.notes.append(f"{category} specular_ior {ior:g} under a coat: the base's reflection (F0 {f0:.3g}) "
                                  "is not modelled")
-        f0_tint = colour * (f0 / f0_ior if f0_ior > 0 else 0.0)
+        u0 = f0 / f0_ior if f0_ior > 0 else 0.0
+        f0_tint = colour * u0
+        layer_weight = 1.0  # dielectric_reflection's weight: its default
         if ior_input in maps and coat > 0:
             surface.notes.append(f"{category} {ior_input} is textured under a coat: the coat's IOR ratio is applied "
                                  "at its mean")
@@ -405,14 +421,18 @@ def _specular_and_coat_tints(category: str, values: dict[str, object], maps: dic
         f0, f90 = f0_ior, _dielectric_f90(ior)
         f0_tint = np.clip(weight * colour, 0.0, None)
         colour = f0_tint
+        u0, layer_weight = 1.0, max(float(np.mean(weight)), 0.0)  # specular_bsdf's weight: specular
     # Schlick F90 of the capture's dielectric is min(1, 50·F0(ior)) (bakery.capture.bsdf): the edge tint rescales
     # it to the graph's F90 (_dielectric_f90)
     rule = min(1.0, 50.0 * f0_ior)
-    edge = colour * (f90 / rule if rule > 0 else 0.0) if f0 > 0 else np.zeros(3)
+    u90 = f90 / rule if rule > 0 and f0 > 0 else 0.0
+    edge = colour * u90
     if np.any(f0_tint != 1.0) or np.any(edge != f0_tint):
         surface.values["specular_tint"] = tuple(float(x) for x in f0_tint)
         if np.any(np.abs(edge - f0_tint) > 1e-12):
             surface.values["specular_edge_tint"] = tuple(float(x) for x in edge)
+        # the dielectric_bsdf's own Fresnel and weight, apart from the tint (Material.specular_layer)
+        surface.values["specular_layer"] = (float(u0), float(u90), float(layer_weight))
     passed = np.clip((1.0 - coat) + coat * constant(coat_colour_input, 1.0), 0.0, 1.0)
     if category == "open_pbr_surface" and coat > 0:
         passed = passed * _open_pbr_coat_darkening(values, maps, coat)

@@ -11,6 +11,8 @@ sampled directions, which also checks that the sampled density is the returned p
 from __future__ import annotations
 
 import math
+from functools import lru_cache
+
 import numpy as np
 import pytest
 from usd_scenes import header, material, probe, write
@@ -63,9 +65,15 @@ def _reference_f(wo, wi, albedo, f0, f90, rough, coat=0.0, coat_rough=0.01, coat
     return value
 
 
+@lru_cache(maxsize=None)
 def _gauss(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss–Legendre nodes and weights on [0, 1] (read-only, cached: numpy's eigenvalue solve takes seconds for
+    thousands of nodes)."""
     x, w = np.polynomial.legendre.leggauss(n)
-    return 0.5 * (x + 1.0), 0.5 * w
+    x, w = 0.5 * (x + 1.0), 0.5 * w
+    x.setflags(write=False)
+    w.setflags(write=False)
+    return x, w
 
 
 def _hemisphere(n_mu: int = 256, n_phi: int = 256) -> tuple[np.ndarray, np.ndarray]:
@@ -289,8 +297,10 @@ def test_white_furnace_lobes_do_not_create_energy(theta_deg):
                    "gains energy at grazing view angles under a dielectric specular lobe (docs/capture.md)")
 def test_white_diffuse_under_dielectric_specular_conserves_energy():
     """A white diffuse base under the default dielectric lobe (F0 0.04, roughness 0.3): A(80°) ≤ 1 (MaterialX's
-    layer(), which scales the base by 1 − E_spec(θo), would keep it; the capture's reciprocal 1 − F(v·h) does not:
-    A(80°) = 1.22 by quadrature)."""
+    layer(), which scales the base by its layer's throughput 1 − E_spec(θo)·(…), nearly keeps it; UsdPreviewSurface's
+    reciprocal 1 − F(v·h), Storm's model, does not: A(80°) = 1.22 by quadrature). The MaterialX counterpart, which
+    the capture shades MaterialX surfaces with: test_mtlx_layering.py::
+    test_materialx_white_diffuse_under_dielectric_specular_keeps_its_energy."""
     albedo = _reference_albedo(math.radians(80.0), (1, 1, 1), (0.04,) * 3, (1.0,) * 3, 0.3)
     assert np.all(albedo <= 1.0 + 1e-3)
 

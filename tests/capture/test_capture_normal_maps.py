@@ -9,6 +9,7 @@ import math
 import numpy as np
 import OpenImageIO as oiio
 import pytest
+from harness import single_scattering
 from usd_scenes import header, probe, write
 
 from bakery.capture import capture_probes
@@ -108,7 +109,8 @@ def DistantLight "Sun"
 def _capture(tmp_path, material: str, name: str, uvs: bool = True, reverse: bool = False):
     reading = read_scene(write(tmp_path / f"{name}.usda", header() + material + _floor(uvs, reverse) + _sun()
                                + probe("P", (0.0, 0.5, 0.0))))
-    cubes, _ = capture_probes(reading.scene, N, samples=4, bounces=0)
+    # the MaterialX floors against their UsdPreviewSurface twins: the normal map, not the lobes' layering
+    cubes, _ = capture_probes(single_scattering(reading.scene), N, samples=4, bounces=0)
     return cubes[0], reading
 
 
@@ -259,7 +261,7 @@ def Scope "Looks" (
     assert not [i for i in reading.issues if "normal" in i.message], reading.issues
     entry = next(e for e in reading.scene.meshes[0].material.maps if e["input"] == "normal")
     assert entry["scale"] == (2 * scale, 2 * scale, 2.0, 1.0) and entry["bias"] == (-scale, -scale, -1.0, 0.0)
-    from_document, _ = capture_probes(reading.scene, N, samples=4, bounces=0)
+    from_document, _ = capture_probes(single_scattering(reading.scene), N, samples=4, bounces=0)
     np.testing.assert_allclose(from_document[0], twin, rtol=1e-5, atol=1e-8)
     authored = _authored_floor("Mapped", "float inputs:specular_roughness = 0.4", f"""
     def Shader "Mapped"

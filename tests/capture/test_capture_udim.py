@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import OpenImageIO as oiio
+from harness import single_scattering
 from usd_scenes import header, probe, write
 
 from bakery.capture import capture_probes
@@ -131,7 +132,7 @@ def test_materialx_udim_image_matches_its_preview_surface_twin(tmp_path):
         reading = read_scene(write(tmp_path / f"{name}.usda", header() + text + probe("P", (0.0, 1.5, 0.0))))
         assert not [i for i in reading.issues if "not found" in i.message], reading.issues
         assert [tile for tile, _ in reading.scene.meshes[0].material.maps[0]["udim"]] == [1001, 1002]
-        cubes.append(capture_probes(reading.scene, N, samples=4, bounces=0)[0][0])
+        cubes.append(capture_probes(single_scattering(reading.scene), N, samples=4, bounces=0)[0][0])
     np.testing.assert_allclose(cubes[1], cubes[0], rtol=1e-5, atol=1e-8)
 
 
