@@ -20,9 +20,14 @@ File layout written ([KTX2] §3, "File Structure"; all integers little-endian)
                       (mipPadding zeros before it); within a level: layers, then faces, then z slices, then rows
                       top-down (KTXorientation ``rd``), texels left to right                  [KTX2] §3.16
 
-Cube maps: ``faceCount`` 6, faces +X, −X, +Y, −Y, +Z, −Z, each in the orientation of the Vulkan/OpenGL cube-map
-convention, which is bakery's ([KTX2] §4.3 "Cubemaps"; ``bakery.conventions``). A cube array has ``layerCount`` =
-the number of cubes (> 0); a plain texture has ``layerCount`` 0. ``pixelDepth`` 0 for 2-D/cube, > 0 for 3-D.
+Cube maps: ``faceCount`` 6, faces +X, −X, +Y, −Y, +Z, −Z, rows top-down (``KTXorientation`` ``rd``, the only value
+[KTX2] §3.9 allows for cube maps), each face in the orientation of the Vulkan/OpenGL face selection table applied to
+the bake frame's direction as it is (``bakery.conventions``; what Filament and bakery's shaders sample). [KTX2]
+("Cubemap orientation") calls the cube's coordinate system left-handed (+Y up, +Z forward, +X right) and has a
+right-handed application negate x or z before sampling: such a consumer (three.js negates x) sees these cubes
+mirrored — the ``three`` export writes its cubes mirrored in x for that reason (:mod:`bakery.export.three`). A cube
+array has ``layerCount`` = the number of cubes (> 0); a plain texture has ``layerCount`` 0. ``pixelDepth`` 0 for
+2-D/cube, > 0 for 3-D.
 
 Formats written (``vkFormat`` values of the Vulkan specification, DFDs per [KDFS] and libktx's ``vk2dfd``)
     R16G16B16A16_SFLOAT      97   typeSize 2, alpha = 1; saturated at ±65504 (the largest finite float16, never inf)

@@ -6,19 +6,52 @@ for reflection probes.
                       translation, ``sh`` = 27 floats, coefficient-major). three's ``SphericalHarmonics3`` basis is
                       bakery's without the Condon–Shortley signs (three: Y1,−1 = +c·y, Y1,1 = +c·x, Y2,−1 = +c·yz,
                       Y2,1 = +c·xz), so coefficients 1, 3, 5 and 7 change sign; three stores **radiance** SH and
-                      ``getIrradianceAt`` applies π, 2π/3, π/4 — bakery's irradiance (not divided by π).
+                      ``getIrradianceAt`` applies π, 2π/3, π/4 — bakery's irradiance (not divided by π). A
+                      ``LightProbe`` is not spatial: ``WebGLLights.setup`` adds the SH of every LightProbe in the scene
+                      (position ignored), so a scene takes one of them (the nearest, or a blend), not the Group.
 ``<volume>.ktx2``     a 3-D KTX2 (``VK_FORMAT_R32G32B32A32_SFLOAT``, which three's KTX2Loader returns as a
                       ``Data3DTexture``) in ``LightProbeGrid``'s atlas layout: width nx, height ny, depth 7·(nz + 2);
                       sub-volume t ∈ 0..6 holds floats 4t..4t+3 of the 27 (three basis, coefficient-major; the last
                       texel's 4th channel is 0) at slices t·(nz+2) + 1 + iz, with slice t·(nz+2) a copy of iz = 0 and
                       t·(nz+2) + nz + 1 a copy of iz = nz − 1 (three's padding). Texel (ix, iy) of a slice is the
-                      probe at grid index (ix, iy, iz) along +x, +y, +z of the bake frame (rows in upload order).
+                      probe at grid index (ix, iy, iz) along +x, +y, +z of the bake frame (rows in upload order;
+                      ``KTXorientation`` ``ruo``: rows up, slices out of the screen, as the grid lies in a right-handed
+                      y-up view — ``rdi``, which says the opposite, until 2026-12-07). KTX2Loader gives it
+                      ``NearestFilter``; the grid shader (``lightprobes_pars_fragment``) needs the trilinear filtering
+                      LightProbeGridWebGL's own atlas has: set ``LinearFilter`` before use.
 ``lightprobegrids.json``  per volume: ``texture``, ``position`` (box centre), ``width``/``height``/``depth`` and
-                      ``resolution`` for ``new LightProbeGrid(width, height, depth, nx, ny, nz)`` at ``position``
-                      (three puts probes at cell centres: box = probe extent + one spacing). Only volumes whose probes
-                      form an axis-aligned lattice in the bake frame become grids; others export as LightProbes.
-``<probe>.ktx2``      reflection probes (when the store keeps their capture): KTX2 cubes at the ``three`` profile
-                      (lod = (M − 1)·r(2 − r), three's PMREM ``roughnessToMip``).
+                      ``resolution`` for ``new LightProbeGridWebGL(width, height, depth, nx, ny, nz)`` (WebGLRenderer;
+                      ``LightProbeGrid`` for WebGPURenderer) at ``position`` (three puts probes at cell centres: box =
+                      probe extent + one spacing), its ``texture`` set to the atlas. Only volumes whose probes form an
+                      axis-aligned lattice in the bake frame become grids; others export as LightProbes.
+``<probe>.ktx2``      reflection probes (when the store keeps their capture): KTX2 cubes (RGBA16F) **in three's cube
+                      frame** (below), at the ``three`` profile, levels down to the last face ≥ 8²
+                      (:func:`pmrem_levels`).
+
+Cube frame. three samples every ``CubeTexture`` that is not a render target at (−x, y, z): the material's
+``envMapRotation`` is premultiplied by diag(−1, 1, 1) (``WebGLMaterials.refreshUniformsCommon``), so is the
+skybox's ``backgroundRotation`` (``WebGLBackground.addToRenderList``), and ``PMREMGenerator._textureToCubemap``
+reads the cube with ``flipEnvMap = −1`` — [KTX2]'s cube coordinates, left-handed, reached from a right-handed world
+by negating x (KTX 2.0 §"Cubemap orientation"). So the three cubes hold the environment mirrored in x
+(:func:`three_cube_faces`: faces ±X swapped, every face flipped left↔right): texel direction d of the GL face table
+shows the bake frame's (−d.x, d.y, d.z), and three renders a light at +X at +X. Written in bakery's frame (as the
+``ktx2`` export is; bakery until 2026-12-07), three showed every cube mirrored in x — skybox, mirror spheres and
+the PMREM's diffuse light alike (rendered, ``tests/export/test_export_three_render.py``), while the LightProbes,
+evaluated at the world normal, were right. Exported cube bytes changed.
+
+Mip chain. three's KTX2Loader returns an uncompressed cube as a ``DataTexture`` whose mipmaps hold the six faces in
+a row; docs/exports.md gives the few lines that make it a ``CompressedCubeTexture``. As ``scene.environment`` /
+``envMap`` three then builds its own PMREM from level 0 (``WebGLEnvironments.getPMREM`` → ``PMREMGenerator``:
+faces ≥ 256², levels down to 8², roughness of level i = 1 − √(1 − i/maxLod)) and ignores the rest of the chain —
+unless the cube is marked ``isPMREMTexture``, then three uses the chain as is: lod = maxLod·r(2 − r) with maxLod =
+the file's levels − 1 (``roughnessToMip``, ``envmap_common_pars_fragment``; ``WebGLPrograms``: ``envMapMaxLod``), and
+its last level, × π, is the diffuse light (``getIBLIrradiance``: ``textureLod(envMap, n, ENVMAP_MAX_LOD)``). The
+``three`` profile prefilters level i at exactly three's roughness, and the default chain stops where three's PMREM
+does, at 8² (``LOD_MIN = 3``): with the full chain down to 1×1 (bakery's default until 2026-12-07) that diffuse
+light was 35 % of its maximum off and rough reflections read 2², 1² faces (rendered: 32² disc environment).
+``levels = M`` overrides it.
+
+[KTX2] Khronos, "KTX File Format Specification, version 2.0".
 """
 
 from __future__ import annotations
@@ -42,8 +75,10 @@ from bakery.export.ktx2 import (
     bakery_key_values,
     cube_texture,
     encode_texels,
+    text_value,
     write_ktx2,
 )
+from bakery.export.profiles import full_chain_levels
 from bakery.export.source import (
     irradiance_encoding,
     radiance_sh_from_irradiance,
@@ -59,6 +94,29 @@ _VOLUME_NAME = re.compile(r"^(?P<prim>.*)\[(?P<i>\d+),(?P<j>\d+),(?P<k>\d+)\]$")
 def to_three_sh(radiance: np.ndarray) -> np.ndarray:
     """bakery radiance SH (9, 3) → three.js ``SphericalHarmonics3`` coefficients (9, 3)."""
     return np.asarray(radiance, np.float64)[:9] * THREE_SIGNS[:, None]
+
+
+#: KVD ``bakery:cube_frame`` of the three cubes (module doc "Cube frame").
+CUBE_FRAME = text_value("three.js CubeTexture: the bake frame mirrored in x (texel direction d of the GL face table "
+                        "holds the radiance bakery's frame has at (-d.x, d.y, d.z)); three samples at (-x, y, z)")
+
+#: three's PMREM stops at 8² faces (``PMREMGenerator``: ``LOD_MIN = 3``, ``_allocateTarget``: maxLod = log2 N − 3).
+PMREM_MIN_FACE_SIZE = 8
+
+
+def pmrem_levels(face_size: int) -> int:
+    """Mip levels of a three cube with N² faces: down to the last face ≥ 8², like three's own PMREM
+    (``PMREMGenerator._allocateTarget``), or the full chain when that would be fewer than two levels (N < 16)."""
+    count = sum(1 for i in range(full_chain_levels(face_size)) if face_size >> i >= PMREM_MIN_FACE_SIZE)
+    return count if count >= 2 else full_chain_levels(face_size)
+
+
+def three_cube_faces(level: np.ndarray) -> np.ndarray:
+    """A cube level (6, N, N, C) in bakery's frame → three's cube frame, the environment mirrored in x (module doc
+    "Cube frame"): three looks a ``CubeTexture`` up at (−x, y, z) (``WebGLMaterials``, ``WebGLBackground``:
+    ``_m`` = diag(−1, 1, 1); ``PMREMGenerator``: ``flipEnvMap = −1``), and the GL face table maps (−x, y, z) of +X's
+    texel (i, j) to −X's texel (i, N − 1 − j), of ±Y's and ±Z's to the same face's (i, N − 1 − j)."""
+    return np.ascontiguousarray(np.asarray(level)[[1, 0, 2, 3, 4, 5]][:, :, ::-1])
 
 
 def _uuid(name: str) -> str:
@@ -156,7 +214,7 @@ class ThreeExport(ExportFormat):
                       "resolution": [int(v) for v in res]}
             texture = Ktx2Texture(VK_FORMAT_R32G32B32A32_SFLOAT, int(res[0]), int(res[1]), int(atlas.shape[0]), 0, 1,
                                   [encode_texels(atlas, VK_FORMAT_R32G32B32A32_SFLOAT)],
-                                  bakery_key_values(context, record, members, orientation="rdi"))
+                                  bakery_key_values(context, record, members, orientation="ruo"))
             path = f"{slug(prim)}.ktx2"
             files.append(ExportedFile(path, write_ktx2(texture), (prim,), "grid"))
             grids.append({"name": prim, "texture": path, "position": [float(v) for v in centre],
@@ -189,13 +247,17 @@ class ThreeExport(ExportFormat):
 
             if reflection_probes(store, context.probes, stored_capture_encoding(store)):
                 chains = profile_chains(store, context.probes, context.profile, context.params.levels, None)
+                if context.params.levels is None:  # three's PMREM layout (down to 8²) for the capture's face size
+                    chains = profile_chains(store, context.probes, context.profile, pmrem_levels(chains.face_size),
+                                            None)
         if not files and chains is None:
             raise InputError(f"{store.path}: no selected probe has an irradiance encoding with bands <= 2 or a kept "
                              f"reflection capture; nothing to export for three.js")
         yield from files
         for name, chain, _ in chains or ():
-            texture = cube_texture([chain], VK_FORMAT_R16G16B16A16_SFLOAT,
-                                   bakery_key_values(context, chains.record, [name]))
+            key_values = bakery_key_values(context, chains.record, [name]) | {"bakery:cube_frame": CUBE_FRAME}
+            texture = cube_texture([[three_cube_faces(level) for level in chain]], VK_FORMAT_R16G16B16A16_SFLOAT,
+                                   key_values)
             yield ExportedFile(f"{slug(name)}.ktx2", write_ktx2(texture), (name,), "cube")
 
     @staticmethod
