@@ -10,9 +10,11 @@ Protocol
     ``plain_splitsum`` the paper's plain 1024-sample chain (``splitsum_plain``; omitted, never printed, otherwise).
     Spheres: orthographic, ``sphere_resolution``² pixels, seen from :data:`ELEVATIONS` (view elevation −30° … 85°,
     azimuth +Z); chrome (F0 = 1) and glass (F0 = 0.04); α ∈ :data:`ALPHAS` (0 … 1, including α between chain levels).
-    Reference: Eq. 1 by brute force over the full-resolution image (exact texel solid angles); at α = 0 the mirror
-    E = F(n·v)·L(r) with L bilinear in the full-resolution image. Cached per image and row set in
-    ``cache_dir`` (default ``out_dir/reference-cache``).
+    Reference: Eq. 1 integrated over the full-resolution image's texels, each constant over its exact footprint (the
+    converged reference of :mod:`bakery.environment.reflection_reference`, also the report's: texel centres plus
+    adaptive sub-texels where the lobe is narrow on a texel's scale); at α = 0 the mirror E = F(n·v)·L(r) with L(r)
+    the texel containing r (the α → 0 limit of the integral). Cached per reference-method version, image and row set
+    in ``cache_dir`` (default ``out_dir/reference-cache``).
     One case = (environment, material, elevation, α); MSE over the sphere's pixels and RGB.
     Per α and per α band, for every scored encoding: win share (MSE < split-sum's), geometric-mean MSE ratio vs
     split-sum (and vs the idealised split-sum), geometric-mean relative MSE vs the reference, signed brightness bias
@@ -36,14 +38,15 @@ from bakery.brdf.ggx import reflect
 from bakery.encodings.hybrid import SHExpHybrid
 from bakery.encodings.shexp import SHExp, SHExpLights
 from bakery.encodings.splitsum import SplitSum
-from bakery.environment import environment_samples, resample_to_cube
+from bakery.environment import resample_to_cube
 from bakery.environment.io import read_environment
-from bakery.environment.layouts import EnvironmentImage, direction_to_equirect
+from bakery.environment.layouts import EnvironmentImage
+from bakery.environment.reflection_reference import CubeTexels, cube_prefiltered, environment_reflection
 from bakery.files import sha256_bytes, sha256_file
 from bakery.probe import ProbeBatch
 from bakery.reflection import splitsum as ss
 from bakery.reflection.hybrid import first_chain_level
-from bakery.reflection.reference import integrate_reflection
+from bakery.reflection.reference import REFERENCE_METHOD_VERSION
 from bakery.reflection.shexp import (
     WEIGHT_MIN,
     SHExpSettings,
@@ -61,11 +64,7 @@ from bakery.reflection.shexp import (
     splat_flux,
 )
 from bakery.reflection.tables import compute_dfg_tables, lookup_table
-from bakery.sphere.cubemap import (
-    cube_texel_directions,
-    cube_texel_solid_angles,
-    sample_cube_bilinear,
-)
+from bakery.sphere.cubemap import sample_cube_bilinear
 from bakery.sphere.fibonacci import fibonacci_directions
 
 IMAGE_SUFFIXES = (".hdr", ".exr")
@@ -120,39 +119,19 @@ def bench_rows(resolution: int, alphas=ALPHAS, elevations=ELEVATIONS):
     return np.concatenate(views), np.concatenate(normals), np.concatenate(alpha), cases
 
 
-def mirror_radiance(image: EnvironmentImage, directions: np.ndarray) -> np.ndarray:
-    """L(d) (M, 3): bilinear in an equirect image (longitude wraps), else the nearest full-resolution sample."""
-    if image.layout != "equirect":
-        samples = environment_samples(image)
-        return samples.radiance[np.argmax(np.asarray(directions) @ samples.directions.T, axis=1)]
-    h, w = image.height, image.width
-    rows, cols = direction_to_equirect(directions, h, w)
-    x = cols - 0.5
-    y = np.clip(rows - 0.5, 0.0, h - 1.0)
-    x0 = np.floor(x).astype(np.int64)
-    y0 = np.minimum(np.floor(y).astype(np.int64), h - 1)
-    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-    xa, xb, y1 = x0 % w, (x0 + 1) % w, np.minimum(y0 + 1, h - 1)
-    p = image.pixels.astype(np.float64)
-    return (p[y0, xa] * (1 - fx) + p[y0, xb] * fx) * (1 - fy) + (p[y1, xa] * (1 - fx) + p[y1, xb] * fx) * fy
-
-
 def reference_e0_e1(path: Path, image: EnvironmentImage, view: np.ndarray, normal: np.ndarray, alpha: np.ndarray,
                     cache_dir: Path | None) -> tuple[np.ndarray, np.ndarray]:
-    """(E0, E1) (M, 3) by brute force over the full-resolution image ([SHExp] Eq. 6–7); α = 0: the mirror.
-    Cached in ``cache_dir`` by the image's sha256 and the rows."""
-    key = sha256_file(path)[:16] + sha256_bytes(np.concatenate([view, normal, alpha[:, None]], 1).tobytes())[:16]
+    """(E0, E1) (M, 3) of the full-resolution image's texels ([SHExp] Eq. 6–7): the converged reference
+    (:func:`bakery.environment.reflection_reference.environment_reflection`; α = 0: the mirror, the texel containing
+    r). Cached in ``cache_dir`` by the reference method's version
+    (:data:`bakery.reflection.reference.REFERENCE_METHOD_VERSION`), the image's sha256 and the rows."""
+    rows = np.concatenate([view, normal, alpha[:, None]], 1).tobytes()
+    key = (f"v{REFERENCE_METHOD_VERSION}-" + sha256_file(path)[:16] + sha256_bytes(rows)[:16])
     cached = Path(cache_dir) / f"{Path(path).stem}-{key}.npz" if cache_dir is not None else None
     if cached is not None and cached.is_file():
         with np.load(cached) as z:
             return z["e0"], z["e1"]
-    e0 = np.empty((len(view), 3))
-    e1 = np.empty_like(e0)
-    rough = alpha > 0
-    e0[rough], e1[rough] = integrate_reflection(environment_samples(image), view[rough], normal[rough], alpha[rough])
-    mirror = mirror_radiance(image, reflect(view[~rough], normal[~rough]))
-    nv = np.clip(np.sum(view[~rough] * normal[~rough], axis=1), 0.0, 1.0)[:, None]
-    e0[~rough], e1[~rough] = mirror, mirror * (1.0 - nv) ** 5  # α → 0: ∫ f_DV⟨l,n⟩ → δ(l − r)
+    e0, e1 = environment_reflection(image, view, normal, alpha)
     if cached is not None:
         cached.parent.mkdir(parents=True, exist_ok=True)
         np.savez(cached, e0=e0, e1=e1)
@@ -160,24 +139,16 @@ def reference_e0_e1(path: Path, image: EnvironmentImage, view: np.ndarray, norma
 
 
 def ideal_split_sum(cube: np.ndarray, directions: np.ndarray, alpha: np.ndarray) -> np.ndarray:
-    """The idealised split-sum's prefiltered radiance (M, 3): the normalised v = n kernel K_α applied exactly (dense
-    quadrature over every capture texel) at each row's own α and direction; α = 0: bilinear in the capture."""
-    cube = np.asarray(cube, dtype=np.float32)
-    n = cube.shape[1]
-    src = cube_texel_directions(n).reshape(-1, 3).astype(np.float32)
-    omega = cube_texel_solid_angles(n).reshape(-1).astype(np.float32)
-    radiance = cube.reshape(-1, 3)
+    """The idealised split-sum's prefiltered radiance (M, 3): the normalised v = n kernel K_α applied exactly to the
+    capture's piecewise-constant texels at each row's own α and direction, converged as the reference is
+    (:func:`bakery.environment.reflection_reference.cube_prefiltered`); α = 0: bilinear in the capture (what every
+    chain's level 0 gives)."""
+    texels = CubeTexels(np.asarray(cube, dtype=np.float32))
     out = np.empty((len(directions), 3))
     for a in np.unique(alpha):
         rows = np.flatnonzero(alpha == a)
-        if a <= 0:
-            out[rows] = sample_cube_bilinear(cube, directions[rows])
-            continue
-        for s in range(0, rows.size, 64):
-            chunk = rows[s : s + 64]
-            k = ss._kernel_profile((directions[chunk].astype(np.float32) @ src.T).astype(np.float64), float(a))
-            k *= omega
-            out[chunk] = (k @ radiance) / k.sum(axis=1, keepdims=True)
+        out[rows] = (sample_cube_bilinear(texels.cube, directions[rows]) if a <= 0
+                     else cube_prefiltered(texels, directions[rows], float(a)))
     return out
 
 
@@ -263,9 +234,12 @@ def run_reflection_bench(
             "elevations_deg": list(ELEVATIONS), "materials": MATERIALS, "environments": [p.stem for p in paths],
             "normals_per_view": [int(sl.stop - sl.start) for e, a, sl in cases if a == ALPHAS[0]],
             "settings": {k: e.settings for k, e in encoders.items()},
-            "reference": "brute-force Eq. 1 over the full-resolution image (exact texel solid angles); α = 0: the "
-                         "mirror F(n·v)·L(r), L bilinear in the full-resolution image",
-            "idealised_split_sum": "K_α (v = n) applied exactly at the row's α to the full-resolution capture, × DFG",
+            "reference": "Eq. 1 over the full-resolution image's piecewise-constant texels, converged (texel "
+                         "centres plus adaptive sub-texels where the lobe is narrow on a texel's scale); α = 0: the "
+                         "mirror F(n·v)·L(r), L(r) the texel containing r",
+            "reference_method_version": REFERENCE_METHOD_VERSION,
+            "idealised_split_sum": "K_α (v = n) applied exactly at the row's α to the full-resolution capture's "
+                                   "piecewise-constant texels (converged as the reference), × DFG; α = 0: bilinear",
             "scored": keys,
         },
         "rows": rows,

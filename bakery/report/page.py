@@ -125,15 +125,15 @@ def _alpha_table(curves: dict[str, Any]) -> str:
     if methods:
         table += _table(["reference integration", *[f"α={m['alpha']:g}" for m in methods]],
                         [["method", *[m["method"] for m in methods]],
-                         ["sub-texels per texel side", *[m["subdivision"] if m["method"] == "texels" else None
-                                                         for m in methods]],
-                         ["samples (per row)", *[m["samples"] for m in methods]]])
+                         ["finest sub-texels per texel side (view along n)",
+                          *[m["subdivision"] if m["method"] != "mirror" else None for m in methods]],
+                         ["texel centres (per row)", *[m["samples"] for m in methods]]])
     return (table + '<p class="note">Cells: relative MSE ΣΔE²/ΣE<sub>ref</sub>² over '
             f'{curves.get("rows_per_alpha", 0)} (v, n) rows and RGB (signed brightness bias ΣE/ΣE<sub>ref</sub> − 1), '
             "mean over the measured probes. Reference: the integral over the full-resolution capture, every texel's "
-            "radiance constant over its footprint — brute force over sub-texels (each texel split so that "
-            "sub-texels are at most α/16 wide), GGX visible-normal importance sampling of the same texels where "
-            "that would take too many sub-texels, the nearest texel for α = 0 (the mirror). "
+            "radiance constant over its footprint — every texel at its centre, and the texels where the GGX lobe "
+            "is narrow on their scale split adaptively into sub-texels (at most 1/16 of the lobe's local width), "
+            "the texel containing the mirror direction for α = 0 (the mirror). "
             f"{NOT_MEASURED}: the reference is black over every row (a relative error is not measurable).</p>")
 
 

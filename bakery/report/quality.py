@@ -17,20 +17,15 @@ Not measurable is not zero
 
 Reflection reference (:func:`reference_reflection`)
     E0 = ∫ L f_DV ⟨n, l⟩ dl and E1 = ∫ L f_DV (1 − v·h)⁵ ⟨n, l⟩ dl of the capture's texels, each texel's radiance
-    constant over its exact footprint ([SHExp] Eq. 5–8, ``bakery.reflection.reference``). A quadrature at texel
-    centres is only exact when the GGX lobe spans many texels: on a 32 × 16 latlong with a one-texel sun it is
-    off by a relative MSE of 0.93 at α = 0.02 and still 0.01–0.8 at α = 0.25…1, and even a 512 × 256 image
-    gives a white furnace between 0.37 and 1.23 at α = 0.02 (measured against the sub-texel quadrature below; a
-    uniform sky on 32 × 16 texels, which the encodings reproduce to ~1e-5, was reported at 0.85–0.94). So:
-    * every texel is split into f × f sub-texels of the same radiance (the image upsampled f× by repetition, exact
-      sub-texel solid angles), f = ⌈REFLECTION_TEXELS_PER_LOBE · d / α⌉ with d = √(largest texel solid angle):
-      sub-texels at most α/16 wide. Measured against f = 48 on the one-texel-sun sky (α = 0.04 … 1), f·α/d ≥ 10
-      keeps the relative MSE of E (chrome and glass) below ~1e-3 (16: margin);
-    * where that needs more than REFLECTION_SAMPLE_BUDGET sub-texels (narrow lobes on coarse images), GGX
-      visible-normal importance sampling ([Hei18]) of the same texels instead: REFLECTION_VNDF_SAMPLES
-      deterministic (Fibonacci-lattice) samples per row, weight G2/G1(v) (and × (1 − v·h)⁵ for E1), radiance of
-      the texel nearest to l (relative MSE ≤ 6e-4 against f = 48 at α ≤ 0.1 on the same sky);
-    * α = 0 (the mirror): E0 = L(r), E1 = L(r)(1 − n·v)⁵, L of the texel nearest to r.
+    constant over its exact footprint ([SHExp] Eq. 5–8): the converged reference, the same code as the reflection
+    bench's (:func:`bakery.environment.reflection_reference.environment_reflection`; method and measurements in
+    :mod:`bakery.reflection.reference`, "Converged reference"). Texel centres, plus, for every texel where the GGX
+    lobe is narrow on the texel's scale (small α, coarse images, grazing views), the texel's exact-footprint
+    integral over adaptive sub-texels; α = 0 (the mirror): the texel containing r. A quadrature at texel centres
+    alone made the figures wrong at small α on any image and at every α on small ones (a uniform 32 × 16 sky, which
+    the encodings reproduce to ~1e-5, was reported at 0.85–0.94 at α = 0.02); the GGX importance sampling that
+    replaced it for narrow lobes missed a sun in the lobe's tail. The page lists the method per α
+    (:func:`reference_method`).
 
 Reference availability
     A store baked from an environment image records its ``source``; the capture is then re-read (and sanitised the
@@ -44,7 +39,6 @@ Reference availability
 
 References
     [SHExp] Silvennoinen et al., HPG 2025 (seed 000).
-    [Hei18] Heitz, "Sampling the GGX Distribution of Visible Normals", JCGT 7(4), 2018.
 """
 
 from __future__ import annotations
@@ -65,10 +59,6 @@ from bakery.sphere.fibonacci import fibonacci_directions
 
 #: Normals of the quality metrics when the store does not record its ``quality_directions`` (the bake's default).
 QUALITY_DIRECTIONS = 1024
-#: Reflection reference (module doc): sub-texels per GGX α, largest sub-texel count, importance samples per row.
-REFLECTION_TEXELS_PER_LOBE = 16
-REFLECTION_SAMPLE_BUDGET = 1 << 20
-REFLECTION_VNDF_SAMPLES = 4096
 #: Relative tolerance of the re-read capture's flux against the store's ``input/flux_source``.
 FLUX_TOLERANCE = 1e-4
 #: GGX α of the per-α curves: the reflection bench's grid over the whole range (issue 12: 0 … 1, not only the paper's
@@ -138,47 +128,27 @@ def quality_directions(store: Any) -> int:
 @dataclass
 class CaptureReference:
     """The full-resolution capture of one probe: the image and its quadrature (one sample per texel, exact solid
-    angles), with the sub-texel quadratures and the nearest-texel lookup of the reflection reference (module doc)."""
+    angles); ``texels`` is the image as the converged reflection reference reads it (module doc)."""
 
     image: Any  # bakery.environment.layouts.EnvironmentImage
     samples: Any  # bakery.sphere.grid.SphericalSamples
     path: str | None = None
     #: whether its flux equals the store's input/flux_source (None: the store has none, e.g. a scene store)
     flux_matches_store: bool | None = None
-    _subdivided: dict[int, Any] = field(default_factory=dict, repr=False)
+    _texels: Any = field(default=None, repr=False)
 
-    @cached_property
-    def texel_size(self) -> float:
-        """d = √(largest texel solid angle), radians."""
-        return float(np.sqrt(np.max(self.samples.solid_angles)))
+    @property
+    def texels(self) -> Any:
+        """:class:`bakery.environment.reflection_reference.ImageTexels` of the image (built once)."""
+        if self._texels is None:
+            from bakery.environment.reflection_reference import ImageTexels
+
+            self._texels = ImageTexels(self.image, self.samples)
+        return self._texels
 
     @cached_property
     def black(self) -> bool:
         return not np.any(np.asarray(self.samples.radiance) > 0)
-
-    @cached_property
-    def tree(self) -> Any:
-        from scipy.spatial import cKDTree
-
-        return cKDTree(np.asarray(self.samples.directions, dtype=np.float64))
-
-    def nearest_radiance(self, directions: np.ndarray) -> np.ndarray:
-        """(M, C) radiance of the texel whose centre is nearest to each unit direction (M, 3)."""
-        _, index = self.tree.query(np.asarray(directions, dtype=np.float64).reshape(-1, 3))
-        return np.asarray(self.samples.radiance, dtype=np.float64)[index]
-
-    def subdivided(self, factor: int) -> Any:
-        """The quadrature of every texel split into factor × factor sub-texels of its radiance."""
-        if factor <= 1:
-            return self.samples
-        if factor not in self._subdivided:
-            from bakery.environment.layouts import EnvironmentImage
-            from bakery.environment.resample import environment_samples
-
-            pixels = np.repeat(np.repeat(self.image.pixels, factor, axis=0), factor, axis=1)
-            # one subdivision held at a time (≤ REFLECTION_SAMPLE_BUDGET samples): the curves go α by α
-            self._subdivided = {factor: environment_samples(EnvironmentImage(pixels, self.image.layout))}
-        return self._subdivided[factor]
 
 
 def load_reference_samples(store: Any, environment: str | Path | None = None) -> list[CaptureReference] | None:
@@ -357,75 +327,33 @@ def curve_rows(count: int = 128, seed: int = 0) -> tuple[np.ndarray, np.ndarray]
 
 
 def reference_method(reference: CaptureReference, alpha: float) -> dict[str, Any]:
-    """How :func:`reference_reflection` integrates at ``alpha`` (module doc): {"method": "mirror" | "texels" |
-    "importance", "subdivision": f (sub-texels per texel side; importance: the f it would have needed),
-    "samples": quadrature samples (texels × f², or importance samples per row)}."""
-    if alpha <= 0:
-        return {"method": "mirror", "subdivision": 1, "samples": 1}
-    factor = max(1, math.ceil(REFLECTION_TEXELS_PER_LOBE * reference.texel_size / alpha))
-    count = reference.samples.count
-    if factor == 1 or count * factor * factor <= max(REFLECTION_SAMPLE_BUDGET, count):
-        return {"method": "texels", "subdivision": factor, "samples": count * factor * factor}
-    return {"method": "importance", "subdivision": factor, "samples": REFLECTION_VNDF_SAMPLES}
+    """How :func:`reference_reflection` integrates at ``alpha`` (:func:`bakery.reflection.reference.reference_method`:
+    {"method": "mirror" | "adaptive", "subdivision", "samples"})."""
+    from bakery.reflection.reference import reference_method as method
 
-
-def _importance_reflection(reference: CaptureReference, v: np.ndarray, n: np.ndarray, alpha: float,
-                           count: int = REFLECTION_VNDF_SAMPLES) -> tuple[np.ndarray, np.ndarray]:
-    """(E0, E1) (M, C) by GGX visible-normal sampling ([Hei18]) of the capture's texels (module doc)."""
-    from bakery.brdf.ggx import ggx_lambda
-    from bakery.brdf.sampling import sample_ggx_vndf, to_local, to_world
-    from bakery.sphere.fibonacci import GOLDEN_ANGLE
-
-    k = np.arange(count, dtype=np.float64)
-    u1 = (k + 0.5) / count
-    u2 = (k * GOLDEN_ANGLE / (2.0 * np.pi)) % 1.0
-    channels = np.asarray(reference.samples.radiance).shape[1]
-    e0 = np.zeros((len(v), channels))
-    e1 = np.zeros_like(e0)
-    step = max(1, (1 << 16) // count)
-    for s in range(0, len(v), step):
-        vs, ns = v[s : s + step], n[s : s + step]
-        local = to_local(vs, ns)  # (m, 3), z = n·v
-        local[:, 2] = np.maximum(local[:, 2], 1e-6)
-        local /= np.linalg.norm(local, axis=1, keepdims=True)
-        view = np.broadcast_to(local[:, None, :], (len(vs), count, 3))
-        h = sample_ggx_vndf(view, u1[None, :], u2[None, :], alpha)
-        vh = np.sum(view * h, axis=-1)
-        light = 2.0 * vh[..., None] * h - view
-        nl = light[..., 2]
-        lambda_v = ggx_lambda(view[..., 2], alpha)
-        # f_DV⟨n,l⟩ / pdf(l) = G2(v, l) / G1(v), height-correlated G2 = 1 / (1 + Λ(v) + Λ(l))
-        weight = np.where(nl > 0, (1.0 + lambda_v) / (1.0 + lambda_v + ggx_lambda(np.maximum(nl, 1e-12), alpha)),
-                          0.0)
-        radiance = reference.nearest_radiance(to_world(light, ns[:, None, :])).reshape(len(vs), count, channels)
-        e0[s : s + step] = np.einsum("mk,mkc->mc", weight, radiance) / count
-        tail = weight * np.clip(1.0 - vh, 0.0, 1.0) ** 5
-        e1[s : s + step] = np.einsum("mk,mkc->mc", tail, radiance) / count
-    return e0, e1
+    return method(reference.texels, alpha)
 
 
 def reference_reflection(reference: Any, v: np.ndarray, n: np.ndarray, alpha: float) -> tuple[np.ndarray, np.ndarray]:
-    """(E0, E1) (M, C) of the capture's texels at GGX ``alpha`` (module doc: sub-texel brute force, importance
-    sampling where that is too large, α = 0 the mirror)."""
-    from bakery.brdf.ggx import reflect
-    from bakery.reflection.reference import integrate_reflection
-
-    if not isinstance(reference, CaptureReference):  # bare samples (no image): centres only, as before
-        reference = CaptureReference(None, reference)
+    """(E0, E1) (M, C) of the capture's texels at GGX ``alpha`` (module doc: the converged reference of
+    :mod:`bakery.environment.reflection_reference`; bare samples without their image: texel centres)."""
     v = np.asarray(v, dtype=np.float64).reshape(-1, 3)
     n = np.asarray(n, dtype=np.float64).reshape(-1, 3)
-    channels = np.asarray(reference.samples.radiance).shape[1]
+    if not isinstance(reference, CaptureReference):  # bare samples (no image): centres only, as before
+        from scipy.spatial import cKDTree
+
+        from bakery.reflection.reference import integrate_reflection, mirror_reflection
+
+        if alpha > 0:
+            return integrate_reflection(reference, v, n, np.full(len(v), alpha))
+        tree = cKDTree(np.asarray(reference.directions, dtype=np.float64))
+        return mirror_reflection(lambda d: np.asarray(reference.radiance, dtype=np.float64)[tree.query(d)[1]], v, n)
     if reference.black:
+        channels = np.asarray(reference.samples.radiance).shape[1]
         return np.zeros((len(v), channels)), np.zeros((len(v), channels))
-    if alpha <= 0:
-        radiance = reference.nearest_radiance(reflect(v, n))
-        nv = np.clip(np.sum(v * n, axis=1), 0.0, 1.0)[:, None]
-        return radiance, radiance * (1.0 - nv) ** 5
-    method = reference_method(reference, alpha)
-    if method["method"] == "importance" and reference.image is not None:
-        return _importance_reflection(reference, v, n, alpha)
-    samples = reference.subdivided(method["subdivision"]) if reference.image is not None else reference.samples
-    return integrate_reflection(samples, v, n, np.full(len(v), alpha))
+    from bakery.environment.reflection_reference import environment_reflection
+
+    return environment_reflection(reference.texels, v, n, alpha)
 
 
 def reflection_alpha_curves(store: Any, references: list[Any] | None, rows_per_alpha: int = 128) -> dict[str, Any]:

@@ -44,3 +44,48 @@ def test_bench_writes_and_prints_the_per_alpha_table(shared_data, tmp_path):
     assert "| city |" in (tmp_path / "out" / "reflection.md").read_text()
     # a second run reads the reference from the cache
     assert any((tmp_path / "out" / "reference-cache").iterdir())
+
+
+def test_the_bench_and_the_report_share_the_converged_reference(tmp_path, monkeypatch):
+    """One reference, one place: the bench's cached reference is the report's, at the mirror and at every α; its
+    cache key carries the reference method's version (caches of the texel-centre reference are not reused)."""
+    import numpy as np
+
+    import bakery.bench.reflection as bench
+    from bakery.environment.io import read_environment, write_exr
+    from bakery.environment.reflection_reference import CubeTexels, cube_prefiltered
+    from bakery.environment.resample import environment_samples
+    from bakery.reflection.reference import REFERENCE_METHOD_VERSION
+    from bakery.report.quality import CaptureReference, reference_reflection
+    from bakery.sphere.cubemap import sample_cube_bilinear
+
+    pixels = np.ones((16, 32, 3), np.float32)
+    pixels[5, 11] = (900.0, 800.0, 700.0)
+    write_exr(tmp_path / "sky.exr", pixels, half=False)
+    image = read_environment(tmp_path / "sky.exr")[0]
+    alphas = (0.0, 0.05, 0.5)
+    view, normal, alpha, _ = bench.bench_rows(4, alphas=alphas, elevations=(0.0, 60.0))
+    e0, e1 = bench.reference_e0_e1(tmp_path / "sky.exr", image, view, normal, alpha, tmp_path / "cache")
+    (cached,) = (tmp_path / "cache").iterdir()
+    assert cached.name.startswith(f"sky-v{REFERENCE_METHOD_VERSION}-")
+    capture = CaptureReference(image, environment_samples(image))
+    for a in alphas:
+        rows = alpha == a
+        r0, r1 = reference_reflection(capture, view[rows], normal[rows], a)
+        np.testing.assert_allclose(e0[rows], r0, rtol=1e-12)
+        np.testing.assert_allclose(e1[rows], r1, rtol=1e-12)
+
+    def recomputed(*args, **kwargs):  # noqa: ANN002, ANN003
+        raise AssertionError("the cached reference was not read")
+
+    monkeypatch.setattr(bench, "environment_reflection", recomputed)
+    again = bench.reference_e0_e1(tmp_path / "sky.exr", image, view, normal, alpha, tmp_path / "cache")
+    np.testing.assert_array_equal(again[0], e0)
+    # the idealised split-sum: the converged kernel at α > 0, bilinear in the capture at α = 0
+    cube = np.random.default_rng(1).uniform(0.5, 2.0, (6, 8, 8, 3)).astype(np.float32)
+    r = normal[:6]
+    a = np.array([0.0, 0.0, 0.05, 0.05, 0.3, 0.3])
+    ideal = bench.ideal_split_sum(cube, r, a)
+    np.testing.assert_allclose(ideal[:2], sample_cube_bilinear(cube, r[:2]))
+    for k in (2, 4):
+        np.testing.assert_allclose(ideal[k : k + 2], cube_prefiltered(CubeTexels(cube), r[k : k + 2], a[k]))
