@@ -29,11 +29,9 @@ import numpy as np
 import pytest
 from test_bsdf_spec import _gauss, _half_vector_nodes, _hemisphere, _microfacet, _reference_albedo, _schlick
 from test_mtlx_surface_spec import (
-    DOME,
     GOLD,
     GOLD_EDGE,
     OPEN_PBR,
-    ST,
     STANDARD,
     _artistic_ior,
     _conductor,
@@ -43,7 +41,7 @@ from test_mtlx_surface_spec import (
     _reading,
     _schlick_f90_of_mean,
     _unit_hemisphere,
-    _write_exr,
+    textured_metal_scene,
 )
 from usd_scenes import header, material, mtlx_material, plane_mesh, probe, write
 
@@ -451,29 +449,7 @@ def test_textured_layering_agrees_on_both_shading_paths(tmp_path, category_id, m
     own Schlick terms, its weight, the metal's weight) of the renderer's float32 path (params_soa → _textured_soa)
     and of the float64 one (Surfaces.at → _point) agree at 64 random points of the floor (≤ 10⁻⁵ relative), and
     the hits do differ."""
-    _write_exr(tmp_path / "base.exr", np.array([[[0.9, 0.6, 0.3], [0.2, 0.8, 0.95]],
-                                                [[0.5, 0.5, 0.5], [1.0, 0.1, 0.0]]]))
-    _write_exr(tmp_path / "metal.exr", np.array([[[0.0], [0.4]], [[1.0], [0.75]]]))
-    shaders = """
-def Shader "BaseTex"
-{
-    uniform token info:id = "ND_image_color3"
-    asset inputs:file = @./base.exr@
-    token outputs:out
-}
-def Shader "MetalTex"
-{
-    uniform token info:id = "ND_image_float"
-    asset inputs:file = @./metal.exr@
-    token outputs:out
-}
-"""
-    inputs = (f"color3f inputs:base_color.connect = </BaseTex.outputs:out>\n        "
-              f"float inputs:{metal_input}.connect = </MetalTex.outputs:out>\n        {_usda(extra)}")
-    text = header() + DOME + shaders + mtlx_material("Mat", category_id, inputs) + plane_mesh("Floor", 2.0, "/Mat",
-                                                                                            extra=ST)
-    reading = read_scene(write(tmp_path / "textured.usda", text + probe("P", (0.0, 1.0, 0.0))))
-    assert not reading.errors, reading.errors
+    reading = textured_metal_scene(tmp_path, category_id, metal_input, _usda(extra))
     surfaces = Surfaces(reading.scene, SceneTracer(reading.scene))
     rng = np.random.default_rng(3)
     k = 64

@@ -683,16 +683,10 @@ def _write_exr(path, pixels: np.ndarray) -> None:  # noqa: ANN001
 ST = 'texCoord2f[] primvars:st = [(0, 0), (1, 0), (1, 1), (0, 1)] (\n        interpolation = "faceVarying"\n    )'
 
 
-@pytest.mark.parametrize(("category_id", "metal_input", "extra"), [
-    (OPEN_PBR, "base_metalness", "float inputs:specular_weight = 0.6\n        "
-                                 "color3f inputs:specular_color = (1, 0.7, 0.4)"),
-    (STANDARD, "metalness", "float inputs:base = 0.9\n        float inputs:specular = 0.8\n        "
-                            "color3f inputs:specular_color = (1, 0.7, 0.4)"),
-])
-def test_textured_metals_agree_on_both_shading_paths(tmp_path, category_id, metal_input, extra):
-    """A base colour and a metalness read from images, per hit: the renderer's float32 path (params_soa →
-    _textured_soa) and the float64 one (Surfaces.at → _point) give the same albedo, F0, F90 and metal terms at 64
-    random points of the floor (≤ 10⁻⁵ relative)."""
+def textured_metal_scene(tmp_path, category_id: str, metal_input: str, extra: str):  # noqa: ANN001, ANN201
+    """A floor of the MaterialX surface ``category_id`` whose base colour and ``metal_input`` are 2×2 images (base
+    colours (0.9, 0.6, 0.3), (0.2, 0.8, 0.95), grey 0.5, (1, 0.1, 0); metalness 0, 0.4, 1, 0.75), ``extra`` further
+    input lines, under a uniform dome: its SceneReading (shared with test_mtlx_layering.py)."""
     _write_exr(tmp_path / "base.exr", np.array([[[0.9, 0.6, 0.3], [0.2, 0.8, 0.95]],
                                                 [[0.5, 0.5, 0.5], [1.0, 0.1, 0.0]]]))
     _write_exr(tmp_path / "metal.exr", np.array([[[0.0], [0.4]], [[1.0], [0.75]]]))
@@ -716,6 +710,20 @@ def Shader "MetalTex"
                                                                                             extra=ST)
     reading = read_scene(write(tmp_path / "textured.usda", text + probe("P", (0.0, 1.0, 0.0))))
     assert not reading.errors, reading.errors
+    return reading
+
+
+@pytest.mark.parametrize(("category_id", "metal_input", "extra"), [
+    (OPEN_PBR, "base_metalness", "float inputs:specular_weight = 0.6\n        "
+                                 "color3f inputs:specular_color = (1, 0.7, 0.4)"),
+    (STANDARD, "metalness", "float inputs:base = 0.9\n        float inputs:specular = 0.8\n        "
+                            "color3f inputs:specular_color = (1, 0.7, 0.4)"),
+])
+def test_textured_metals_agree_on_both_shading_paths(tmp_path, category_id, metal_input, extra):
+    """A base colour and a metalness read from images, per hit: the renderer's float32 path (params_soa →
+    _textured_soa) and the float64 one (Surfaces.at → _point) give the same albedo, F0, F90 and metal terms at 64
+    random points of the floor (≤ 10⁻⁵ relative)."""
+    reading = textured_metal_scene(tmp_path, category_id, metal_input, extra)
     material = reading.scene.meshes[0].material
     assert {e["input"] for e in material.maps} >= {"diffuseColor", "metallic"} and material.explicit_fresnel
     surfaces = Surfaces(reading.scene, SceneTracer(reading.scene))

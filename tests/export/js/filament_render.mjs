@@ -4,38 +4,14 @@
 // Usage: node filament_render.mjs REQUEST.json  (request: {files: [path.ktx], jobs: [{kind: 'sky'|'sphere',
 //        metallic, roughness, ibl: 'ktx'|'sh'|'one', intensity}]}); prints JSON {path: report} on stdout, each
 //        report {width, height, views, ups, shfloats, renders: [[base64 RGBA8 per view] per job], consoleErrors}.
-import { createServer } from 'node:http';
-import { readFileSync, existsSync, statSync } from 'node:fs';
-import { extname, join, normalize, resolve, dirname } from 'node:path';
-import { fileURLToPath } from 'node:url';
-import { chromium } from 'playwright-core';
+import { readFileSync } from 'node:fs';
+import { join } from 'node:path';
+import { here, servedChromium } from './served_chromium.mjs';
 
-const here = dirname(fileURLToPath(import.meta.url));
-const modules = resolve(here, '..', '..', 'node_modules');
 const request = JSON.parse(readFileSync(process.argv[2], 'utf8'));
 const files = new Map(request.files.map((f, i) => [`/file/${i}.ktx`, f]));
-const types = { '.html': 'text/html', '.js': 'text/javascript', '.wasm': 'application/wasm' };
-
-function serve(req, res) {
-  const url = decodeURIComponent(new URL(req.url, 'http://localhost').pathname);
-  let path = null;
-  if (url === '/favicon.ico') { res.writeHead(204); res.end(); return; }
-  if (url === '/page.html') path = join(here, 'filament_page.html');
-  else if (url.startsWith('/node_modules/')) path = join(modules, normalize(url.slice('/node_modules/'.length)));
-  else if (files.has(url)) path = files.get(url);
-  if (!path || !existsSync(path) || !statSync(path).isFile()) { res.writeHead(404); res.end(); return; }
-  res.writeHead(200, { 'Content-Type': types[extname(path)] || 'application/octet-stream' });
-  res.end(readFileSync(path));
-}
-
-const server = createServer(serve);
-await new Promise((ok) => server.listen(0, '127.0.0.1', ok));
-const port = server.address().port;
-const browser = await chromium.launch({
-  executablePath: process.env.CHROMIUM || '/usr/bin/chromium', headless: true,
-  args: ['--no-sandbox', '--disable-gpu', '--disable-quic', '--no-first-run', '--disable-background-networking',
-         '--disable-component-update', '--disable-sync', '--use-angle=swiftshader', '--enable-unsafe-swiftshader'],
-});
+const { port, browser, close } = await servedChromium(
+  (url) => (url === '/page.html' ? join(here, 'filament_page.html') : files.get(url) ?? null));
 const out = {};
 try {
   for (const [url, file] of files) {
@@ -51,7 +27,6 @@ try {
     await page.close();
   }
 } finally {
-  await browser.close();
-  server.close();
+  await close();
 }
 process.stdout.write(JSON.stringify(out));
