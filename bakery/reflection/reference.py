@@ -20,11 +20,14 @@ Converged reference of a piecewise-constant image (:func:`converged_reflection`)
     * every texel's centre term in float32 tiles (as :func:`integrate_reflection`);
     * for each (row, texel) pair where the integrand varies on the texel's scale the centre term is replaced by
       W_t integrated over a quadtree of the texel (:class:`TexelRadiance` maps in-texel coordinates to directions
-      and solid-angle density): a cell of longest chord e is split while 16 e > √2 (v·h) max(α, θ_h), i.e. while
-      its sides exceed 1/16 of the integrand's scale there (α at the lobe's peak, the distance θ_h = ∠(n, h) in
-      the tail, compressed by v·h = √((1 + v·l)/2) ≥ VH_FLOOR across the plane of incidence; θ_h taken at the
-      cell's nearest point), and cells straddling the horizon of n (the kink of ⟨n, l⟩₊) while e > 1/64; each leaf
-      contributes its centre value × its solid angle, a texel's leaves scaled to its exact Ω_t;
+      and solid-angle density): a cell is split while its sides e/√2 (e its longest chord) exceed
+      (v·h)·max(α/8, θ_h/8), i.e. 1/8 of the integrand's scale there — α at the lobe's peak, the distance
+      θ_h = ∠(n, h) (at the cell's nearest point) in the tail, compressed by v·h = √((1 + v·l)/2) ≥ VH_FLOOR
+      across the plane of incidence —, and while it straddles the horizon of n (the kink of ⟨n, l⟩₊) with
+      e > 1/16; each leaf is integrated by the 2 × 2 Gauss–Legendre rule, a texel's solid angles scaled to its
+      exact Ω_t. Measured against the independent quadratures of the tests: the white furnace within 4e-4 (1/16
+      and midpoint leaves: 4e-4; 1/16 and Gauss: 4e-5; 1/8 with midpoint leaves in the tail fails, 3e-3), the
+      one-texel sun within 1e-5 (midpoint leaves: 3e-4);
     * α = 0 (the mirror, :func:`mirror_reflection`): E0 = L(r), E1 = L(r)(1 − n·v)⁵ with L(r) the radiance of the
       texel containing r — the limit α → 0 of the integral of the piecewise-constant image (f_DV⟨n, l⟩ tends to
       δ(l − r)), not an interpolation of it.
@@ -34,8 +37,8 @@ Converged reference of a piecewise-constant image (:func:`converged_reflection`)
     1024 × 512 skies within 1e-3 of the GGX albedo; a linear sky; a one-texel sun integrated exactly). GGX VNDF
     importance sampling of the texels (what the report used for narrow lobes before) is exact for smooth skies but
     misses a bright texel in the lobe's tail: 4096 samples per row left a relative MSE of 0.17 on the Poly Haven
-    `park` (sun) at α = 0.02. Cost: the centre pass plus ~0.02 s (n·v ≈ 1) to ~0.1 s (n·v = 0.05) per row at
-    α = 0.02, whatever the image size. The image side (texel geometry, the texel lookup) is
+    `park` (sun) at α = 0.02. Cost: the centre pass plus the cells, ~15 k per row on a 32 × 16 image (~20 ms);
+    on a 1024 × 512 image the centre pass dominates. The image side (texel geometry, the texel lookup) is
     :mod:`bakery.environment.reflection_reference`. The idealised split-sum's kernel K_α(r, l) ∝ D(h)⟨r, l⟩₊
     (v = n = r) is integrated the same way (:func:`converged_prefiltered`).
 
@@ -62,16 +65,22 @@ _CHUNK_ELEMENTS = 4_000_000
 #: Tile of the float32 path (rows × texels = 256k elements, 1 MB per temporary).
 _TILE_ROWS = 32
 _TILE_TEXELS = 8192
-#: Converged reference (module doc): cells at most 1/TEXELS_PER_LOBE of the integrand's local scale a side; the
-#: floor of v·h in that scale; the deepest split of a texel (2^MAX_LEVELS cells a side).
-TEXELS_PER_LOBE = 16
+#: Converged reference (module doc): cells at most 1/TEXELS_PER_LOBE of the lobe's width (v·h)α and
+#: 1/TEXELS_PER_TAIL of the tail's scale (v·h)θ_h a side; the floor of v·h; the deepest split of a texel
+#: (2^MAX_LEVELS cells a side).
+TEXELS_PER_LOBE = 8
+TEXELS_PER_TAIL = 8
 VH_FLOOR = 0.05
 MAX_LEVELS = 12
 #: Cells straddling the horizon of n are split down to this chord (radians; module doc).
-HORIZON_EXTENT = 1.0 / 64.0
+HORIZON_EXTENT = 1.0 / 16.0
 #: Bumped whenever :func:`converged_reflection` of unchanged inputs changes (caches of it key on it): 1 texel
-#: centres (and a bilinear mirror in the reflection bench), 2 adaptive sub-texels, the mirror's containing texel.
-REFERENCE_METHOD_VERSION = 2
+#: centres (and a bilinear mirror in the reflection bench), 2 adaptive sub-texels, the mirror's containing texel,
+#: 3 cells at 1/8 of the integrand's scale integrated by 2 × 2 Gauss–Legendre (within 8e-4 of 2, relative MSE
+#: ≤ 4e-7 on the bench's `park` rows, ~2× faster).
+REFERENCE_METHOD_VERSION = 3
+#: The 2 × 2 Gauss–Legendre nodes of a cell, in its own coordinates (weights ¼).
+_GAUSS_2X2 = [(0.5 + x / (2.0 * np.sqrt(3.0)), 0.5 + y / (2.0 * np.sqrt(3.0))) for x in (-1, 1) for y in (-1, 1)]
 #: (row, texel) pairs refined at a time, cells evaluated at a time.
 _PAIR_CHUNK = 1 << 15
 _CELL_CHUNK = 1 << 18
@@ -266,14 +275,15 @@ def reference_method(source: TexelRadiance, alpha: float) -> dict[str, int | str
 def _lobe_cells(nl: np.ndarray, vl: np.ndarray, nv: np.ndarray, a: np.ndarray, extent: np.ndarray) -> np.ndarray:
     """Whether a cell of longest chord ``extent`` centred at l must be split (module doc, "Converged reference"):
     with v·h = √((1 + v·l)/2) (floored at VH_FLOOR) and θ_h = ∠(n, h) less the cell's reach in h, e/(4 v·h), the
-    integrand's scale across the lobe is s = (v·h)·max(α, θ_h), and the cell is split when 16 e > √2 s (sides
-    above s/16) and it reaches above the horizon (n·l > −e); a cell straddling the horizon (|n·l| < e, where
-    ⟨n, l⟩₊ has its kink) is split while e > HORIZON_EXTENT. Elementwise (broadcasting) over any float dtype."""
+    cell is split while its sides e/√2 exceed (v·h)·max(α/TEXELS_PER_LOBE, θ_h/TEXELS_PER_TAIL) and it reaches above
+    the horizon (n·l > −e); a cell straddling the horizon (|n·l| < e, where ⟨n, l⟩₊ has its kink) while
+    e > HORIZON_EXTENT. Elementwise (broadcasting) over any float dtype."""
     vh = np.maximum(np.sqrt(np.clip(0.5 * (1.0 + vl), 0.0, 1.0)), VH_FLOOR)
     nh = np.clip((nv + nl) / (2.0 * vh), -1.0, 1.0)
-    reach = TEXELS_PER_LOBE * extent / (np.sqrt(2.0) * vh)  # θ_near < reach ⇔ 16 e > √2 v·h θ_near
+    side = extent / (np.sqrt(2.0) * vh)
+    reach = TEXELS_PER_TAIL * side  # the tail term: θ_near < reach ⇔ side > θ_near / TEXELS_PER_TAIL
     limit = np.minimum(extent / (4.0 * vh) + reach, np.pi)
-    lobe = (reach > a) & (nh > np.cos(limit)) & (nl > -extent)
+    lobe = (TEXELS_PER_LOBE * side > a) & (nh > np.cos(limit)) & (nl > -extent)
     return lobe | ((np.abs(nl) < extent) & (extent > HORIZON_EXTENT))
 
 
@@ -320,7 +330,8 @@ def _refine_pairs(source: TexelRadiance, pairs: list, v: np.ndarray, n: np.ndarr
     return weighted, plain
 
 
-def _fdv_pairs(v: np.ndarray, n: np.ndarray, a: np.ndarray, l: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # noqa: E741
+def _fdv_pairs(v: np.ndarray, n: np.ndarray, a: np.ndarray,
+               l: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # noqa: E741
     """f_DV(v, n, l, α)⟨n, l⟩₊ and its Fresnel tail × (1 − v·h)⁵, elementwise over (K, 3) rows (float64)."""
     nl, vl, nv = (np.einsum("ij,ij->i", x, y) for x, y in ((n, l), (v, l), (n, v)))
     vh = np.sqrt(np.clip(0.5 * (1.0 + vl), 0.0, 1.0))
@@ -339,40 +350,44 @@ def _refined(source: TexelRadiance, rows: np.ndarray, texels: np.ndarray, v: np.
     """Per (row, texel) pair (K,): the exact-footprint integral W = ∫_texel g(l) dl of each output g of ``kernel``,
     by splitting the texel into a quadtree of cells down to where :func:`_lobe_cells` stops (at most 2^MAX_LEVELS
     cells a side; depth first in chunks, so memory stays bounded). A cell's chord is that of its own corner
-    directions (a mapping can be far from linear inside a texel: the rim of a mirrored ball); each leaf contributes
-    g at its centre times its solid angle (density × area), and a pair's leaf solid angles are scaled to sum to Ω_t
-    exactly."""
+    directions (a mapping can be far from linear inside a texel: the rim of a mirrored ball); each leaf is
+    integrated by the 2 × 2 Gauss–Legendre rule in texel coordinates (g × solid-angle density at the nodes), and a
+    pair's solid angles are scaled to sum to Ω_t exactly."""
     k = rows.size
     vr, nr, ar = v[rows], n[rows], a[rows]
     nv = np.einsum("ij,ij->i", nr, vr)
     sums: list[np.ndarray] = []
     area = np.zeros(k)
-    steps = ((0.0, 0.5), (0.5, 0.0), (1.0, 0.5), (0.5, 1.0))  # the edge midpoints a split adds to the corner grid
 
-    def descend(level: int, pair: np.ndarray, a0: np.ndarray, b0: np.ndarray, corners: np.ndarray,
-                held: np.ndarray, centre: np.ndarray, centre_held: np.ndarray) -> None:
-        """Split the cells (pair, origin (a0, b0), side 2^(1−level), corner directions (P, 2, 2, 3) at
-        (a0 + i·side, b0 + j·side) and whether they hold radiance (P, 2, 2), centre direction (P, 3) and whether it
-        holds radiance (P,)) into their four children and integrate or split those. A child is split only if its
-        centre or a corner holds radiance (a disc map's rim texels are partly outside the disc)."""
+    def distance(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        d = x - y
+        return np.sqrt(np.einsum("ij,ij->i", d, d))
+
+    def descend(level: int, pair: np.ndarray, a0: np.ndarray, b0: np.ndarray, centre: np.ndarray,
+                centre_held: np.ndarray) -> None:
+        """Split the cells (pair, origin (a0, b0), side 2^(1−level), centre direction (P, 3) and whether it holds
+        radiance (P,)) into their four children and integrate or split those. A child's chord is the longer
+        diagonal of its corner directions; it is split only if its centre or a corner holds radiance (a disc map's
+        rim texels are partly outside the disc)."""
         nonlocal sums
         side = 0.5 ** (level - 1)
         half = 0.5 * side
-        grid = np.empty((pair.size, 3, 3, 3))
-        inside = np.empty((pair.size, 3, 3), dtype=bool)
-        grid[:, ::2, ::2], inside[:, ::2, ::2] = corners, held
-        grid[:, 1, 1], inside[:, 1, 1] = centre, centre_held
-        for x, y in steps:
-            point, density = source.texel_points(texels[pair], a0 + x * side, b0 + y * side)
-            grid[:, int(2 * x), int(2 * y)], inside[:, int(2 * x), int(2 * y)] = point, density > 0
+        points, held = {(1, 1): centre}, {(1, 1): centre_held}  # the cell's 3 × 3 grid, (i, j) at i/2, j/2 of a side
+        for i in range(3):
+            for j in range(3):
+                if (i, j) != (1, 1):
+                    points[i, j], density = source.texel_points(texels[pair], a0 + 0.5 * i * side,
+                                                                b0 + 0.5 * j * side)
+                    held[i, j] = density > 0
         # the four children of every cell, child (i, j) of cell q at 4q + 2i + j
+        chord = np.stack([np.maximum(distance(points[i, j], points[i + 1, j + 1]),
+                                     distance(points[i, j + 1], points[i + 1, j])) for i in (0, 1) for j in (0, 1)],
+                         axis=1).reshape(-1)
+        reaches = np.stack([held[i, j] | held[i + 1, j + 1] | held[i, j + 1] | held[i + 1, j]
+                            for i in (0, 1) for j in (0, 1)], axis=1).reshape(-1)
         pair = np.repeat(pair, 4)
-        a0 = np.repeat(a0, 4) + np.tile([0.0, 0.0, half, half], grid.shape[0])
-        b0 = np.repeat(b0, 4) + np.tile([0.0, half, 0.0, half], grid.shape[0])
-        cells = np.stack([grid[:, i : i + 2, j : j + 2] for i in (0, 1) for j in (0, 1)], axis=1).reshape(-1, 2, 2, 3)
-        flags = np.stack([inside[:, i : i + 2, j : j + 2] for i in (0, 1) for j in (0, 1)], axis=1).reshape(-1, 2, 2)
-        chord = np.maximum(np.linalg.norm(cells[:, 0, 0] - cells[:, 1, 1], axis=1),
-                           np.linalg.norm(cells[:, 0, 1] - cells[:, 1, 0], axis=1))
+        a0 = np.repeat(a0, 4) + np.tile([0.0, 0.0, half, half], a0.size)
+        b0 = np.repeat(b0, 4) + np.tile([0.0, half, 0.0, half], b0.size)
         for c0 in range(0, pair.size, _CELL_CHUNK):
             c = slice(c0, c0 + _CELL_CHUNK)
             p = pair[c]
@@ -381,26 +396,25 @@ def _refined(source: TexelRadiance, rows: np.ndarray, texels: np.ndarray, v: np.
             if level < MAX_LEVELS:
                 nl = np.einsum("ij,ij->i", nr[p], directions)
                 vl = np.einsum("ij,ij->i", vr[p], directions)
-                split = _lobe_cells(nl, vl, nv[p], ar[p], chord[c]) & ((density > 0) | flags[c].any(axis=(1, 2)))
-            leaf = ~split
-            solid = density[leaf] * half * half
-            values = kernel(vr[p[leaf]], nr[p[leaf]], ar[p[leaf]], directions[leaf])
-            if not sums:
-                sums = [np.zeros(k) for _ in values]
-            for m, g in enumerate(values):
-                sums[m] += np.bincount(p[leaf], weights=g * solid, minlength=k)
-            area[:] += np.bincount(p[leaf], weights=solid, minlength=k)
+                split = _lobe_cells(nl, vl, nv[p], ar[p], chord[c]) & ((density > 0) | reaches[c])
+            leaf = np.flatnonzero(~split)
+            pl = p[leaf]
+            for x, y in _GAUSS_2X2:  # each leaf by the 2 × 2 Gauss–Legendre rule (fourth order)
+                points, density_g = source.texel_points(texels[pl], a0[c][leaf] + x * half, b0[c][leaf] + y * half)
+                solid = density_g * (0.25 * half * half)
+                values = kernel(vr[pl], nr[pl], ar[pl], points)
+                if not sums:
+                    sums = [np.zeros(k) for _ in values]
+                for m, g in enumerate(values):
+                    sums[m] += np.bincount(pl, weights=g * solid, minlength=k)
+                area[:] += np.bincount(pl, weights=solid, minlength=k)
             if split.any():
                 q = np.flatnonzero(split)
-                descend(level + 1, p[q], a0[c][q], b0[c][q], cells[c][q], flags[c][q], directions[q],
-                        density[q] > 0)
+                descend(level + 1, p[q], a0[c][q], b0[c][q], directions[q], density[q] > 0)
 
-    zero, one = np.zeros(k), np.ones(k)
-    points = [[source.texel_points(texels, x, y) for y in (zero, one)] for x in (zero, one)]
-    corners = np.stack([np.stack([q[0] for q in row], axis=1) for row in points], axis=1)
-    held = np.stack([np.stack([q[1] > 0 for q in row], axis=1) for row in points], axis=1)
+    zero = np.zeros(k)
     centre, centre_density = source.texel_points(texels, zero + 0.5, zero + 0.5)
-    descend(1, np.arange(k), zero, zero, corners, held, centre, centre_density > 0)
+    descend(1, np.arange(k), zero, zero, centre, centre_density > 0)
     omega_t = np.asarray(source.samples.solid_angles, dtype=np.float64)[texels]
     scale = np.where(area > 0, omega_t / np.where(area > 0, area, 1.0), 0.0)
     return [total * scale for total in sums]

@@ -136,6 +136,9 @@ class CaptureReference:
     #: whether its flux equals the store's input/flux_source (None: the store has none, e.g. a scene store)
     flux_matches_store: bool | None = None
     _texels: Any = field(default=None, repr=False)
+    #: the last few (E0, E1) by (α, rows): the previews ask for the same rows once per material
+    _reflections: dict[tuple[float, bytes, bytes], tuple[np.ndarray, np.ndarray]] = field(default_factory=dict,
+                                                                                        repr=False)
 
     @property
     def texels(self) -> Any:
@@ -353,7 +356,13 @@ def reference_reflection(reference: Any, v: np.ndarray, n: np.ndarray, alpha: fl
         return np.zeros((len(v), channels)), np.zeros((len(v), channels))
     from bakery.environment.reflection_reference import environment_reflection
 
-    return environment_reflection(reference.texels, v, n, alpha)
+    key = (float(alpha), v.tobytes(), n.tobytes())
+    if key not in reference._reflections:
+        if len(reference._reflections) >= 4:
+            reference._reflections.pop(next(iter(reference._reflections)))
+        reference._reflections[key] = environment_reflection(reference.texels, v, n, alpha)
+    e0, e1 = reference._reflections[key]
+    return e0.copy(), e1.copy()
 
 
 def reflection_alpha_curves(store: Any, references: list[Any] | None, rows_per_alpha: int = 128) -> dict[str, Any]:
