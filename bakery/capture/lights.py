@@ -17,7 +17,7 @@ Samplers (pbrt-v4, "Light Sampling")
     distant   uniform in the cone of half-angle α around the light direction (a delta direction when α = 0).
     sphere    uniform in the cone the sphere subtends, pdf = 1/(2π(1−cos θmax)) [pbrt-v4 §12.2.2].
     rect      uniform on the area, pdf_ω = d²/(A·cos θ_l); emits towards local −Z only.
-    disk      uniform on the area (r = R·√u), as rect.
+    disk      uniform on the area (ρ = √u on the unit disk, stretched to the semi-axes a, b), as rect.
     cylinder  uniform on the half of the lateral surface facing the point (axis = local X, as UsdLuxCylinderLight;
               no caps, as HdEmbree), pdf_ω = d²/(½A·cos θ_l); the cylinder's own surface occludes shadow rays.
 
@@ -624,7 +624,7 @@ class _PlanarLight(LightModel):
     def bounding_radius(self) -> float:
         if self.kind == "rect":
             return 0.5 * math.hypot(self.light.size[0], self.light.size[1])
-        return float(self.light.size[0])
+        return float(max(self.light.size[0], self.light.size[1]))  # a disk's larger semi-axis
 
 
 @register_light
@@ -672,29 +672,35 @@ class DiskLightModel(_PlanarLight):
 
     @classmethod
     def from_usd(cls, name, inputs, placement, emission, normalize):  # noqa: ANN001, ANN206
-        """The disk of ``radius`` (its magnitude) under the light's transform; ``normalize`` divides by the world-space
-        area π·a·b of that ellipse (stage units², as HdEmbree's ``_AreaDisk``). Under a non-uniform scale it is drawn
-        as the disk of the ellipse's area, radius √(a·b) (its power exact; before, the mean radius (a + b)/2 gave it
-        up to (a + b)²/(4ab) × the power)."""
+        """The disk of ``radius`` (its magnitude) under the light's transform: the ellipse of semi-axes a, b (the
+        radius × the scale of local X, Y; ``size`` = (a, b), or (r, 0) for a circle); ``normalize`` divides by its
+        world-space area π·a·b (stage units², as HdEmbree's ``_AreaDisk``). Before 2026-12-07 a non-uniformly scaled
+        disk was drawn as the circle of the ellipse's area (its power exact, its shape not)."""
         notes: list[str] = []
         r_local = _magnitude("DiskLight radius", float(inputs["radius"]), notes)
         a, b = r_local * placement.lengths[0], r_local * placement.lengths[1]
-        radius = math.sqrt(a * b)
-        if r_local > 0 and _non_uniform(placement.lengths[:2]):
-            notes.append("DiskLight under a non-uniform scale is drawn as the disk of its ellipse's area "
-                         f"(radius {radius:.4g} m; power exact, shape approximate)")
+        # a circle keeps size (r, 0): its capture hash is unchanged
+        size = (a, b) if r_local > 0 and _non_uniform(placement.lengths[:2]) else (math.sqrt(a * b), 0.0)
         area_su = math.pi * a * b / placement.meters_per_unit**2
         radiance = _normalized(emission, normalize, area_su)
         return Light("disk", name, radiance=tuple(float(x) for x in radiance), position=placement.position,
-                     axes=placement.axes, size=(radius, 0.0)), notes
+                     axes=placement.axes, size=size), notes
+
+    @property
+    def _semi_axes(self) -> tuple[float, float]:
+        a, b = float(self.light.size[0]), float(self.light.size[1])
+        return a, (b if b > 0 else a)
 
     def _surface_point(self, u0, u1):  # noqa: ANN001, ANN202
-        rad = float(self.light.size[0]) * np.sqrt(u0)
+        """Uniform by area: the unit disk's polar map (ρ = √u0) stretched to the ellipse (a constant Jacobian)."""
+        a, b = self._semi_axes
+        rad = np.sqrt(u0)
         phi = (2.0 * np.pi) * u1
-        return rad * np.cos(phi), rad * np.sin(phi)
+        return a * rad * np.cos(phi), b * rad * np.sin(phi)
 
-    def _inside(self, a, b):  # noqa: ANN001, ANN202
-        return a * a + b * b <= float(self.light.size[0]) ** 2
+    def _inside(self, x, y):  # noqa: ANN001, ANN202
+        a, b = self._semi_axes
+        return (x / a) ** 2 + (y / b) ** 2 <= 1.0
 
 
 @register_light

@@ -38,7 +38,8 @@ class Light:
         position: (3,) centre in metres (area lights).
         axes: (3, 3) rows = local X, Y, Z axes in the bake frame, unit length (the light emits towards -Z for
             ``rect``/``disk``; a ``distant`` light shines along -Z, i.e. it comes *from* +Z).
-        size: (2,) ``rect`` width, height in metres; ``sphere``/``disk`` radius in ``size[0]`` (metres);
+        size: (2,) ``rect`` width, height in metres; ``sphere`` radius in ``size[0]`` (metres); ``disk`` semi-axes
+            along local X, Y (metres), or (radius, 0) for a circle;
             ``cylinder`` radius, length (along local X) in metres.
         angle: distant light angular diameter in degrees.
         visible: whether the light's shape is a surface in the scene: seen by camera and bounce rays, and
@@ -102,8 +103,8 @@ class Light:
         """Emitting area in m² (0 for distant lights)."""
         if self.kind == "rect":
             return float(self.size[0] * self.size[1])
-        if self.kind == "disk":
-            return float(np.pi * self.size[0] ** 2)
+        if self.kind == "disk":  # semi-axes (a, b), or (r, 0) for a circle
+            return float(np.pi * self.size[0] * (self.size[1] if self.size[1] > 0 else self.size[0]))
         if self.kind == "sphere":
             return float(4.0 * np.pi * self.size[0] ** 2)
         if self.kind == "cylinder":

@@ -94,10 +94,10 @@ def test_negative_sizes_are_their_magnitudes(tmp_path):
 
 def test_disk_light_under_a_non_uniform_scale_keeps_its_power(tmp_path):
     """A normalized DiskLight scaled (2, 1, 1) is an ellipse of semi-axes 2R, R (UsdLux: world-space area π·2R·R,
-    L = intensity / area). On its axis at d ≫ R: E = ∫ L·d²/(ρ² + d²)² dA over the ellipse (integrated here),
-    within 1 % of what bakery draws (the disk of the same area). Before, the mean radius 1.5R drew
+    L = intensity / area). On its axis at d ≫ R (small enough to be splatted from the probe, flux-exact): E = ∫
+    L·d²/(ρ² + d²)² dA over the ellipse (integrated here), within 1 %. Before 12-04, the mean radius 1.5R drew
     1.5²/2 = 1.125 × the power."""
-    intensity, r, d = 10.0, 0.1, 4.0
+    intensity, r, d = 10.0, 0.1, 8.0
     body = f"    float inputs:intensity = {intensity}\n    float inputs:radius = {r}\n    bool inputs:normalize = 1"
     e = _irradiance(tmp_path, _light("DiskLight", body, (0, d, 0), -90, (2, 1, 1)))
     n = 400
@@ -106,6 +106,34 @@ def test_disk_light_under_a_non_uniform_scale_keeps_its_power(tmp_path):
     da = 2 * r * r * rho * (1 / n) * (2 * np.pi / n)
     expected = intensity / (math.pi * 2 * r * r) * float((d * d / (x * x + y * y + d * d) ** 2 * da).sum())
     np.testing.assert_allclose(e, expected, rtol=0.01)
+
+
+def _ellipse_e(radiance: float, a: float, b: float, d: float, normal: np.ndarray, n: int = 600) -> float:
+    """E on ``normal`` at the origin from an ellipse of semi-axes a (along x), b (along z) at height d facing down,
+    radiance L: ∫ L·⟨n, ω⟩₊·cos θ_l / ρ² dA by the midpoint rule in (ρ, φ) (the module's independent quadrature)."""
+    rho, phi = np.meshgrid((np.arange(n) + 0.5) / n, (np.arange(n) + 0.5) / n * 2 * np.pi)
+    x, z = a * rho * np.cos(phi), b * rho * np.sin(phi)
+    da = a * b * rho * (1 / n) * (2 * np.pi / n)
+    dist2 = x * x + d * d + z * z
+    omega = np.stack([x, np.full_like(x, d), z]) / np.sqrt(dist2)
+    cos_n = np.maximum(np.tensordot(normal, omega, axes=1), 0.0)
+    return radiance * float((cos_n * (d / np.sqrt(dist2)) / dist2 * da).sum())
+
+
+def test_disk_light_under_a_non_uniform_scale_is_its_ellipse(tmp_path):
+    """A DiskLight scaled (3, 1/3, 1) close to the probe (d = R): the ellipse of semi-axes 3R, R/3 — the same area
+    as the unscaled disk, so on the axis far away the two agree, but normals tilted along and across the long axis
+    see its shape. E against the quadrature over the ellipse (the circle of equal area gives 61 % and 67 % more here)."""
+    intensity, r, d = 10.0, 0.5, 0.5
+    body = f"    float inputs:intensity = {intensity}\n    float inputs:radius = {r}"
+    # rotateX −90 turns the light's local Y to world −Z: the ellipse's long axis is world x, its short axis z
+    text = _light("DiskLight", body, (0, d, 0), -90, (3, 1 / 3, 1))
+    for normal in (np.array([1.0, 1.0, 0.0]) / math.sqrt(2), np.array([0.0, 1.0, 1.0]) / math.sqrt(2)):
+        e = _irradiance(tmp_path, text, normal=tuple(normal), samples=32)
+        np.testing.assert_allclose(e, _ellipse_e(intensity, 3 * r, r / 3, d, normal), rtol=0.02)
+        circle = _ellipse_e(intensity, r, r, d, normal)
+        assert abs(circle / _ellipse_e(intensity, 3 * r, r / 3, d, normal) - 1.0) > 0.1  # the test sees the shape
+    assert not any("non-uniform" in i for i in _issues(_read(tmp_path, text)))
 
 
 # ---- sphere and point lights ---------------------------------------------------------------------------------------
