@@ -679,8 +679,8 @@ class DiskLightModel(_PlanarLight):
         notes: list[str] = []
         r_local = _magnitude("DiskLight radius", float(inputs["radius"]), notes)
         a, b = r_local * placement.lengths[0], r_local * placement.lengths[1]
-        # a circle keeps size (r, 0): its capture hash is unchanged
-        size = (a, b) if r_local > 0 and _non_uniform(placement.lengths[:2]) else (math.sqrt(a * b), 0.0)
+        # a circle keeps size (r, 0), so its capture hash is unchanged; a degenerate ellipse (a·b = 0) is (0, 0)
+        size = (a, b) if a * b > 0 and _non_uniform(placement.lengths[:2]) else (math.sqrt(a * b), 0.0)
         area_su = math.pi * a * b / placement.meters_per_unit**2
         radiance = _normalized(emission, normalize, area_su)
         return Light("disk", name, radiance=tuple(float(x) for x in radiance), position=placement.position,
