@@ -134,6 +134,8 @@ def test_disk_light_under_a_non_uniform_scale_is_its_ellipse(tmp_path):
         circle = _ellipse_e(intensity, r, r, d, normal)
         assert abs(circle / _ellipse_e(intensity, 3 * r, r / 3, d, normal) - 1.0) > 0.1  # the test sees the shape
     assert not any("non-uniform" in i for i in _issues(_read(tmp_path, text)))
+    flat = _light("DiskLight", body, (0, d, 0), -90, (3, 0, 1))  # a zero-area ellipse emits nothing
+    np.testing.assert_array_equal(_irradiance(tmp_path, flat), 0.0)
 
 
 # ---- sphere and point lights ---------------------------------------------------------------------------------------
