@@ -25,9 +25,9 @@ Converged reference of a piecewise-constant image (:func:`converged_reflection`)
       θ_h = ∠(n, h) (at the cell's nearest point) in the tail, compressed by v·h = √((1 + v·l)/2) ≥ VH_FLOOR
       across the plane of incidence —, and while it straddles the horizon of n (the kink of ⟨n, l⟩₊) with
       e > 1/16; each leaf is integrated by the 2 × 2 Gauss–Legendre rule, a texel's solid angles scaled to its
-      exact Ω_t. Measured against the independent quadratures of the tests: the white furnace within 4e-4 (1/16
-      and midpoint leaves: 4e-4; 1/16 and Gauss: 4e-5; 1/8 with midpoint leaves in the tail fails, 3e-3), the
-      one-texel sun within 1e-5 (midpoint leaves: 3e-4);
+      exact Ω_t. Measured against the independent quadratures of the tests: the white furnace within 5e-4
+      (4.6e-4; 1/16 and midpoint leaves, version 2: 4.3e-4; 1/16 and Gauss: 4e-5; 1/8 with midpoint leaves in the
+      tail fails, 3e-3), the one-texel sun's E0 within 1e-5 (version 2: 2.6e-4);
     * α = 0 (the mirror, :func:`mirror_reflection`): E0 = L(r), E1 = L(r)(1 − n·v)⁵ with L(r) the radiance of the
       texel containing r — the limit α → 0 of the integral of the piecewise-constant image (f_DV⟨n, l⟩ tends to
       δ(l − r)), not an interpolation of it.

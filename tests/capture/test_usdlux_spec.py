@@ -123,7 +123,8 @@ def _ellipse_e(radiance: float, a: float, b: float, d: float, normal: np.ndarray
 def test_disk_light_under_a_non_uniform_scale_is_its_ellipse(tmp_path):
     """A DiskLight scaled (3, 1/3, 1) close to the probe (d = R): the ellipse of semi-axes 3R, R/3 — the same area
     as the unscaled disk, so on the axis far away the two agree, but normals tilted along and across the long axis
-    see its shape. E against the quadrature over the ellipse (the circle of equal area gives 61 % and 67 % more here)."""
+    see its shape. E against the quadrature over the ellipse (the circle of equal area gives 61 % and 67 % more
+    here)."""
     intensity, r, d = 10.0, 0.5, 0.5
     body = f"    float inputs:intensity = {intensity}\n    float inputs:radius = {r}"
     # rotateX −90 turns the light's local Y to world −Z: the ellipse's long axis is world x, its short axis z
