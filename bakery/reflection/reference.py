@@ -363,28 +363,33 @@ def _refined(source: TexelRadiance, rows: np.ndarray, texels: np.ndarray, v: np.
         d = x - y
         return np.sqrt(np.einsum("ij,ij->i", d, d))
 
-    def descend(level: int, pair: np.ndarray, a0: np.ndarray, b0: np.ndarray, centre: np.ndarray,
+    def descend(level: int, pair: np.ndarray, a0: np.ndarray, b0: np.ndarray, corners: dict, centre: np.ndarray,
                 centre_held: np.ndarray) -> None:
-        """Split the cells (pair, origin (a0, b0), side 2^(1−level), centre direction (P, 3) and whether it holds
-        radiance (P,)) into their four children and integrate or split those. A child's chord is the longer
-        diagonal of its corner directions; it is split only if its centre or a corner holds radiance (a disc map's
-        rim texels are partly outside the disc)."""
+        """Split the cells (pair, origin (a0, b0), side 2^(1−level), ``corners`` {(i, j): (direction (P, 3), holds
+        radiance (P,))} at (a0 + i·side, b0 + j·side), i, j ∈ {0, 1}, centre direction (P, 3) and whether it holds
+        radiance (P,)) into their four children and integrate or split those. A child's chord is the longer diagonal
+        of its corner directions; it is split only if its centre or a corner holds radiance (a disc map's rim texels
+        are partly outside the disc). Only the four edge midpoints are new: the corners come from the parent."""
         nonlocal sums
         side = 0.5 ** (level - 1)
         half = 0.5 * side
-        points, held = {(1, 1): centre}, {(1, 1): centre_held}  # the cell's 3 × 3 grid, (i, j) at i/2, j/2 of a side
-        for i in range(3):
-            for j in range(3):
-                if (i, j) != (1, 1):
-                    points[i, j], density = source.texel_points(texels[pair], a0 + 0.5 * i * side,
-                                                                b0 + 0.5 * j * side)
-                    held[i, j] = density > 0
+        # the cell's 3 × 3 grid, (i, j) at i/2, j/2 of a side
+        points = {(2 * i, 2 * j): corners[i, j][0] for i in (0, 1) for j in (0, 1)}
+        held = {(2 * i, 2 * j): corners[i, j][1] for i in (0, 1) for j in (0, 1)}
+        points[1, 1], held[1, 1] = centre, centre_held
+        for i, j in ((0, 1), (1, 0), (2, 1), (1, 2)):
+            points[i, j], density = source.texel_points(texels[pair], a0 + 0.5 * i * side, b0 + 0.5 * j * side)
+            held[i, j] = density > 0
         # the four children of every cell, child (i, j) of cell q at 4q + 2i + j
         chord = np.stack([np.maximum(distance(points[i, j], points[i + 1, j + 1]),
                                      distance(points[i, j + 1], points[i + 1, j])) for i in (0, 1) for j in (0, 1)],
                          axis=1).reshape(-1)
         reaches = np.stack([held[i, j] | held[i + 1, j + 1] | held[i, j + 1] | held[i + 1, j]
                             for i in (0, 1) for j in (0, 1)], axis=1).reshape(-1)
+        children = [(i, j) for i in (0, 1) for j in (0, 1)]  # child (i, j)'s corner (u, w) is grid point (i+u, j+w)
+        child_corners = {(u, w): (np.stack([points[i + u, j + w] for i, j in children], axis=1).reshape(-1, 3),
+                                  np.stack([held[i + u, j + w] for i, j in children], axis=1).reshape(-1))
+                         for u, w in children}
         pair = np.repeat(pair, 4)
         a0 = np.repeat(a0, 4) + np.tile([0.0, 0.0, half, half], a0.size)
         b0 = np.repeat(b0, 4) + np.tile([0.0, half, 0.0, half], b0.size)
@@ -410,11 +415,18 @@ def _refined(source: TexelRadiance, rows: np.ndarray, texels: np.ndarray, v: np.
                 area[:] += np.bincount(pl, weights=solid, minlength=k)
             if split.any():
                 q = np.flatnonzero(split)
-                descend(level + 1, p[q], a0[c][q], b0[c][q], directions[q], density[q] > 0)
+                cq = c0 + q
+                descend(level + 1, p[q], a0[cq], b0[cq],
+                        {key: (d[cq], h[cq]) for key, (d, h) in child_corners.items()}, directions[q], density[q] > 0)
 
     zero = np.zeros(k)
+    corners = {}
+    for i in (0, 1):
+        for j in (0, 1):
+            direction, density = source.texel_points(texels, zero + i, zero + j)
+            corners[i, j] = (direction, density > 0)
     centre, centre_density = source.texel_points(texels, zero + 0.5, zero + 0.5)
-    descend(1, np.arange(k), zero, zero, centre, centre_density > 0)
+    descend(1, np.arange(k), zero, zero, corners, centre, centre_density > 0)
     omega_t = np.asarray(source.samples.solid_angles, dtype=np.float64)[texels]
     scale = np.where(area > 0, omega_t / np.where(area > 0, area, 1.0), 0.0)
     return [total * scale for total in sums]
