@@ -169,6 +169,9 @@ def run_capture_bench(scenes: tuple[Path, ...] = (), output: Path | None = None,
 
     if output is not None:
         check_bench_outputs(output, ("capture.json",), force)
+    if not scenes and not all(s.is_file() for s in DEFAULT_SCENES):
+        raise FileNotFoundError("no scenes given, and the default scenes (examples/ of a bakery checkout) are not "
+                                "installed with this bakery: name the USD scenes to benchmark")
     results = [bench_scene(Path(s), processes=processes, **options) for s in (scenes or DEFAULT_SCENES)]
     report = {"benchmark": "capture", "processes": processes, "scenes": results}
     if output is not None:

@@ -143,7 +143,8 @@ def run_splitsum_bench(
 
     paths = [Path(p) for p in (env_paths if env_paths is not None else DEFAULT_ENVIRONMENTS) if Path(p).is_file()]
     if not paths:
-        raise FileNotFoundError("no environment images found for the split-sum bench")
+        raise FileNotFoundError("no environment images found for the split-sum bench (the defaults are "
+                                "examples/data and ../shared/data of a bakery checkout): name the images to use")
     names = [p.stem for p in paths]
     cubes = np.stack([resample_to_cube(read_environment(p)[0], face_size) for p in paths]).astype(np.float32)
     rng = np.random.default_rng(14)

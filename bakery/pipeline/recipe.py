@@ -1,4 +1,5 @@
-"""Bake recipes: declarative TOML (``pipelines/*.toml``) validated against ``schemas/recipe.schema.json``.
+"""Bake recipes: declarative TOML (presets in ``bakery/pipeline/presets/*.toml``) validated against
+``bakery/pipeline/recipe.schema.json``.
 
 A recipe names the encodings to bake per probe kind (``[targets]``), the bake settings (``[bake]``), per-encoding
 parameters (``[encoding_settings.<name>]``), pipeline options (``[pipeline]``) and how scenes are captured
@@ -8,7 +9,7 @@ encoding names are errors that say where they are. The JSON Schema checks the re
 ``[encoding_settings.<name>]`` table is checked by that encoding's typed ``Params``
 (:meth:`bakery.encodings.EncodingParams.from_mapping`: unknown keys, wrong types and out-of-range values).
 
-The schema and the presets are found in the repository the package is installed from (``pip install -e .``).
+The schema and the presets are package data: a wheel or ``pip install .`` carries them, as ``pip install -e .`` does.
 """
 
 from __future__ import annotations
@@ -24,9 +25,8 @@ import jsonschema
 from bakery.encodings import ENCODINGS
 from bakery.errors import ConfigError
 
-REPOSITORY = Path(__file__).resolve().parents[2]
-SCHEMA_PATH = REPOSITORY / "schemas" / "recipe.schema.json"
-RECIPE_DIR = REPOSITORY / "pipelines"
+SCHEMA_PATH = Path(__file__).resolve().with_name("recipe.schema.json")
+RECIPE_DIR = Path(__file__).resolve().parent / "presets"
 
 
 @dataclass(frozen=True)

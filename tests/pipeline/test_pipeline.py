@@ -16,7 +16,7 @@ import pytest
 
 import bakery
 from bakery.errors import ConfigError
-from bakery.pipeline.recipe import load_recipe
+from bakery.pipeline.recipe import RECIPE_DIR, load_recipe
 from bakery.store.format import FORMAT_VERSION, migrate_store, read_store
 
 ENV = {**os.environ, "SOURCE_DATE_EPOCH": "1700000000"}
@@ -254,7 +254,7 @@ def test_recipe_schema_rejects_bad_recipes(tmp_path, text, message):
 
 
 def test_shipped_recipes_are_valid():
-    presets = sorted(p.stem for p in (Path(__file__).resolve().parents[2] / "pipelines").glob("*.toml"))
+    presets = sorted(p.stem for p in RECIPE_DIR.glob("*.toml"))
     assert "mobile" in presets
     for name in presets:
         assert load_recipe(name).name == name
