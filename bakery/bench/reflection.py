@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import json
 import time
+import zipfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -42,7 +43,7 @@ from bakery.environment import resample_to_cube
 from bakery.environment.io import read_environment
 from bakery.environment.layouts import EnvironmentImage
 from bakery.environment.reflection_reference import CubeTexels, cube_prefiltered, environment_reflection
-from bakery.files import sha256_bytes, sha256_file
+from bakery.files import atomic_replace, sha256_array, sha256_bytes, sha256_file
 from bakery.probe import ProbeBatch
 from bakery.reflection import splitsum as ss
 from bakery.reflection.hybrid import first_chain_level
@@ -124,18 +125,38 @@ def reference_e0_e1(path: Path, image: EnvironmentImage, view: np.ndarray, norma
     """(E0, E1) (M, 3) of the full-resolution image's texels ([SHExp] Eq. 6–7): the converged reference
     (:func:`bakery.environment.reflection_reference.environment_reflection`; α = 0: the mirror, the texel containing
     r). Cached in ``cache_dir`` by the reference method's version
-    (:data:`bakery.reflection.reference.REFERENCE_METHOD_VERSION`), the image's sha256 and the rows."""
+    (:data:`bakery.reflection.reference.REFERENCE_METHOD_VERSION`), the image's sha256 and the rows; a cache file
+    holds the sha256 of (E0, E1) and is used only if they match it (else recomputed and replaced, atomically)."""
     rows = np.concatenate([view, normal, alpha[:, None]], 1).tobytes()
     key = (f"v{REFERENCE_METHOD_VERSION}-" + sha256_file(path)[:16] + sha256_bytes(rows)[:16])
     cached = Path(cache_dir) / f"{Path(path).stem}-{key}.npz" if cache_dir is not None else None
     if cached is not None and cached.is_file():
-        with np.load(cached) as z:
-            return z["e0"], z["e1"]
+        verified = _verified_reference(cached, len(view))
+        if verified is not None:
+            return verified
     e0, e1 = environment_reflection(image, view, normal, alpha)
     if cached is not None:
         cached.parent.mkdir(parents=True, exist_ok=True)
-        np.savez(cached, e0=e0, e1=e1)
+        with atomic_replace(cached, ".npz") as tmp:
+            np.savez(tmp, e0=e0, e1=e1, sha256=np.array(_reference_digest(e0, e1)))
     return e0, e1
+
+
+def _reference_digest(e0: np.ndarray, e1: np.ndarray) -> str:
+    return sha256_bytes((sha256_array(e0) + sha256_array(e1)).encode())
+
+
+def _verified_reference(path: Path, rows: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """(E0, E1) of a reference cache file if it is readable, holds (rows, 3) float64 arrays and their recorded
+    sha256; otherwise None (damaged, truncated, or written before the checksum was recorded)."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            e0, e1, digest = z["e0"], z["e1"], str(z["sha256"])
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+        return None
+    if e0.shape != (rows, 3) or e1.shape != (rows, 3) or e0.dtype != np.float64 or e1.dtype != np.float64:
+        return None
+    return (e0, e1) if digest == _reference_digest(e0, e1) else None
 
 
 def ideal_split_sum(cube: np.ndarray, directions: np.ndarray, alpha: np.ndarray) -> np.ndarray:

@@ -89,3 +89,54 @@ def test_the_bench_and_the_report_share_the_converged_reference(tmp_path, monkey
     np.testing.assert_allclose(ideal[:2], sample_cube_bilinear(cube, r[:2]))
     for k in (2, 4):
         np.testing.assert_allclose(ideal[k : k + 2], cube_prefiltered(CubeTexels(cube), r[k : k + 2], a[k]))
+
+
+def test_a_damaged_reference_cache_file_is_recomputed_not_used(tmp_path, monkeypatch):
+    """Verify before reuse: a cache file whose values were altered (header intact), one cut short, and one without
+    the recorded checksum are each recomputed and replaced; the verified file is then read without recomputing."""
+    import numpy as np
+
+    import bakery.bench.reflection as bench
+    from bakery.environment.io import read_environment, write_exr
+
+    pixels = np.ones((8, 16, 3), np.float32)
+    pixels[2, 5] = (50.0, 40.0, 30.0)
+    write_exr(tmp_path / "sky.exr", pixels, half=False)
+    image = read_environment(tmp_path / "sky.exr")[0]
+    view, normal, alpha, _ = bench.bench_rows(3, alphas=(0.0, 0.3), elevations=(30.0,))
+    calls = []
+    real = bench.environment_reflection
+
+    def counted(*args):  # noqa: ANN002
+        calls.append(1)
+        return real(*args)
+
+    monkeypatch.setattr(bench, "environment_reflection", counted)
+    e0, e1 = bench.reference_e0_e1(tmp_path / "sky.exr", image, view, normal, alpha, tmp_path / "cache")
+    (cached,) = (tmp_path / "cache").iterdir()
+    good = cached.read_bytes()
+
+    def altered(path):
+        with np.load(path) as z:
+            np.savez(path, e0=z["e0"] * 1.01, e1=z["e1"], sha256=z["sha256"])
+
+    def truncated(path):
+        path.write_bytes(good[: len(good) // 2])
+
+    def unrecorded(path):
+        np.savez(path, e0=e0, e1=e1)
+
+    for damage in (altered, truncated, unrecorded):
+        cached.write_bytes(good)
+        damage(cached)
+        before = len(calls)
+        again = bench.reference_e0_e1(tmp_path / "sky.exr", image, view, normal, alpha, tmp_path / "cache")
+        assert len(calls) == before + 1, damage.__name__
+        np.testing.assert_array_equal(again[0], e0)
+        np.testing.assert_array_equal(again[1], e1)
+        replaced = bench._verified_reference(cached, len(view))  # replaced by the recomputed, verified file
+        assert replaced is not None, damage.__name__
+        np.testing.assert_array_equal(replaced[0], e0)
+    before = len(calls)
+    bench.reference_e0_e1(tmp_path / "sky.exr", image, view, normal, alpha, tmp_path / "cache")
+    assert len(calls) == before and [p.name for p in (tmp_path / "cache").iterdir()] == [cached.name]
