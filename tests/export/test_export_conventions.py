@@ -69,9 +69,10 @@ def gl_texel_solid_angles(n: int) -> np.ndarray:
     return corner(a1, b1) - corner(a0, b1) - corner(a1, b0) + corner(a0, b0)
 
 
-def gl_bilinear(cube: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """Bilinear lookup within the face Table 8.19 selects (edges clamped: callers skip texels near face edges,
-    where a GPU's seamless filtering reads the neighbour face)."""
+def gl_bilinear_taps(cube: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The four texels (4, ..., C) of the bilinear footprint within the face Table 8.19 selects, and their weights
+    (4, ..., 1) (edges clamped: callers skip texels near face edges, where a GPU's seamless filtering reads the
+    neighbour face)."""
     n = cube.shape[1]
     face, s, t = gl_face_st(d)
     x = np.clip(s * n - 0.5, 0, n - 1)
@@ -79,8 +80,14 @@ def gl_bilinear(cube: np.ndarray, d: np.ndarray) -> np.ndarray:
     x0, y0 = np.minimum(np.floor(x).astype(int), n - 2), np.minimum(np.floor(y).astype(int), n - 2)
     fx, fy = (x - x0)[..., None], (y - y0)[..., None]
     c = np.asarray(cube, np.float64)
-    return ((1 - fx) * (1 - fy) * c[face, y0, x0] + fx * (1 - fy) * c[face, y0, x0 + 1]
-            + (1 - fx) * fy * c[face, y0 + 1, x0] + fx * fy * c[face, y0 + 1, x0 + 1])
+    texels = np.stack([c[face, y0, x0], c[face, y0, x0 + 1], c[face, y0 + 1, x0], c[face, y0 + 1, x0 + 1]])
+    return texels, np.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy])
+
+
+def gl_bilinear(cube: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Bilinear lookup within the face Table 8.19 selects (:func:`gl_bilinear_taps`)."""
+    texels, weights = gl_bilinear_taps(cube, d)
+    return np.sum(texels * weights, axis=0)
 
 
 def cosine_irradiance_over_pi(capture: np.ndarray, normals: np.ndarray) -> np.ndarray:

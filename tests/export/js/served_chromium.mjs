@@ -18,8 +18,9 @@ export function under(url, prefix, root) {
 }
 
 /** Serve `route(urlPath)` (a file path or null) and /node_modules/, then launch Chromium. `srgb`: force the sRGB
- * colour profile (screenshots). Returns {port, browser, close}. */
-export async function servedChromium(route, { srgb = false } = {}) {
+ * colour profile (screenshots); `webgpu`: WebGPU on SwiftShader's Vulkan (the GPU process kept: no --disable-gpu).
+ * Returns {port, browser, close}. */
+export async function servedChromium(route, { srgb = false, webgpu = false } = {}) {
   const server = createServer((req, res) => {
     const url = decodeURIComponent(new URL(req.url, 'http://localhost').pathname);
     if (url === '/favicon.ico') { res.writeHead(204); res.end(); return; }
@@ -31,7 +32,10 @@ export async function servedChromium(route, { srgb = false } = {}) {
   await new Promise((ok) => server.listen(0, '127.0.0.1', ok));
   const browser = await chromium.launch({
     executablePath: process.env.CHROMIUM || '/usr/bin/chromium', headless: true,
-    args: ['--no-sandbox', '--disable-gpu', '--disable-quic', '--no-first-run', '--disable-background-networking',
+    args: ['--no-sandbox',
+           ...(webgpu ? ['--enable-unsafe-webgpu', '--enable-features=Vulkan', '--use-webgpu-adapter=swiftshader']
+             : ['--disable-gpu']),
+           '--disable-quic', '--no-first-run', '--disable-background-networking',
            '--disable-component-update', '--disable-sync', '--use-angle=swiftshader', '--enable-unsafe-swiftshader',
            ...(srgb ? ['--force-color-profile=srgb'] : [])],
   });
