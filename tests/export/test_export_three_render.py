@@ -162,6 +162,8 @@ def render_three(blob_store, grid_store, root: Path, renderer: str, jobs: dict) 
                "jobs": list(jobs.values())}
     (root / "request.json").write_text(json.dumps(request))
     report = run_node("three_render.mjs", root / "request.json", packages=("three", "playwright-core"))
+    if renderer == "webgpu" and "no WebGPU adapter" in report.get("error", ""):
+        pytest.skip("this Chromium offers no WebGPU adapter (SwiftShader Vulkan): three's WebGPURenderer not run")
     assert "error" not in report, report["error"]
     problems = [m for m in report["consoleErrors"] if "GPU stall due to ReadPixels" not in m]
     assert problems == [], problems
