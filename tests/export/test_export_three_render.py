@@ -34,7 +34,6 @@ from test_export_conventions import (  # noqa: F401 - blob_store is a fixture
     angle_degrees,
     blob_store,
     cosine_irradiance_over_pi,
-    gl_bilinear,
     gl_bilinear_taps,
     gl_face_st,
     gl_texel_directions,
