@@ -514,12 +514,16 @@ def bench_irradiance(folder: Path, output: Path, face_size: int, force: bool) ->
 @click.option("--speed", is_flag=True, help="Also measure probes/s of the fits and prefilters.")
 @click.option("--face-size", type=int, default=128, show_default=True)
 @click.option("--no-plain", is_flag=True, help="Do not score the plain 1024-sample split-sum chain (~20 s/probe).")
+@click.option("--gap-level", is_flag=True, help="Score shexp_hybrid with its gap_level setting (one more level "
+              "at alpha_1/2 at the capture's face).")
 @click.option("--force", is_flag=True, help="Replace result files in the folder that bench did not write.")
-def bench_reflection(folder: Path, output: Path, speed: bool, face_size: int, no_plain: bool, force: bool) -> None:
+def bench_reflection(folder: Path, output: Path, speed: bool, face_size: int, no_plain: bool, gap_level: bool,
+                     force: bool) -> None:
     """SH-exponential vs split-sum reflection error against the reference (seed 000 Fig. 4–7 protocol)."""
     from bakery.bench.reflection import run_reflection_bench
 
-    run_reflection_bench(folder, output, speed=speed, face_size=face_size, plain_splitsum=not no_plain, force=force)
+    run_reflection_bench(folder, output, speed=speed, face_size=face_size, plain_splitsum=not no_plain, force=force,
+                         hybrid_gap_level=gap_level)
     console.print(f"wrote results to {output}")
 
 

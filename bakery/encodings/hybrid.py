@@ -24,6 +24,13 @@ Parameters (besides every ``shexp_lights`` parameter)
                                    E1 blend [0.297, 0.841]; a probe whose materials all have α ≥ 0.841 has no chain)
     band_energy      float         ε of the kernel order F_ε (0 < ε < 1, default 1e-2)
     oversampling     float         chain face size / kernel order (≥ 0.5, default 1.25)
+    gap_level        bool          one more chain level at α_1/2, at the capture's face, between the capture and the
+                                   first kernel level (default false). Below α_1 (0.038 at face 64, 0.019 at 128) the
+                                   chain otherwise blends the capture with level 1; measured on the Poly Haven maps at
+                                   face 64, α = 0.02: 3.88× → 1.29× the idealised split-sum, α ≥ 0.04 unchanged; it
+                                   adds 6·N²·6 bytes to the upload of a probe whose α range reaches below α_1/2
+                                   (mirrors included), none to one whose smallest α is in [α_1/2, α_1), where it takes
+                                   the capture's place (docs/reflection.md)
     keep_capture     bool          store ``level0`` (α = 0: the capture) for every probe, also where ``first_level``
                                    > 0, so that cube-map exports (``bakery export``) can re-prefilter it; store size
                                    only — engines still upload levels ≥ ``first_level`` and the layer omits the others
@@ -80,6 +87,7 @@ class SHExpHybrid(SHExpLights):
         blend_octaves: float = 1.5
         band_energy: float = 1e-2
         oversampling: float = 1.25
+        gap_level: bool = False
         keep_capture: bool = True
 
         def normalize(self):
@@ -130,7 +138,7 @@ class SHExpHybrid(SHExpLights):
     def chain(self) -> BandwidthChainSettings:
         p = self.params
         return BandwidthChainSettings(face_size=p.face_size, alpha_top=self.blends[1][1], band_energy=p.band_energy,
-                                      oversampling=p.oversampling)
+                                      oversampling=p.oversampling, gap_level=p.gap_level)
 
     @cached_property
     def model(self) -> SHExpSettings:
