@@ -561,13 +561,17 @@ def _canonical(value: Any) -> Any:
     if hasattr(value, "__dataclass_fields__"):
         return {"__dataclass__": type(value).__name__,
                 **{name: _canonical(getattr(value, name)) for name, spec in value.__dataclass_fields__.items()
-                   if spec.metadata.get("content_hash", True)}}
+                   if spec.metadata.get("content_hash", True)
+                   and not (spec.metadata.get("hashed_at_default", True) is False
+                            and getattr(value, name) == spec.default)}}
     return value
 
 
 def stable_hash(*parts: Any) -> str:
     """sha256 hex of the canonical JSON of ``parts`` (dicts sorted by key; arrays by content, shape and dtype;
-    dataclasses by their fields, except those declared with ``metadata={"content_hash": False}``)."""
+    dataclasses by their fields, except those declared with ``metadata={"content_hash": False}``, and those declared
+    with ``metadata={"hashed_at_default": False}`` while at their default: a parameter added to an encoding whose
+    default reproduces the former output leaves the hashes of earlier bakes, and so their probes' reuse, intact)."""
     return sha256_bytes(json.dumps(_canonical(parts), sort_keys=True, default=str).encode())
 
 

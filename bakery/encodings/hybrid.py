@@ -87,7 +87,8 @@ class SHExpHybrid(SHExpLights):
         blend_octaves: float = 1.5
         band_energy: float = 1e-2
         oversampling: float = 1.25
-        gap_level: bool = False
+        # added 2026-12-07; false reproduces the former chain, so it is left out of the probes' content hash there
+        gap_level: bool = dataclasses.field(default=False, metadata={"hashed_at_default": False})
         keep_capture: bool = True
 
         def normalize(self):

@@ -321,3 +321,29 @@ def test_the_gap_level_halves_the_first_blend_and_is_the_exact_prefiltered_envir
         errors[name] = float(np.sqrt(np.mean((got - expected) ** 2)) / np.sqrt(np.mean(expected**2)))
     assert errors["gap"] < 2e-3, errors  # measured 2.5e-4 relative RMS (float16 levels, bilinear)
     assert errors["plain"] > 0.03, errors  # measured 9.4 %: the capture blended with level 1
+
+
+def test_a_parameter_added_at_its_former_behaviour_keeps_earlier_hashes():
+    """``gap_level`` false reproduces the chain from before the parameter existed, so the probes' content hash
+    (``stable_hash`` of the resolved Params) must not change with it: a dataclass that gains such a field
+    (``metadata={"hashed_at_default": False}``) hashes, at the field's default, as the same dataclass without it, and
+    differently away from the default. Otherwise the next bake of a store baked before 2026-12-07 would re-bake
+    every hybrid probe. (Checked by hand as well: the default Params hash the same at a0513f1 and here.)"""
+    import dataclasses
+
+    from bakery.files import stable_hash
+
+    def params(with_field: bool):
+        fields = [("face_size", int, dataclasses.field(default=64))]
+        if with_field:
+            fields.append(("gap_level", bool, dataclasses.field(default=False,
+                                                                metadata={"hashed_at_default": False})))
+        return dataclasses.make_dataclass("Params", fields, frozen=True)
+
+    before, after = params(False), params(True)
+    assert stable_hash(after()) == stable_hash(before())
+    assert stable_hash(after(gap_level=True)) != stable_hash(before())
+    default, on = SHExpHybrid.Params(), SHExpHybrid.Params(gap_level=True)
+    assert stable_hash(default) != stable_hash(on)
+    assert {f.name: f.metadata for f in dataclasses.fields(SHExpHybrid.Params)}["gap_level"] == {
+        "hashed_at_default": False}
