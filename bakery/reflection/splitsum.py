@@ -607,8 +607,8 @@ class BandwidthChainSettings:
     ``operator_bright_threshold`` × the mean exactly, the rest by the sparse kernel operator with
     ``operator_tolerance``, ``operator_core``) or "fis" (``bright_threshold``, ``fis_samples``, ``fis_lod_bias``).
     ``gap_level``: one more level at α_1/2, also at N, between the capture and level 1 (the blend of the capture
-    with level 1 is the chain's weakest region; measured at face 64, α = 0.02: 3.88× → 1.29× the idealised
-    split-sum; a level of 6·N²·6 bytes, uploaded by probes whose α range reaches below α_1/2; docs/reflection.md)."""
+    with level 1 is the chain's weakest region; what it buys and costs: the ``gap_level`` parameter of
+    :class:`bakery.encodings.hybrid.SHExpHybrid` and docs/reflection.md)."""
 
     face_size: int = 128
     alpha_top: float = 0.5
