@@ -2,8 +2,9 @@
 
 The shipped examples (examples/indoor, examples/outdoor, examples/environments/city_512.hdr) are baked with every
 registered encoding, plus a store of non-default settings (the paper's Fresnel-tail SH exponentials, a fitted
-hallucination curve, quantized layouts without companding) and two ``shexp_hybrid`` stores whose probes need only
-part of the chain (first_level 2 of 5; the levels below are not uploaded) or none of it (first_level = L). For
+hallucination curve, quantized layouts without companding), two ``shexp_hybrid`` stores whose probes need only
+part of the chain (first_level 2 of 5; the levels below are not uploaded) or none of it (first_level = L), and two
+with ``gap_level`` (6 levels, from level 0 and from the gap level 1). For
 every (store, encoding) headless Chromium renders, with WebGL2 (SwiftShader where there is no GPU), the manifest's
 GLSL entry point into an RGBA32F target at 64 normals (irradiance) or 96 (v, n, α, F0) rows (reflection; 18 of
 them with n·v < 0, down to −0.999, which the shaders clamp to the horizon, and α from 0, below the SH exponentials'
@@ -53,10 +54,14 @@ VARIANT_SETTINGS = {
     "sh3_quantized": {"sqrt_companding": False},
 }
 #: shexp_hybrid stores whose probes need part of the chain (first_level 2 of 5: levels 0–1 are not uploaded) or none
-#: (first_level = L: SH exponential + lights only), from the settings' material range (city map, no per-probe range).
+#: (first_level = L: SH exponential + lights only), from the settings' material range (city map, no per-probe range);
+#: and the chain with ``gap_level`` (6 levels, α = 0, 0.072, 0.144, …): whole (the α_1/2 level between the capture and
+#: level 2) and from the gap level up (α_min 0.1 → first_level 1: the capture is not uploaded).
 HYBRID_VARIANTS = {
     "hybrid_glossy": (16, {"alpha_min": 0.3}),
     "hybrid_rough": (8, {"alpha_min": 0.9}),
+    "hybrid_gap": (16, {"gap_level": True}),
+    "hybrid_gap_sharp": (16, {"gap_level": True, "alpha_min": 0.1}),
 }
 #: Budget of the browser part (page load, 100+ shader compiles, draws and read-backs).
 BROWSER_SECONDS = 60.0
@@ -155,7 +160,8 @@ def test_every_registered_encoding_is_baked_into_the_example_stores(stores):
 def test_the_inputs_exercise_the_reflection_validity_rules(stores):
     """The rows reach every rule of store-reflection.md the shaders must reproduce: views below the horizon, α = 0
     and α below the SH exponentials' fitted range (clamped into ``alpha_range``), the hybrid's blend, and hybrid
-    probes with the whole chain, part of it (levels below first_level not uploaded) and none."""
+    probes with the whole chain, part of it (levels below first_level not uploaded) and none, with and without
+    ``gap_level``."""
     from bakery.reflection import hybrid as hy
 
     rows = reflection_inputs()
@@ -165,18 +171,24 @@ def test_the_inputs_exercise_the_reflection_validity_rules(stores):
     lowest = min(float(np.min(np.asarray(store.fields(name)["alpha_range"])[:, 0]))
                  for store in stores.values() for name in ("shexp", "shexp_lights") if name in store.encodings)
     assert np.count_nonzero(rows["alpha"] < lowest) >= 4
-    first_levels = set()
+    first_levels, gap_first_levels = set(), set()
     for store in stores.values():
         if "shexp_hybrid" in store.encodings:
             settings = store.encodings["shexp_hybrid"].settings
             levels = len(settings["level_alphas"])
-            first_levels |= {"all" if k == 0 else "none" if k == levels else "part"
-                             for k in np.asarray(store.fields("shexp_hybrid")["first_level"]).reshape(-1)}
+            first = np.asarray(store.fields("shexp_hybrid")["first_level"]).reshape(-1)
+            first_levels |= {"all" if k == 0 else "none" if k == levels else "part" for k in first}
+            if settings.get("gap_level"):  # rows read the gap level α_1 (between the capture and α_2) and around it
+                gap_first_levels |= set(first.tolist())
+                alpha_1, alpha_2 = settings["level_alphas"][1:3]
+                assert np.count_nonzero((rows["alpha"] > 0) & (rows["alpha"] < alpha_1)) >= 2
+                assert np.count_nonzero((rows["alpha"] > alpha_1) & (rows["alpha"] < alpha_2)) >= 1
             w0 = hy.chain_weight(rows["alpha"], settings["crossover"], settings["blend_octaves"])
             w1 = hy.chain_weight(rows["alpha"], settings["tail_crossover"], settings["blend_octaves"])
             assert np.count_nonzero((w0 > 0) & (w0 < 1)) >= 5 and np.count_nonzero((w1 > 0) & (w1 < 1)) >= 5
             assert np.count_nonzero(w0 == 1.0) >= 5 and np.count_nonzero(w1 == 0.0) >= 5
     assert first_levels == {"all", "part", "none"}
+    assert gap_first_levels == {0, 1}  # gap_level chains read from the capture, and from the gap level up
 
 
 # ------------------------------------------------------------------------------------------------------ WebGL2
