@@ -18,6 +18,7 @@ Capabilities (read by the pipeline instead of lists of names)
     radiance_sh_field       stored float field holding radiance SH with the DC first (light bounds of incremental
                             bakes), or None
     accepts_alpha_range     Params has ``alpha_min``/``alpha_max`` that the pipeline may override per probe
+                            (:meth:`Encoding.probe_alpha_overrides` says with what, from the probe's materials)
     follows_bake_face_size  Params has ``face_size: int | None = None``; None = the bake's face size, resolved by
                             the pipeline with ``params.replace(face_size=N)`` before constructing
     worse_than              (diagnostic, other encoding class): the pipeline stores the per-probe diagnostic
@@ -331,6 +332,14 @@ class Encoding(ABC):
     accepts_alpha_range: ClassVar[bool] = False
     follows_bake_face_size: ClassVar[bool] = False
     worse_than: ClassVar[tuple[str, type[Encoding]] | None] = None
+
+    @classmethod
+    def probe_alpha_overrides(cls, params: EncodingParams, alpha_range: tuple[float, float],
+                              alpha_min_nonzero: float | None) -> dict[str, Any]:
+        """The per-probe overrides (``accepts_alpha_range``) from the materials in a probe's influence volume: their
+        bucketed α range, and the smallest of their α above 0 (None: none); ``params``: the bake's resolved Params.
+        Default: ``alpha_min``/``alpha_max`` only."""
+        return {"alpha_min": alpha_range[0], "alpha_max": alpha_range[1]}
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         """Wrap the subclass's own ``evaluate_reflection`` so that every reflection encoding checks its arguments in

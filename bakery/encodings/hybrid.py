@@ -8,6 +8,7 @@ Defines
                                rough part of the probe's α range, + ``level0`` … ``level{L−1}`` float16 cube levels of
                                the bandwidth chain (level k ≥ 1 at face N >> (k − 1) and the α whose kernel order fits
                                it, seed 003 §5.1) + ``first_level`` (int32): levels below it are zero and not uploaded
+                               + with ``gap_level``, ``gap_skipped`` (int32): 1 where the gap level is not uploaded
 
 Parameters (besides every ``shexp_lights`` parameter)
     recipe key       type          meaning
@@ -25,12 +26,19 @@ Parameters (besides every ``shexp_lights`` parameter)
     band_energy      float         ε of the kernel order F_ε (0 < ε < 1, default 1e-2)
     oversampling     float         chain face size / kernel order (≥ 0.5, default 1.25)
     gap_level        bool          one more chain level at α_1/2, at the capture's face, between the capture and the
-                                   first kernel level (default false). Below α_1 (0.038 at face 64, 0.019 at 128) the
-                                   chain otherwise blends the capture with level 1; measured on the Poly Haven maps at
-                                   face 64, α = 0.02: 3.88× → 1.29× the idealised split-sum, α ≥ 0.04 unchanged; it
-                                   adds 6·N²·6 bytes to the upload of a probe whose α range reaches below α_1/2
-                                   (mirrors included), none to one whose smallest α is in [α_1/2, α_1), where it takes
-                                   the capture's place (docs/reflection.md)
+                                   first kernel level (default false; true in the console and pc-high recipes).
+                                   Below α_1 (0.038 at face 64, 0.019 at 128) the chain otherwise blends the capture
+                                   with level 1; measured on the Poly Haven maps at face 64, α = 0.02: 3.88× → 1.29×
+                                   the idealised split-sum, α ≥ 0.04 unchanged. It adds 6·N²·6 bytes to the upload of
+                                   a probe that reads it: α range below α_1/2 (mirrors included) and some α in
+                                   (0, α_2); none where the smallest α is in [α_1/2, α_1) (it takes the capture's
+                                   place); a probe whose range starts at a mirror and whose other materials all have
+                                   α ≥ α_2 never reads it and skips it (``gap_skipped``; docs/reflection.md)
+    alpha_min_nonzero
+                     float|unset   the smallest material α above 0 of a probe whose alpha_min is 0 (a mirror in
+                                   range); read only with gap_level (α ≥ α_2: the gap level is skipped); unset
+                                   (default): materials anywhere in the range. The pipeline sets it per probe when
+                                   gap_level is on (``probe_alpha_overrides``, bakery.pipeline.roughness)
     keep_capture     bool          store ``level0`` (α = 0: the capture) for every probe, also where ``first_level``
                                    > 0, so that cube-map exports (``bakery export``) can re-prefilter it; store size
                                    only — engines still upload levels ≥ ``first_level`` and the layer omits the others
@@ -70,6 +78,7 @@ from bakery.reflection.lights import evaluate_light_parts, extract_lights
 from bakery.reflection.shexp import SHExpSettings, clamped_pq
 from bakery.reflection.splitsum import (
     BandwidthChainSettings,
+    level_coordinate,
     prefilter_bandwidth_batch,
     sample_levels,
 )
@@ -89,6 +98,8 @@ class SHExpHybrid(SHExpLights):
         oversampling: float = 1.25
         # added 2026-12-07; false reproduces the former chain, so it is left out of the probes' content hash there
         gap_level: bool = dataclasses.field(default=False, metadata={"hashed_at_default": False})
+        # added 2026-12-07 with the skipped gap level; unset reproduces the former output
+        alpha_min_nonzero: float | None = dataclasses.field(default=None, metadata={"hashed_at_default": False})
         keep_capture: bool = True
 
         def normalize(self):
@@ -100,6 +111,10 @@ class SHExpHybrid(SHExpLights):
                 key = "alpha_min" if not 0.0 <= self.alpha_min < self.alpha_max else "alpha_max"
                 raise ValueError(f"{key} must satisfy 0 <= alpha_min < alpha_max <= 1, got alpha_min = "
                                  f"{self.alpha_min}, alpha_max = {self.alpha_max}")
+            if self.alpha_min_nonzero is not None and not (self.alpha_min <= self.alpha_min_nonzero
+                                                           <= self.alpha_max):
+                raise ValueError(f"alpha_min_nonzero must be in [alpha_min, alpha_max] = [{self.alpha_min}, "
+                                 f"{self.alpha_max}] (or unset), got {self.alpha_min_nonzero}")
             if self.face_size is not None and self.face_size < 1:
                 raise ValueError(f"face_size must be >= 1 (or unset: the bake's face size), got {self.face_size}")
             if not 0.0 < self.crossover < 1.0:
@@ -116,6 +131,9 @@ class SHExpHybrid(SHExpLights):
             SHExpLights.Params(**{f.name: getattr(self, f.name) for f in dataclasses.fields(SHExpLights.Params)
                                   if f.name not in ("alpha_min", "alpha_max")})
 
+    #: The gap level's index in a ``gap_level`` chain (α_1/2 at N, between the capture and the first kernel level).
+    GAP_LEVEL = 1
+
     name = "shexp_hybrid"
     kind = "reflection"
     version = "1.0.2"  # 1.0.1: the SH-exp splat of shexp 1.2.1, the chain's SH projection of splitsum 1.0.1;
@@ -124,6 +142,16 @@ class SHExpHybrid(SHExpLights):
                    "exponentials + directional lights (rough alpha); E0 and the Fresnel tail E1 cross over separately")
     accepts_alpha_range = True
     follows_bake_face_size = True
+
+    @classmethod
+    def probe_alpha_overrides(cls, params, alpha_range, alpha_min_nonzero):
+        """The range, and with ``gap_level`` where a mirror is in range, ``alpha_min_nonzero`` (it decides whether the
+        probe skips the gap level; left out otherwise, where it changes nothing, so those probes' hashes do not
+        change)."""
+        overrides = super().probe_alpha_overrides(params, alpha_range, alpha_min_nonzero)
+        if params.gap_level and alpha_range[0] == 0.0 and alpha_min_nonzero is not None:
+            overrides["alpha_min_nonzero"] = alpha_min_nonzero
+        return overrides
 
     def _resolve(self, params):
         return params.replace(face_size=DEFAULT_FACE_SIZE) if params.face_size is None else params
@@ -158,6 +186,18 @@ class SHExpHybrid(SHExpLights):
         """The sharpest chain level this instance's α range needs (L: none)."""
         return hy.first_chain_level(self.chain.level_alphas(), self.params.alpha_min, self.blends[1][1])
 
+    @cached_property
+    def gap_skipped(self) -> bool:
+        """Whether this instance's probes skip the gap level: ``gap_level`` on, their range starts at a mirror
+        (first level 0) and every other material has α ≥ α_2, so no α they shade reads level 1
+        (:func:`bakery.reflection.hybrid.gap_level_read`)."""
+        p = self.params
+        return (p.gap_level and self.first_level == 0 and p.alpha_min == 0.0 and p.alpha_min_nonzero is not None
+                and not hy.gap_level_read(self.chain.level_alphas(), p.alpha_min_nonzero))
+
+    def _level_bytes(self) -> np.ndarray:
+        return np.array([6 * s * s * 3 * 2 for s in self.chain.level_sizes()])
+
     def derived_settings(self):
         return {"level_alphas": [float(a) for a in self.chain.level_alphas()],
                 "level_sizes": list(self.chain.level_sizes()),
@@ -173,10 +213,14 @@ class SHExpHybrid(SHExpLights):
                       "last; " + ("not uploaded below first_level, where it holds the capture if keep_capture "
                                   "(default) and zero otherwise" if k == 0 else "zero (not uploaded) below first_level"))
             for k, (a, size) in enumerate(self.chain.levels()))
+        gap = (FieldSpec("gap_skipped", (1,), "int32",
+                         f"1: level{self.GAP_LEVEL} (the gap level) is zero and not uploaded; the chain is read as "
+                         f"without it (the probe's materials are a mirror and alpha >= level_alphas[2] only)"),
+               ) if self.params.gap_level else ()
         return super().field_specs() + levels + (
             FieldSpec("first_level", (1,), "int32",
                       "sharpest chain level the probe needs (levels below are not uploaded: zero, but level0 holds the "
-                      "capture with keep_capture); n_levels = SH exponential only"),)
+                      "capture with keep_capture); n_levels = SH exponential only"),) + gap
 
     @classmethod
     def layer_fields(cls, fields: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -184,6 +228,8 @@ class SHExpHybrid(SHExpLights):
         never uploaded (a reflection probe is one prim, so its layer holds exactly its upload)."""
         first = int(np.min(np.asarray(fields["first_level"]))) if len(fields["first_level"]) else 0
         unused = {f"level{k}" for k in range(first)}
+        if "gap_skipped" in fields and len(fields["gap_skipped"]) and np.all(np.asarray(fields["gap_skipped"]) == 1):
+            unused.add(f"level{cls.GAP_LEVEL}")
         return {name: value for name, value in fields.items() if name not in unused}
 
     @classmethod
@@ -194,11 +240,15 @@ class SHExpHybrid(SHExpLights):
         return np.ones(first.shape, dtype=bool) if settings.get("keep_capture", False) else first == 0
 
     def upload_bytes(self, fields) -> np.ndarray:
-        """(P,) bytes an engine uploads per probe: every field except the levels below ``first_level``."""
+        """(P,) bytes an engine uploads per probe: every field except the levels below ``first_level`` and a skipped
+        gap level (``gap_skipped``)."""
         first = np.asarray(fields["first_level"]).reshape(-1)
-        level_bytes = np.array([6 * s * s * 3 * 2 for s in self.chain.level_sizes()])
+        skipped = _gap_skipped(fields, first.size)
+        level_bytes = self._level_bytes()
         fixed = self.bytes_per_probe() - int(level_bytes.sum())
-        return np.array([fixed + int(level_bytes[int(k):].sum()) for k in first], dtype=np.int64)
+        gap = int(level_bytes[self.GAP_LEVEL]) if self.params.gap_level else 0
+        return np.array([fixed + int(level_bytes[int(k):].sum()) - (gap if s and k <= self.GAP_LEVEL else 0)
+                         for k, s in zip(first, skipped, strict=True)], dtype=np.int64)
 
     # ------------------------------------------------------------------------------------------------ encode
     def encode(self, batch: ProbeBatch) -> dict[str, np.ndarray]:
@@ -207,11 +257,12 @@ class SHExpHybrid(SHExpLights):
         fields = self._coefficient_fields(fit_shexp_blocks(batch.cubes, self.model, removed))
         fields.update(light_direction=directions, light_flux=flux)
         first = self.first_level
+        skip = (self.GAP_LEVEL,) if self.gap_skipped else ()
         cubes = _cubes_at(batch, self.chain.face_size)
         levels = [np.zeros((batch.count, 6, s, s, 3), np.float16) for s in self.chain.level_sizes()]
         clamped = 0
         for part in probe_blocks(batch.count):  # bounded memory; each probe's levels do not depend on its batch
-            for k, level in enumerate(prefilter_bandwidth_batch(cubes[part], self.chain, first)):
+            for k, level in enumerate(prefilter_bandwidth_batch(cubes[part], self.chain, first, skip)):
                 if level is not None:
                     clamped += store_float16(level, levels[k][part])
         if p.keep_capture and first > 0:  # level 0 is α = 0 at the chain's face: the capture itself
@@ -221,6 +272,8 @@ class SHExpHybrid(SHExpLights):
                           f"clamped to it", ClampWarning, stacklevel=2)
         fields.update({f"level{k}": level for k, level in enumerate(levels)})
         fields["first_level"] = np.full((batch.count, 1), first, np.int32)
+        if p.gap_level:
+            fields["gap_skipped"] = np.full((batch.count, 1), int(self.gap_skipped), np.int32)
         return fields
 
     # ------------------------------------------------------------------------------------------------ evaluate
@@ -241,13 +294,17 @@ class SHExpHybrid(SHExpLights):
         pq = clamped_pq(coeffs, v, n, a, self.model, self._alpha_range(fields))
         lights0, lights1 = evaluate_light_parts(fields["light_direction"], fields["light_flux"], v, n, a)
         first = np.asarray(fields["first_level"]).reshape(-1).astype(np.int64)
+        skipped = _gap_skipped(fields, first.size)
         n_levels = self.chain.n_levels
-        x = self.chain.level_coordinate(a)
+        level_alphas = self.chain.level_alphas()
         r = reflect(v, n)
         chain = np.zeros_like(pq)
         for i in np.flatnonzero(first < n_levels):
-            levels = [np.asarray(fields[f"level{k}"][i]) for k in range(n_levels)]
-            chain[i] = sample_levels(levels, np.maximum(x, first[i]), r)  # never below the sharpest stored level
+            # a skipped gap level (meaningful from first level 0 only): the chain without it, exactly
+            read = [k for k in range(n_levels) if not (skipped[i] and first[i] == 0 and k == self.GAP_LEVEL)]
+            levels = [np.asarray(fields[f"level{k}"][i]) for k in read]
+            x = level_coordinate(level_alphas[read], a)
+            chain[i] = sample_levels(levels, np.maximum(x, read.index(first[i])), r)  # never below the sharpest
         has_chain = (first < n_levels)[:, None]
         w0 = np.where(has_chain, hy.chain_weight(a, self.params.crossover, self.params.blend_octaves)[None], 0.0)
         w1 = np.where(has_chain, hy.chain_weight(a, self.params.tail_crossover, self.params.blend_octaves)[None], 0.0)
@@ -261,6 +318,13 @@ class SHExpHybrid(SHExpLights):
         n·v ≤ 0 clamped to the horizon, chain read no sharper than ``first_level``, P·Q at α clamped into the
         fitted range."""
         return self.evaluate_parts(fields, shared, view, normal, alpha, f0)["E"]
+
+
+def _gap_skipped(fields, count: int) -> np.ndarray:
+    """(P,) bool ``gap_skipped`` (all false for a store without the field: no gap level, or none skipped)."""
+    if "gap_skipped" not in fields:
+        return np.zeros(count, dtype=bool)
+    return np.asarray(fields["gap_skipped"]).reshape(-1) != 0
 
 
 register(SHExpHybrid)

@@ -6,7 +6,8 @@ Content hash (incremental bakes)
     settings; its source kind, its typed capture spec and the content hashes of what the capture reads (e.g. the
     image bytes, or the hash of the scene parts that can affect it); the bake settings and the encodings selected for
     it with their versions and resolved parameters (defaults included); bakery's version (the code). Equal hash ⇒
-    the stored result is reused without re-baking.
+    the stored result is reused without re-baking, provided the stored fields of each of its encodings are the
+    fields this bake writes (:func:`changed_layouts`; otherwise the hash missed a layout change and it re-bakes).
 
 Batches
     Probes with the same encodings and the same per-probe encoding overrides are batched together in plan order, at
@@ -93,6 +94,21 @@ def probe_content_hash(source_kind: str, planned: PlannedProbe, encodings: tuple
                        planned.capture, planned.inputs, versions, settings_hash)
 
 
+def changed_layouts(previous: Any, names: set[str], settings: BakeSettings) -> set[str]:
+    """Encodings whose fields in the ``previous`` store are not the fields this bake writes: their probes are
+    re-baked even where the content hash matches (verify before reuse: a reused row must fit the new rows' layout;
+    e.g. a store baked with ``gap_level`` before ``gap_skipped`` existed)."""
+    changed = set()
+    for name in sorted(names):
+        stored = previous.encodings.get(name)
+        if stored is None:
+            continue
+        fields = {spec.name for spec in get_encoding(name)(encoding_params(name, settings)).field_specs()}
+        if set(stored["fields"]) - {"probe_index"} != fields:
+            changed.add(name)
+    return changed
+
+
 def make_batches(tasks: list[ProbeTask], batch_size: int, settings_json: str) -> list[BatchTask]:
     """Batches of ≤ batch_size probes with one encoding set and one set of per-probe encoding overrides each
     (module docstring)."""
@@ -144,7 +160,9 @@ def plan_tasks(source_kind: str, source_plan: SourcePlan, settings: BakeSettings
     reused: list[str] = []
     if previous is not None and previous.probe_hashes is not None:
         old = dict(zip(previous.probe_names, previous.probe_hashes))
-        reused = [t.probe.name for t in tasks if old.get(t.probe.name) == t.content_hash]
+        relaid = changed_layouts(previous, {n for t in tasks for n in t.encodings}, settings)
+        reused = [t.probe.name for t in tasks if old.get(t.probe.name) == t.content_hash
+                  and not relaid.intersection(t.encodings)]
     plan = Plan(tasks, [], reused, skipped, dict(source_plan.attributes), source_plan.layers,
                 list(source_plan.issues))
     plan.batches = make_batches(plan.pending_tasks(), batch_size, settings.as_json())

@@ -77,8 +77,25 @@ def fit_alpha_range(roughness: list[float]) -> tuple[float, float] | None:
     if not roughness:
         return None
     r = np.clip(np.asarray(roughness, dtype=np.float64), 0.0, 1.0)
-    lo = np.floor(r.min() / STEP + 1e-9) * STEP
+    lo = _bucket_down(r.min())
     hi = np.ceil(r.max() / STEP - 1e-9) * STEP
     if hi - lo < STEP:
         lo, hi = (hi - STEP, hi) if hi >= STEP else (0.0, STEP)
     return float(round(lo * lo, 6)), float(round(hi * hi, 6))
+
+
+def smallest_nonzero_alpha(roughness: list[float]) -> float | None:
+    """GGX α of the smallest perceptual roughness above 0 among ``roughness``, bucketed down as the range's lower end
+    (r_lo², so never above the true α), or None when every material is a mirror (or none is given). With a mirror in
+    range it tells the hybrid whether any material reads its gap level (``shexp_hybrid`` ``alpha_min_nonzero``)."""
+    r = np.clip(np.asarray(roughness, dtype=np.float64), 0.0, 1.0)
+    r = r[r > 0.0]
+    if r.size == 0:
+        return None
+    lo = _bucket_down(r.min())
+    return float(round(lo * lo, 6))
+
+
+def _bucket_down(roughness: float) -> float:
+    """The perceptual roughness rounded down to a multiple of :data:`STEP`."""
+    return float(np.floor(roughness / STEP + 1e-9) * STEP)

@@ -802,8 +802,9 @@ def _prefilter_sharp_batch(cubes: np.ndarray, alphas: list[float], sizes: list[i
 
 
 def prefilter_bandwidth_batch(cubes: np.ndarray, settings: BandwidthChainSettings,
-                              first_level: int = 0) -> list[np.ndarray | None]:
-    """Levels (P, 6, N_k, N_k, C) float32 of P captures (P, 6, N, N, C) for k ≥ ``first_level`` (None below).
+                              first_level: int = 0, skip: tuple[int, ...] = ()) -> list[np.ndarray | None]:
+    """Levels (P, 6, N_k, N_k, C) float32 of P captures (P, 6, N, N, C) for k ≥ ``first_level`` (None below and
+    for the levels in ``skip``, which are not needed).
     Operator formulation: SH levels by one projection of the batch, sharp levels by
     :func:`_prefilter_sharp_batch`; each probe's levels are bit-identical whatever its batch (tested)."""
     cubes = np.asarray(cubes, dtype=np.float32)
@@ -813,14 +814,16 @@ def prefilter_bandwidth_batch(cubes: np.ndarray, settings: BandwidthChainSetting
     levels = settings.levels()
     if settings.formulation == "fis":
         chains = [prefilter_bandwidth_chain(c, settings, first_level) for c in cubes]
-        return [None if k < first_level else np.stack([chain[k] for chain in chains]) for k in range(len(levels))]
-    bands = [sh_band_limit(a, settings.sh_tolerance) for k, (a, _) in enumerate(levels) if k >= first_level and a > 0]
+        return [None if k < first_level or k in skip else np.stack([chain[k] for chain in chains])
+                for k in range(len(levels))]
+    bands = [sh_band_limit(a, settings.sh_tolerance) for k, (a, _) in enumerate(levels)
+             if k >= first_level and k not in skip and a > 0]
     bands = [b for b in bands if b <= settings.max_sh_band]
     sh_levels = _SHLevels(cubes, max(bands), settings) if bands else None  # one projection serves every SH level
     out: list[np.ndarray | None] = [None] * len(levels)
     sharp = []
     for k, (a, size) in enumerate(levels):
-        if k < first_level:
+        if k < first_level or k in skip:
             continue
         if a <= 0.0:
             out[k] = np.stack([resample_cube(c, size) for c in cubes]).astype(np.float32)

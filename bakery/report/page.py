@@ -70,7 +70,8 @@ def _memory_section(m: dict[str, Any]) -> str:
                f'Totals for split-sum count the store\'s reflection probes, SH3 its irradiance probes. Ratios are of '
                f'the stored bytes/probe. Uploaded bytes/probe: what an engine uploads (mean over the probes; '
                f'<code>shexp_hybrid</code> probes do not upload the chain levels below their '
-               f'<code>first_level</code>, none for a probe that needs no chain). Bytes/probe exclude shared '
+               f'<code>first_level</code>, nor a gap level they skip; none for a probe that needs no chain). '
+               f'Bytes/probe exclude shared '
                f'tables (e.g. the DFG table of the reflection encodings), which are counted once per distinct '
                f'content in "shared tables"; the octahedral chain\'s floor is the paper\'s {c["min_face_size"]}² '
                f'octahedral map, not twice the cube floor.</p>')

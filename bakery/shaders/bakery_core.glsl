@@ -618,6 +618,22 @@ void bakery_hybrid_levels(float alpha, float level_alphas[BAKERY_HYBRID_MAX_LEVE
     f = x - float(i0);
 }
 
+// The same for a `gap_level` chain (level 1 = the gap level α_1/2) with the probe's `gap_skipped` word: where it is
+// 1 (the probe's materials are a mirror and α ≥ α_2 only; level 1 is not uploaded) the chain is read as the chain
+// without level 1, exactly: between the capture and level 2 for α < α_2 (f = α/α_2), as above from α_2 up.
+void bakery_hybrid_levels(float alpha, float level_alphas[BAKERY_HYBRID_MAX_LEVELS], int n_levels, int first_level,
+                          int gap_skipped, out int i0, out int i1, out float f)
+{
+    if (gap_skipped != 0 && first_level == 0 && n_levels > 2 && alpha < level_alphas[2])
+    {
+        i0 = 0;
+        i1 = 2;
+        f = BK_SATURATE(alpha / level_alphas[2]);
+    }
+    else
+        bakery_hybrid_levels(alpha, level_alphas, n_levels, first_level, i0, i1, f);
+}
+
 // Chain weight w(α; α_c) = 1 − smoothstep(0, 1, ½ + log2(α/α_c)/octaves) (bakery.reflection.hybrid.chain_weight):
 // 1 below α_c·2^(−octaves/2), 0 above α_c·2^(+octaves/2), C¹ in α; α = 0 gives 1.
 float bakery_chain_weight(float alpha, float crossover, float octaves)

@@ -117,7 +117,13 @@ class UsdSceneSource(Source):
     # -- parent ---------------------------------------------------------------------------------------------------
     def plan(self, settings, previous) -> SourcePlan:  # noqa: ANN001, ARG002
         from bakery.pipeline.dependencies import environment_hash, light_table
-        from bakery.pipeline.roughness import TriangleBounds, fit_alpha_range, visible_roughness
+        from bakery.pipeline.roughness import (
+            TriangleBounds,
+            fit_alpha_range,
+            smallest_nonzero_alpha,
+            visible_roughness,
+        )
+        from bakery.pipeline.settings import encoding_params
         from bakery.usd.scene import read_scene
 
         reading = read_scene(self.path, time=self.capture_settings.time,
@@ -150,10 +156,14 @@ class UsdSceneSource(Source):
             if spec.kind == "reflection" and ranged:
                 if bounds is None:
                     bounds = TriangleBounds.of(reading.scene.meshes)
-                alpha_range = fit_alpha_range(visible_roughness(spec.position, spec.influence or {}, bounds))
+                    ranged_params = {name: encoding_params(name, settings) for name in ranged}
+                roughness = visible_roughness(spec.position, spec.influence or {}, bounds)
+                alpha_range = fit_alpha_range(roughness)
                 if alpha_range is not None:
-                    fit_range = {"alpha_min": alpha_range[0], "alpha_max": alpha_range[1]}
-                    probe_settings["encoding_settings"] = {name: dict(fit_range) for name in ranged}
+                    nonzero = smallest_nonzero_alpha(roughness)
+                    probe_settings["encoding_settings"] = {
+                        name: ENCODINGS[name].probe_alpha_overrides(ranged_params[name], alpha_range, nonzero)
+                        for name in ranged}
                     roughness_notes.append({"probe": spec.name, "reason": (
                         f"{', '.join(ranged)} fitted over α ∈ [{alpha_range[0]:g}, {alpha_range[1]:g}] (materials in "
                         f"its influence volume) instead of the default range")})

@@ -304,7 +304,7 @@ def test_the_gap_level_halves_the_first_blend_and_is_the_exact_prefiltered_envir
     np.testing.assert_allclose(gap.chain.level_coordinate(alphas[1:]), np.arange(1, len(alphas)), atol=1e-9)
     x = gap.chain.level_coordinate(np.linspace(0.0, 1.0, 4001))
     assert x[0] == 0 and np.all(np.diff(x) >= -1e-12) and np.max(np.abs(np.diff(x))) < 0.1
-    assert gap.bytes_per_probe() - plain.bytes_per_probe() == 6 * FACE * FACE * 3 * 2
+    assert gap.bytes_per_probe() - plain.bytes_per_probe() == 6 * FACE * FACE * 3 * 2 + 4  # + gap_skipped
 
     cube = _cubes()[0]
     d = fibonacci_directions(200)
@@ -347,3 +347,63 @@ def test_a_parameter_added_at_its_former_behaviour_keeps_earlier_hashes():
     assert stable_hash(default) != stable_hash(on)
     assert {f.name: f.metadata for f in dataclasses.fields(SHExpHybrid.Params)}["gap_level"] == {
         "hashed_at_default": False}
+
+
+def test_a_skipped_gap_level_reads_as_the_chain_without_it():
+    """A ``gap_level`` probe whose materials are a mirror and α ≥ α_2 only never reads level 1 (x(α) ∈ (0, 2) only for
+    0 < α < α_2): it is skipped (``gap_skipped``, zero, not uploaded, not in the layer) and the probe evaluates
+    exactly as the chain without ``gap_level`` at every α — the same stored levels, read at the same coordinates.
+    A smallest non-zero α below α_2 keeps it."""
+    plain = SHExpHybrid(face_size=FACE, **FAST)
+    alpha_2 = float(SHExpHybrid(face_size=FACE, gap_level=True, **FAST).chain.level_alphas()[2])
+    skipping = SHExpHybrid(face_size=FACE, gap_level=True, alpha_min_nonzero=alpha_2, **FAST)
+    keeping = SHExpHybrid(face_size=FACE, gap_level=True, alpha_min_nonzero=0.99 * alpha_2, **FAST)
+    assert skipping.gap_skipped and not keeping.gap_skipped
+    assert not SHExpHybrid(face_size=FACE, gap_level=True, **FAST).gap_skipped  # unset: materials anywhere
+    assert hy.gap_level_read(skipping.chain.level_alphas(), 0.0)  # a material at α ≈ 0⁺ reads it
+    cubes = _cubes()
+    fields = {name: enc.encode(ProbeBatch(cubes)) for name, enc in
+              (("plain", plain), ("skipping", skipping), ("keeping", keeping))}
+    assert fields["skipping"]["gap_skipped"].tolist() == [[1], [1]]
+    assert fields["keeping"]["gap_skipped"].tolist() == [[0], [0]] and "gap_skipped" not in fields["plain"]
+    assert not np.any(fields["skipping"]["level1"])
+    level_bytes = 6 * FACE * FACE * 3 * 2
+    np.testing.assert_array_equal(skipping.upload_bytes(fields["skipping"]),
+                                  keeping.upload_bytes(fields["keeping"]) - level_bytes)
+    np.testing.assert_array_equal(skipping.upload_bytes(fields["skipping"]),
+                                  plain.upload_bytes(fields["plain"]) + 4)  # + the gap_skipped word
+    assert "level1" not in SHExpHybrid.layer_fields({k: v[:1] for k, v in fields["skipping"].items()})
+    assert "level1" in SHExpHybrid.layer_fields({k: v[:1] for k, v in fields["keeping"].items()})
+
+    v, n = _rows(64)
+    alpha = np.concatenate([[0.0, 1e-4, 0.5 * alpha_2, 0.99 * alpha_2, alpha_2], np.linspace(0.0, 1.0, 59)])
+    v, n = v[: len(alpha)], n[: len(alpha)]
+    f0 = np.full(len(alpha), 0.04)
+    e_plain = plain.evaluate_reflection(fields["plain"], plain.shared_tables(), v, n, alpha, f0)
+    e_skip = skipping.evaluate_reflection(fields["skipping"], skipping.shared_tables(), v, n, alpha, f0)
+    np.testing.assert_array_equal(e_skip, e_plain)
+    e_keep = keeping.evaluate_reflection(fields["keeping"], keeping.shared_tables(), v, n, alpha, f0)
+    reads_gap = (alpha > 0) & (alpha < alpha_2)
+    np.testing.assert_allclose(e_keep[:, ~reads_gap], e_skip[:, ~reads_gap], rtol=1e-12)  # the same levels
+    assert not np.allclose(e_keep[:, reads_gap], e_skip[:, reads_gap])
+
+
+def test_the_pipeline_tells_the_hybrid_the_smallest_non_zero_alpha_only_where_it_matters():
+    """``probe_alpha_overrides``: the range for every ranged encoding; ``alpha_min_nonzero`` for the hybrid only with
+    ``gap_level`` and a mirror in range (elsewhere it would change the probes' hash and nothing else);
+    ``smallest_nonzero_alpha`` buckets down as the range does (never above the true α)."""
+    from bakery.pipeline.roughness import smallest_nonzero_alpha
+
+    assert smallest_nonzero_alpha([0.0, 0.25, 0.7]) == pytest.approx(0.04)  # r 0.25 → bucket 0.2 → α 0.04 ≤ 0.0625
+    assert smallest_nonzero_alpha([0.0, 0.05]) == 0.0  # below the first bucket: as sharp as a mirror, reads the gap
+    assert smallest_nonzero_alpha([0.0]) is None and smallest_nonzero_alpha([]) is None
+    on, off = SHExpHybrid.Params(gap_level=True), SHExpHybrid.Params()
+    assert SHExpHybrid.probe_alpha_overrides(on, (0.0, 1.0), 0.04) == {
+        "alpha_min": 0.0, "alpha_max": 1.0, "alpha_min_nonzero": 0.04}
+    assert SHExpHybrid.probe_alpha_overrides(off, (0.0, 1.0), 0.04) == {"alpha_min": 0.0, "alpha_max": 1.0}
+    assert SHExpHybrid.probe_alpha_overrides(on, (0.04, 1.0), 0.04) == {"alpha_min": 0.04, "alpha_max": 1.0}
+    assert SHExp.probe_alpha_overrides(SHExp.Params(), (0.0, 1.0), 0.04) == {"alpha_min": 0.0, "alpha_max": 1.0}
+    from bakery.encodings.base import ParamsError
+
+    with pytest.raises(ParamsError, match="alpha_min_nonzero"):
+        SHExpHybrid.Params(alpha_min=0.1, alpha_min_nonzero=0.05)

@@ -96,3 +96,27 @@ def test_reflection_probes_fit_the_roughness_they_can_see(tmp_path):
     values = s.evaluate_reflection("shexp", np.array([[0, 1.0, 0]]), np.array([[0, 1.0, 0]]), np.array([0.5]),
                                    np.array([1.0]))
     assert np.all(np.isfinite(values))
+
+
+def test_a_mirror_probe_skips_the_hybrid_gap_level_its_materials_never_read(tmp_path):
+    """With ``gap_level``, probe A sees a mirror and r = 0.4 (α ≥ 0.16 ≥ α_2 = 0.144 at face 16): the gap level is
+    never read, so it is skipped (not uploaded); probe B sees a mirror and r = 0.12 (α ≈ 0.014 < α_2): kept."""
+    from bakery.encodings.hybrid import SHExpHybrid
+
+    text = (header() + _material("Mirror", 0.0) + _material("Satin", 0.4) + _material("Gloss", 0.12)
+            + _quad("MirrorA", "Mirror", (0, 0, 0), 1.0) + _quad("SatinA", "Satin", (0, 0, 2), 1.0)
+            + _quad("MirrorB", "Mirror", (20, 0, 0), 1.0) + _quad("GlossB", "Gloss", (20, 0, 2), 1.0)
+            + 'def DomeLight "Sky"\n{\n    float inputs:intensity = 1\n}\n'
+            + _reflection_probe("A", (0, 1, 1), 3.0) + _reflection_probe("B", (20, 1, 1), 3.0))
+    scene = write(tmp_path / "scene.usda", text)
+    store_path = tmp_path / "s.h5"
+    bakery.bake(scene, store_path, encodings=("shexp_hybrid",), face_size=16, samples=1,
+                encoding_settings={"shexp_hybrid": {"gap_level": True}})
+    store = bakery.open_store(store_path)
+    fields = store.fields("shexp_hybrid")
+    by_probe = dict(zip(store.probe_names, np.asarray(fields["gap_skipped"]).reshape(-1).tolist(), strict=True))
+    assert by_probe == {"/A": 1, "/B": 0}
+    assert np.asarray(fields["first_level"]).reshape(-1).tolist() == [0, 0]
+    encoding = SHExpHybrid(**store.encodings["shexp_hybrid"].settings)
+    upload = dict(zip(store.probe_names, encoding.upload_bytes(fields).tolist(), strict=True))
+    assert upload["/B"] - upload["/A"] == 6 * 16 * 16 * 3 * 2  # the gap level at the capture's face

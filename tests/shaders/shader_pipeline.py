@@ -314,6 +314,9 @@ def _job(store, label: str, name: str, info, spec: dict, variant: str, probe: in
                 sizes.append(size)
                 if variant == "cube" and i < int(first.min()):
                     continue  # below the probe's first_level: not uploaded (store-reflection.md), never read
+                if (variant == "cube" and i == 1 and hybrid and argument.get("gap_skipped") in fields
+                        and np.all(np.asarray(fields[argument["gap_skipped"]]) == 1)):
+                    continue  # a skipped gap level: not uploaded, never read
                 faces = _rgba(level.astype(np.float16).reshape(count * 6, size, size, 3), fill=1.0)
                 target = "CUBE" if variant == "cube" else "2D_ARRAY"
                 textures.append({"uniform": f"u_level{i}", "target": target, "internal": "RGBA16F", "width": size,
@@ -336,7 +339,19 @@ def _job(store, label: str, name: str, info, spec: dict, variant: str, probe: in
                          + "\n    return vec3(0.0, 0.0, 0.0);\n}")
             hfunctions.append("float3 bk_chain(int level, int first_layer, float3 d)\n{\n" + "\n".join(hbranches)
                               + "\n    return float3(0.0, 0.0, 0.0);\n}")
-            coordinate = (f"bakery_hybrid_levels(alpha, u_level_alphas, {levels}, {field_vars[argument['first_level']]}, "
+            gap = argument.get("gap_skipped")
+            if hybrid and gap in fields:  # a gap_level store: the probe's gap_skipped word
+                gap_var = f"{var}_gap"
+                data = np.asarray(fields[gap])
+                assert data.shape[1:] == (1,) and data.dtype.kind in "iu", f"{name}.{gap}: {data.dtype}"
+                word_texels.append(data.astype("<i4").view("<u4").reshape(count, 1))
+                body.append(f"int {gap_var} = int(texelFetch(u_words, ivec2({word_offset}, probe), 0).x);")
+                hbody.append(f"int {gap_var} = asint(u_words.Load(int3({word_offset}, probe, 0)));")
+                word_offset += 1
+                first_arguments = f"{field_vars[argument['first_level']]}, {gap_var}, "
+            elif hybrid:
+                first_arguments = f"{field_vars[argument['first_level']]}, "
+            coordinate = (f"bakery_hybrid_levels(alpha, u_level_alphas, {levels}, {first_arguments}"
                           if hybrid else f"bakery_splitsum_levels(alpha, {levels}, ")
             body += [f"int {var}_i0, {var}_i1; float {var}_f;",
                      f"{coordinate}{var}_i0, {var}_i1, {var}_f);",

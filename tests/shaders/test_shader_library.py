@@ -56,12 +56,14 @@ VARIANT_SETTINGS = {
 #: shexp_hybrid stores whose probes need part of the chain (first_level 2 of 5: levels 0–1 are not uploaded) or none
 #: (first_level = L: SH exponential + lights only), from the settings' material range (city map, no per-probe range);
 #: and the chain with ``gap_level`` (6 levels, α = 0, 0.072, 0.144, …): whole (the α_1/2 level between the capture and
-#: level 2) and from the gap level up (α_min 0.1 → first_level 1: the capture is not uploaded).
+#: level 2), from the gap level up (α_min 0.1 → first_level 1: the capture is not uploaded), and with the gap level
+#: skipped (a mirror and α ≥ 0.2 only: ``gap_skipped``, level 1 not uploaded, read as the chain without it).
 HYBRID_VARIANTS = {
     "hybrid_glossy": (16, {"alpha_min": 0.3}),
     "hybrid_rough": (8, {"alpha_min": 0.9}),
     "hybrid_gap": (16, {"gap_level": True}),
     "hybrid_gap_sharp": (16, {"gap_level": True, "alpha_min": 0.1}),
+    "hybrid_gap_skipped": (16, {"gap_level": True, "alpha_min_nonzero": 0.2}),
 }
 #: Budget of the browser part (page load, 100+ shader compiles, draws and read-backs).
 BROWSER_SECONDS = 60.0
@@ -179,7 +181,8 @@ def test_the_inputs_exercise_the_reflection_validity_rules(stores):
             first = np.asarray(store.fields("shexp_hybrid")["first_level"]).reshape(-1)
             first_levels |= {"all" if k == 0 else "none" if k == levels else "part" for k in first}
             if settings.get("gap_level"):  # rows read the gap level α_1 (between the capture and α_2) and around it
-                gap_first_levels |= set(first.tolist())
+                skipped = np.asarray(store.fields("shexp_hybrid")["gap_skipped"]).reshape(-1)
+                gap_first_levels |= {(int(k), int(g)) for k, g in zip(first, skipped, strict=True)}
                 alpha_1, alpha_2 = settings["level_alphas"][1:3]
                 assert np.count_nonzero((rows["alpha"] > 0) & (rows["alpha"] < alpha_1)) >= 2
                 assert np.count_nonzero((rows["alpha"] > alpha_1) & (rows["alpha"] < alpha_2)) >= 1
@@ -188,7 +191,8 @@ def test_the_inputs_exercise_the_reflection_validity_rules(stores):
             assert np.count_nonzero((w0 > 0) & (w0 < 1)) >= 5 and np.count_nonzero((w1 > 0) & (w1 < 1)) >= 5
             assert np.count_nonzero(w0 == 1.0) >= 5 and np.count_nonzero(w1 == 0.0) >= 5
     assert first_levels == {"all", "part", "none"}
-    assert gap_first_levels == {0, 1}  # gap_level chains read from the capture, and from the gap level up
+    # gap_level chains read from the capture, from the gap level up, and from the capture without the gap level
+    assert gap_first_levels == {(0, 0), (1, 0), (0, 1)}
 
 
 # ------------------------------------------------------------------------------------------------------ WebGL2
