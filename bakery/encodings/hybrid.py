@@ -247,7 +247,7 @@ class SHExpHybrid(SHExpLights):
         level_bytes = self._level_bytes()
         fixed = self.bytes_per_probe() - int(level_bytes.sum())
         gap = int(level_bytes[self.GAP_LEVEL]) if self.params.gap_level else 0
-        return np.array([fixed + int(level_bytes[int(k):].sum()) - (gap if s and k <= self.GAP_LEVEL else 0)
+        return np.array([fixed + int(level_bytes[int(k):].sum()) - (gap if s and k == 0 else 0)  # as evaluated
                          for k, s in zip(first, skipped, strict=True)], dtype=np.int64)
 
     # ------------------------------------------------------------------------------------------------ encode
