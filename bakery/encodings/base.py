@@ -333,6 +333,10 @@ class Encoding(ABC):
     follows_bake_face_size: ClassVar[bool] = False
     worse_than: ClassVar[tuple[str, type[Encoding]] | None] = None
 
+    #: Non-default settings whose layout adds fields the USD schema declares as well (label → Params overrides), e.g.
+    #: a setting a recipe preset turns on: :func:`bakery.usd.plugin.baked_field_attributes`.
+    schema_layouts: ClassVar[Mapping[str, Mapping[str, Any]]] = {}
+
     @classmethod
     def probe_alpha_overrides(cls, params: EncodingParams, alpha_range: tuple[float, float],
                               alpha_min_nonzero: float | None) -> dict[str, Any]:

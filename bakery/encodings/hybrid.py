@@ -142,6 +142,7 @@ class SHExpHybrid(SHExpLights):
                    "exponentials + directional lights (rough alpha); E0 and the Fresnel tail E1 cross over separately")
     accepts_alpha_range = True
     follows_bake_face_size = True
+    schema_layouts = {"gap_level = true (the console and pc-high recipes)": {"gap_level": True}}
 
     @classmethod
     def probe_alpha_overrides(cls, params, alpha_range, alpha_min_nonzero):

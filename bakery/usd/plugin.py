@@ -86,23 +86,29 @@ def schemas_registered() -> bool:
 
 def baked_field_attributes() -> list[tuple[str, str, str]]:
     """(attribute name, USD type name, documentation) of every field of every registered encoding, with the
-    encoding's default parameters, in registration order."""
+    encoding's default parameters, then the fields its :attr:`~bakery.encodings.base.Encoding.schema_layouts` add,
+    in registration order."""
     from bakery.encodings import ENCODINGS
     from bakery.usd.layer import MAX_VALUES_PER_PROBE, attribute_name, usd_type_for
 
     attributes = []
     for cls in ENCODINGS.values():
-        encoding = cls()
-        for spec in encoding.field_specs():
-            type_name = str(usd_type_for(spec.dtype, spec.shape))
-            values = int(np.prod(spec.shape, dtype=np.int64))
-            shape = "(" + ", ".join(str(d) for d in spec.shape) + ("," if len(spec.shape) == 1 else "") + ")"
-            doc = (f"{cls.kind} encoding {cls.name} {cls.version}, field {spec.name}: {spec.description}; per probe "
-                   f"{shape} {spec.dtype} at the default settings, written as {type_name} (C order)")
-            if values > MAX_VALUES_PER_PROBE:
-                doc += f", store only above {MAX_VALUES_PER_PROBE} values per probe"
-            doc += f". Encoding: {cls.description}"
-            attributes.append((attribute_name(cls.kind, cls.name, spec.name), type_name, doc))
+        seen = set()
+        for label, overrides in {"the default settings": {}, **cls.schema_layouts}.items():
+            for spec in cls(**overrides).field_specs():
+                if spec.name in seen:
+                    continue
+                seen.add(spec.name)
+                type_name = str(usd_type_for(spec.dtype, spec.shape))
+                values = int(np.prod(spec.shape, dtype=np.int64))
+                shape = "(" + ", ".join(str(d) for d in spec.shape) + ("," if len(spec.shape) == 1 else "") + ")"
+                where = label if not overrides else f"{label}, absent at the default settings"
+                doc = (f"{cls.kind} encoding {cls.name} {cls.version}, field {spec.name}: {spec.description}; per "
+                       f"probe {shape} {spec.dtype} at {where}, written as {type_name} (C order)")
+                if values > MAX_VALUES_PER_PROBE:
+                    doc += f", store only above {MAX_VALUES_PER_PROBE} values per probe"
+                doc += f". Encoding: {cls.description}"
+                attributes.append((attribute_name(cls.kind, cls.name, spec.name), type_name, doc))
     return attributes
 
 

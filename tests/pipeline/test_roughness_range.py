@@ -110,8 +110,8 @@ def test_a_mirror_probe_skips_the_hybrid_gap_level_its_materials_never_read(tmp_
             + _reflection_probe("A", (0, 1, 1), 3.0) + _reflection_probe("B", (20, 1, 1), 3.0))
     scene = write(tmp_path / "scene.usda", text)
     store_path = tmp_path / "s.h5"
-    bakery.bake(scene, store_path, encodings=("shexp_hybrid",), face_size=16, samples=1,
-                encoding_settings={"shexp_hybrid": {"gap_level": True}})
+    summary = bakery.bake(scene, store_path, encodings=("shexp_hybrid",), face_size=16, samples=1,
+                          encoding_settings={"shexp_hybrid": {"gap_level": True}})
     store = bakery.open_store(store_path)
     fields = store.fields("shexp_hybrid")
     by_probe = dict(zip(store.probe_names, np.asarray(fields["gap_skipped"]).reshape(-1).tolist(), strict=True))
@@ -120,3 +120,10 @@ def test_a_mirror_probe_skips_the_hybrid_gap_level_its_materials_never_read(tmp_
     encoding = SHExpHybrid(**store.encodings["shexp_hybrid"].settings)
     upload = dict(zip(store.probe_names, encoding.upload_bytes(fields).tolist(), strict=True))
     assert upload["/B"] - upload["/A"] == 6 * 16 * 16 * 3 * 2  # the gap level at the capture's face
+    from pxr import Usd  # the layer an engine imports holds each probe's upload: A's has no gap level
+
+    stage = Usd.Stage.Open(summary.layer)
+    attribute = "bakery:reflection:shexp_hybrid:level1"
+    assert not stage.GetPrimAtPath("/A").GetAttribute(attribute).HasAuthoredValue()  # (the schema declares it)
+    assert stage.GetPrimAtPath("/B").GetAttribute(attribute).HasAuthoredValue()
+    assert stage.GetPrimAtPath("/A").GetAttribute("bakery:reflection:shexp_hybrid:gap_skipped").Get() == [1]

@@ -96,6 +96,26 @@ def test_schema_declares_every_encoding_field_with_its_type_and_documentation():
         assert str(declared[name][0]) == type_name and name.split(":")[3] in doc and len(doc) > 60, name
 
 
+def test_the_schema_declares_every_field_the_recipe_presets_write():
+    """A preset may turn on a setting that adds fields (``shexp_hybrid`` ``gap_level``: level L and ``gap_skipped``):
+    the layer of a bake with any preset writes only declared attributes (``Encoding.schema_layouts``)."""
+    from bakery.pipeline.recipe import RECIPE_DIR, load_recipe
+
+    declared = declared_attributes()
+    problems = []
+    presets = sorted(path.stem for path in RECIPE_DIR.glob("*.toml"))
+    assert {"console", "pc-high"} <= set(presets)
+    for preset in presets:
+        recipe = load_recipe(preset)
+        for name in recipe.encodings:
+            cls = ENCODINGS[name]
+            for spec in cls(**recipe.encoding_settings.get(name, {})).field_specs():
+                attribute = attribute_name(cls.kind, cls.name, spec.name)
+                if attribute not in declared or declared[attribute][0] != usd_type_for(spec.dtype, spec.shape):
+                    problems.append(f"{preset}: {attribute}")
+    assert problems == [], "declare them through Encoding.schema_layouts and run `python -m bakery.usd.sync_schemas`"
+
+
 def test_a_new_field_without_a_schema_declaration_fails():
     class SchemaProbe(Encoding):
         name = "schema_probe_encoding"
