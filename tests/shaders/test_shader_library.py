@@ -3,8 +3,8 @@
 The shipped examples (examples/indoor, examples/outdoor, examples/environments/city_512.hdr) are baked with every
 registered encoding, plus a store of non-default settings (the paper's Fresnel-tail SH exponentials, a fitted
 hallucination curve, quantized layouts without companding), two ``shexp_hybrid`` stores whose probes need only
-part of the chain (first_level 2 of 5; the levels below are not uploaded) or none of it (first_level = L), and two
-with ``gap_level`` (6 levels, from level 0 and from the gap level 1). For
+part of the chain (first_level 2 of 5; the levels below are not uploaded) or none of it (first_level = L), and three
+with ``gap_level`` (6 levels: from level 0, from the gap level 1, and with the gap level skipped). For
 every (store, encoding) headless Chromium renders, with WebGL2 (SwiftShader where there is no GPU), the manifest's
 GLSL entry point into an RGBA32F target at 64 normals (irradiance) or 96 (v, n, α, F0) rows (reflection; 18 of
 them with n·v < 0, down to −0.999, which the shaders clamp to the horizon, and α from 0, below the SH exponentials'
