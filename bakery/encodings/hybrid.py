@@ -244,11 +244,11 @@ class SHExpHybrid(SHExpLights):
         """(P,) bytes an engine uploads per probe: every field except the levels below ``first_level`` and a skipped
         gap level (``gap_skipped``)."""
         first = np.asarray(fields["first_level"]).reshape(-1)
-        skipped = _gap_skipped(fields, first.size)
+        skipped = _gap_skipped(fields, first)
         level_bytes = self._level_bytes()
         fixed = self.bytes_per_probe() - int(level_bytes.sum())
         gap = int(level_bytes[self.GAP_LEVEL]) if self.params.gap_level else 0
-        return np.array([fixed + int(level_bytes[int(k):].sum()) - (gap if s and k == 0 else 0)  # as evaluated
+        return np.array([fixed + int(level_bytes[int(k):].sum()) - (gap if s else 0)
                          for k, s in zip(first, skipped, strict=True)], dtype=np.int64)
 
     # ------------------------------------------------------------------------------------------------ encode
@@ -295,16 +295,18 @@ class SHExpHybrid(SHExpLights):
         pq = clamped_pq(coeffs, v, n, a, self.model, self._alpha_range(fields))
         lights0, lights1 = evaluate_light_parts(fields["light_direction"], fields["light_flux"], v, n, a)
         first = np.asarray(fields["first_level"]).reshape(-1).astype(np.int64)
-        skipped = _gap_skipped(fields, first.size)
+        skipped = _gap_skipped(fields, first)
         n_levels = self.chain.n_levels
         level_alphas = self.chain.level_alphas()
+        every = list(range(n_levels))
+        without_gap = [k for k in every if k != self.GAP_LEVEL]  # a skipped gap level: the chain without it, exactly
+        coordinate = {False: level_coordinate(level_alphas, a), True: level_coordinate(level_alphas[without_gap], a)}
         r = reflect(v, n)
         chain = np.zeros_like(pq)
         for i in np.flatnonzero(first < n_levels):
-            # a skipped gap level (meaningful from first level 0 only): the chain without it, exactly
-            read = [k for k in range(n_levels) if not (skipped[i] and first[i] == 0 and k == self.GAP_LEVEL)]
+            read = without_gap if skipped[i] else every
             levels = [np.asarray(fields[f"level{k}"][i]) for k in read]
-            x = level_coordinate(level_alphas[read], a)
+            x = coordinate[bool(skipped[i])]
             chain[i] = sample_levels(levels, np.maximum(x, read.index(first[i])), r)  # never below the sharpest
         has_chain = (first < n_levels)[:, None]
         w0 = np.where(has_chain, hy.chain_weight(a, self.params.crossover, self.params.blend_octaves)[None], 0.0)
@@ -321,11 +323,12 @@ class SHExpHybrid(SHExpLights):
         return self.evaluate_parts(fields, shared, view, normal, alpha, f0)["E"]
 
 
-def _gap_skipped(fields, count: int) -> np.ndarray:
-    """(P,) bool ``gap_skipped`` (all false for a store without the field: no gap level, or none skipped)."""
+def _gap_skipped(fields, first: np.ndarray) -> np.ndarray:
+    """(P,) bool: the probe's gap level is skipped — ``gap_skipped`` set and ``first_level`` (P,) 0, the only case
+    the spec gives it a meaning (all false for a store without the field: no gap level)."""
     if "gap_skipped" not in fields:
-        return np.zeros(count, dtype=bool)
-    return np.asarray(fields["gap_skipped"]).reshape(-1) != 0
+        return np.zeros(first.shape, dtype=bool)
+    return (np.asarray(fields["gap_skipped"]).reshape(-1) != 0) & (first == 0)
 
 
 register(SHExpHybrid)
