@@ -516,14 +516,16 @@ def bench_irradiance(folder: Path, output: Path, face_size: int, force: bool) ->
 @click.option("--no-plain", is_flag=True, help="Do not score the plain 1024-sample split-sum chain (~20 s/probe).")
 @click.option("--gap-level", is_flag=True, help="Score shexp_hybrid with its gap_level setting (one more level "
               "at alpha_1/2 at the capture's face).")
+@click.option("--gap-levels", type=click.IntRange(1, 4), default=1, show_default=True,
+              help="With --gap-level: how many gap levels (2: also alpha_1/4).")
 @click.option("--force", is_flag=True, help="Replace result files in the folder that bench did not write.")
 def bench_reflection(folder: Path, output: Path, speed: bool, face_size: int, no_plain: bool, gap_level: bool,
-                     force: bool) -> None:
+                     gap_levels: int, force: bool) -> None:
     """SH-exponential vs split-sum reflection error against the reference (seed 000 Fig. 4–7 protocol)."""
     from bakery.bench.reflection import run_reflection_bench
 
     run_reflection_bench(folder, output, speed=speed, face_size=face_size, plain_splitsum=not no_plain, force=force,
-                         hybrid_gap_level=gap_level)
+                         hybrid_gap_levels=gap_levels if gap_level else 0)
     console.print(f"wrote results to {output}")
 
 

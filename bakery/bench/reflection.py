@@ -173,15 +173,17 @@ def ideal_split_sum(cube: np.ndarray, directions: np.ndarray, alpha: np.ndarray)
     return out
 
 
-def _encoders(face_size: int, hybrid_gap_level: bool = False) -> dict[str, object]:
+def _encoders(face_size: int, hybrid_gap_levels: int = 0) -> dict[str, object]:
+    """The scored encoders; ``hybrid_gap_levels`` > 0: the hybrid with ``gap_level`` and that many gap levels."""
+    gaps = {"gap_level": True, "gap_levels": hybrid_gap_levels} if hybrid_gap_levels else {}
     return {SPLITSUM: SplitSum(face_size=face_size), SHEXP: SHExp(), SHEXP_LIGHTS: SHExpLights(),
-            HYBRID: SHExpHybrid(face_size=face_size, gap_level=hybrid_gap_level)}
+            HYBRID: SHExpHybrid(face_size=face_size, **gaps)}
 
 
 def run_reflection_bench(
     env_dir: Path, out_dir: Path, speed: bool = False, face_size: int = 128, sphere_resolution: int = 12,
     plain_splitsum: bool = True, cache_dir: Path | None = None, echo: Callable[[str], None] | None = print,
-    force: bool = False, hybrid_gap_level: bool = False,
+    force: bool = False, hybrid_gap_levels: int = 0,
 ) -> dict:
     """Run the protocol (module doc), write ``reflection.json`` and ``reflection.md`` to ``out_dir`` (refused before
     the run if one is a file bench did not write, unless ``force``: :mod:`bakery.bench.output`), print the headline
@@ -193,7 +195,7 @@ def run_reflection_bench(
     if not paths:
         raise FileNotFoundError(f"no .hdr/.exr environment images under {env_dir}")
     cache_dir = Path(out_dir) / "reference-cache" if cache_dir is None else Path(cache_dir)
-    encoders = _encoders(face_size, hybrid_gap_level)
+    encoders = _encoders(face_size, hybrid_gap_levels)
     view, normal, alpha, cases = bench_rows(sphere_resolution)
     r = reflect(view, normal)
     nv = np.clip(np.sum(view * normal, axis=1), 0.0, 1.0)

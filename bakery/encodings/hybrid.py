@@ -8,7 +8,8 @@ Defines
                                rough part of the probe's α range, + ``level0`` … ``level{L−1}`` float16 cube levels of
                                the bandwidth chain (level k ≥ 1 at face N >> (k − 1) and the α whose kernel order fits
                                it, seed 003 §5.1) + ``first_level`` (int32): levels below it are zero and not uploaded
-                               + with ``gap_level``, ``gap_skipped`` (int32): 1 where the gap level is not uploaded
+                               + with ``gap_level``, ``gap_skipped`` (int32): how many gap levels (1 … s) are not
+                               uploaded
 
 Parameters (besides every ``shexp_lights`` parameter)
     recipe key       type          meaning
@@ -34,6 +35,13 @@ Parameters (besides every ``shexp_lights`` parameter)
                                    (0, α_2); none where the smallest α is in [α_1/2, α_1) (it takes the capture's
                                    place); a probe whose range starts at a mirror and whose other materials all have
                                    α ≥ α_2 never reads it and skips it (``gap_skipped``; docs/reflection.md)
+    gap_levels       int           how many gap levels ``gap_level`` adds, at α_1/2, α_1/4, … α_1·2^(−G), all at N
+                                   (1 ≤ G ≤ 4, default 1; 2 in the console and pc-high recipes). The second halves
+                                   the capture blend again: at face 64, α = 0.005 / 0.01, the prefiltered radiance's
+                                   relative MSE falls from 1.5e-2 / 1.0e-2 to 4.8e-3 / 9.4e-4, within 1.2× of a level
+                                   at exactly that α (docs/reflection.md). A probe uploads gap level k only if a
+                                   material reads it (α in (α_{k−1}, α_{k+1})); a mirror probe whose other materials
+                                   have α ≥ α_{k+1} skips levels 1 … k (``gap_skipped`` = k)
     alpha_min_nonzero
                      float|unset   the smallest material α above 0 of a probe whose alpha_min is 0 (a mirror in
                                    range); read only with gap_level (α ≥ α_2: the gap level is skipped); unset
@@ -98,6 +106,8 @@ class SHExpHybrid(SHExpLights):
         oversampling: float = 1.25
         # added 2026-12-07; false reproduces the former chain, so it is left out of the probes' content hash there
         gap_level: bool = dataclasses.field(default=False, metadata={"hashed_at_default": False})
+        # added 2026-12-07 after gap_level; 1 reproduces the former gap_level chain, so it is left out of the hash there
+        gap_levels: int = dataclasses.field(default=1, metadata={"hashed_at_default": False})
         # added 2026-12-07 with the skipped gap level; unset reproduces the former output
         alpha_min_nonzero: float | None = dataclasses.field(default=None, metadata={"hashed_at_default": False})
         keep_capture: bool = True
@@ -121,6 +131,9 @@ class SHExpHybrid(SHExpLights):
                 raise ValueError(f"crossover must be in (0, 1), got {self.crossover}")
             if not self.crossover <= self.tail_crossover < 1.0:
                 raise ValueError(f"tail_crossover must be in [crossover, 1), got {self.tail_crossover}")
+            if isinstance(self.gap_levels, bool) or not isinstance(self.gap_levels, int | np.integer) \
+                    or not 1 <= self.gap_levels <= 4:
+                raise ValueError(f"gap_levels must be an integer in [1, 4], got {self.gap_levels!r}")
             if not self.blend_octaves > 0.0:
                 raise ValueError(f"blend_octaves must be > 0, got {self.blend_octaves}")
             if not 0.0 < self.band_energy < 1.0:
@@ -131,9 +144,6 @@ class SHExpHybrid(SHExpLights):
             SHExpLights.Params(**{f.name: getattr(self, f.name) for f in dataclasses.fields(SHExpLights.Params)
                                   if f.name not in ("alpha_min", "alpha_max")})
 
-    #: The gap level's index in a ``gap_level`` chain (α_1/2 at N, between the capture and the first kernel level).
-    GAP_LEVEL = 1
-
     name = "shexp_hybrid"
     kind = "reflection"
     version = "1.0.2"  # 1.0.1: the SH-exp splat of shexp 1.2.1, the chain's SH projection of splitsum 1.0.1;
@@ -142,12 +152,13 @@ class SHExpHybrid(SHExpLights):
                    "exponentials + directional lights (rough alpha); E0 and the Fresnel tail E1 cross over separately")
     accepts_alpha_range = True
     follows_bake_face_size = True
-    schema_layouts = {"gap_level = true (the console and pc-high recipes)": {"gap_level": True}}
+    schema_layouts = {"gap_level = true, gap_levels = 4 (the most levels; the console and pc-high recipes use 2)":
+                      {"gap_level": True, "gap_levels": 4}}
 
     @classmethod
     def probe_alpha_overrides(cls, params, alpha_range, alpha_min_nonzero):
-        """The range, and with ``gap_level`` where a mirror is in range, ``alpha_min_nonzero`` (it decides whether the
-        probe skips the gap level; left out otherwise, where it changes nothing, so those probes' hashes do not
+        """The range, and with ``gap_level`` where a mirror is in range, ``alpha_min_nonzero`` (it decides which gap
+        levels the probe skips; left out otherwise, where it changes nothing, so those probes' hashes do not
         change)."""
         overrides = super().probe_alpha_overrides(params, alpha_range, alpha_min_nonzero)
         if params.gap_level and alpha_range[0] == 0.0 and alpha_min_nonzero is not None:
@@ -168,7 +179,8 @@ class SHExpHybrid(SHExpLights):
     def chain(self) -> BandwidthChainSettings:
         p = self.params
         return BandwidthChainSettings(face_size=p.face_size, alpha_top=self.blends[1][1], band_energy=p.band_energy,
-                                      oversampling=p.oversampling, gap_level=p.gap_level)
+                                      oversampling=p.oversampling,
+                                      gap_levels=p.gap_levels if p.gap_level else 0)
 
     @cached_property
     def model(self) -> SHExpSettings:
@@ -188,13 +200,14 @@ class SHExpHybrid(SHExpLights):
         return hy.first_chain_level(self.chain.level_alphas(), self.params.alpha_min, self.blends[1][1])
 
     @cached_property
-    def gap_skipped(self) -> bool:
-        """Whether this instance's probes skip the gap level: ``gap_level`` on, their range starts at a mirror
-        (first level 0) and every other material has α ≥ α_2, so no α they shade reads level 1
-        (:func:`bakery.reflection.hybrid.gap_level_read`)."""
+    def gap_skipped(self) -> int:
+        """How many gap levels (1 … s) this instance's probes skip: with ``gap_level``, where their range starts at a
+        mirror (first level 0), the levels no other material's α reads
+        (:func:`bakery.reflection.hybrid.gap_levels_skipped`); 0 otherwise."""
         p = self.params
-        return (p.gap_level and self.first_level == 0 and p.alpha_min == 0.0 and p.alpha_min_nonzero is not None
-                and not hy.gap_level_read(self.chain.level_alphas(), p.alpha_min_nonzero))
+        if not (p.gap_level and self.first_level == 0 and p.alpha_min == 0.0 and p.alpha_min_nonzero is not None):
+            return 0
+        return hy.gap_levels_skipped(self.chain.level_alphas(), p.gap_levels, p.alpha_min_nonzero)
 
     def _level_bytes(self) -> np.ndarray:
         return np.array([6 * s * s * 3 * 2 for s in self.chain.level_sizes()])
@@ -215,8 +228,9 @@ class SHExpHybrid(SHExpLights):
                                   "(default) and zero otherwise" if k == 0 else "zero (not uploaded) below first_level"))
             for k, (a, size) in enumerate(self.chain.levels()))
         gap = (FieldSpec("gap_skipped", (1,), "int32",
-                         f"1: level{self.GAP_LEVEL} (the gap level) is zero and not uploaded; the chain is read as "
-                         f"without it (the probe's materials are a mirror and alpha >= level_alphas[2] only)"),
+                         f"s in [0, {self.params.gap_levels}]: the gap levels level1 ... level<s> are zero and not "
+                         "uploaded; the chain is read as without them (the probe's materials are a mirror and "
+                         "alpha >= level_alphas[s + 1] only)"),
                ) if self.params.gap_level else ()
         return super().field_specs() + levels + (
             FieldSpec("first_level", (1,), "int32",
@@ -229,8 +243,9 @@ class SHExpHybrid(SHExpLights):
         never uploaded (a reflection probe is one prim, so its layer holds exactly its upload)."""
         first = int(np.min(np.asarray(fields["first_level"]))) if len(fields["first_level"]) else 0
         unused = {f"level{k}" for k in range(first)}
-        if "gap_skipped" in fields and len(fields["gap_skipped"]) and np.all(np.asarray(fields["gap_skipped"]) == 1):
-            unused.add(f"level{cls.GAP_LEVEL}")
+        skipped = int(np.min(_gap_skipped(fields, np.asarray(fields["first_level"]).reshape(-1)))) \
+            if len(fields["first_level"]) else 0
+        unused |= {f"level{k}" for k in range(1, skipped + 1)}
         return {name: value for name, value in fields.items() if name not in unused}
 
     @classmethod
@@ -241,14 +256,13 @@ class SHExpHybrid(SHExpLights):
         return np.ones(first.shape, dtype=bool) if settings.get("keep_capture", False) else first == 0
 
     def upload_bytes(self, fields) -> np.ndarray:
-        """(P,) bytes an engine uploads per probe: every field except the levels below ``first_level`` and a skipped
-        gap level (``gap_skipped``)."""
+        """(P,) bytes an engine uploads per probe: every field except the levels below ``first_level`` and the skipped
+        gap levels (``gap_skipped``)."""
         first = np.asarray(fields["first_level"]).reshape(-1)
         skipped = _gap_skipped(fields, first)
         level_bytes = self._level_bytes()
         fixed = self.bytes_per_probe() - int(level_bytes.sum())
-        gap = int(level_bytes[self.GAP_LEVEL]) if self.params.gap_level else 0
-        return np.array([fixed + int(level_bytes[int(k):].sum()) - (gap if s else 0)
+        return np.array([fixed + int(level_bytes[int(k):].sum()) - int(level_bytes[1:1 + s].sum())
                          for k, s in zip(first, skipped, strict=True)], dtype=np.int64)
 
     # ------------------------------------------------------------------------------------------------ encode
@@ -258,7 +272,7 @@ class SHExpHybrid(SHExpLights):
         fields = self._coefficient_fields(fit_shexp_blocks(batch.cubes, self.model, removed))
         fields.update(light_direction=directions, light_flux=flux)
         first = self.first_level
-        skip = (self.GAP_LEVEL,) if self.gap_skipped else ()
+        skip = tuple(range(1, 1 + self.gap_skipped))
         cubes = _cubes_at(batch, self.chain.face_size)
         levels = [np.zeros((batch.count, 6, s, s, 3), np.float16) for s in self.chain.level_sizes()]
         clamped = 0
@@ -274,7 +288,7 @@ class SHExpHybrid(SHExpLights):
         fields.update({f"level{k}": level for k, level in enumerate(levels)})
         fields["first_level"] = np.full((batch.count, 1), first, np.int32)
         if p.gap_level:
-            fields["gap_skipped"] = np.full((batch.count, 1), int(self.gap_skipped), np.int32)
+            fields["gap_skipped"] = np.full((batch.count, 1), self.gap_skipped, np.int32)
         return fields
 
     # ------------------------------------------------------------------------------------------------ evaluate
@@ -298,15 +312,15 @@ class SHExpHybrid(SHExpLights):
         skipped = _gap_skipped(fields, first)
         n_levels = self.chain.n_levels
         level_alphas = self.chain.level_alphas()
-        every = list(range(n_levels))
-        without_gap = [k for k in every if k != self.GAP_LEVEL]  # a skipped gap level: the chain without it, exactly
-        coordinate = {False: level_coordinate(level_alphas, a), True: level_coordinate(level_alphas[without_gap], a)}
+        # skipped gap levels 1 … s: the chain without them, exactly; one level coordinate per distinct s
+        reads = {s: [0, *range(1 + s, n_levels)] for s in np.unique(skipped).tolist()}
+        coordinate = {s: level_coordinate(level_alphas[read], a) for s, read in reads.items()}
         r = reflect(v, n)
         chain = np.zeros_like(pq)
         for i in np.flatnonzero(first < n_levels):
-            read = without_gap if skipped[i] else every
+            read = reads[int(skipped[i])]
             levels = [np.asarray(fields[f"level{k}"][i]) for k in read]
-            x = coordinate[bool(skipped[i])]
+            x = coordinate[int(skipped[i])]
             chain[i] = sample_levels(levels, np.maximum(x, read.index(first[i])), r)  # never below the sharpest
         has_chain = (first < n_levels)[:, None]
         w0 = np.where(has_chain, hy.chain_weight(a, self.params.crossover, self.params.blend_octaves)[None], 0.0)
@@ -324,11 +338,11 @@ class SHExpHybrid(SHExpLights):
 
 
 def _gap_skipped(fields, first: np.ndarray) -> np.ndarray:
-    """(P,) bool: the probe's gap level is skipped — ``gap_skipped`` set and ``first_level`` (P,) 0, the only case
-    the spec gives it a meaning (all false for a store without the field: no gap level)."""
+    """(P,) int: how many gap levels (1 … s) each probe skips — ``gap_skipped`` where ``first_level`` (P,) is 0, the
+    only case the spec gives it a meaning, else 0 (all 0 for a store without the field: no gap level)."""
     if "gap_skipped" not in fields:
-        return np.zeros(first.shape, dtype=bool)
-    return (np.asarray(fields["gap_skipped"]).reshape(-1) != 0) & (first == 0)
+        return np.zeros(first.shape, dtype=np.int64)
+    return np.where(first == 0, np.asarray(fields["gap_skipped"]).reshape(-1).astype(np.int64), 0)
 
 
 register(SHExpHybrid)

@@ -18,8 +18,8 @@ Blend ([SHExp] Eq. 5 with two partitions of unity)
     fitted range, (A, B) the DFG table at the material's α, L0/L1 the analytic lights' base and tail terms.
     A probe without chain levels (first_level = L: its materials are all above the tail blend) has w0 = w1 = 0.
     Below the probe's sharpest stored level α_{first_level} the chain is read at that level (clamp, never an
-    unstored level). A ``gap_level`` chain's gap level (1) is skipped for a probe that never reads it
-    (:func:`gap_level_read`); its chain is then read as the chain without level 1.
+    unstored level). A ``gap_level`` chain's gap levels 1 … s that a probe never reads are skipped
+    (:func:`gap_levels_skipped`); its chain is then read as the chain without them.
 
 Continuity bound (tested): both parts are continuous in α and w is C¹ with |dw/dlog2 α| ≤ 1.5/width, so
     |E(α₂) − E(α₁)| ≤ |ΔE_parts| + 1.5 |log2(α₂/α₁)|/width · |E_chain − E_sh|.
@@ -58,12 +58,15 @@ def first_chain_level(level_alphas: np.ndarray, alpha_min: float, alpha_top: flo
     return int(np.flatnonzero(la <= alpha_min + 1e-12)[-1])
 
 
-def gap_level_read(level_alphas: np.ndarray, alpha_min_nonzero: float) -> bool:
-    """Whether a ``gap_level`` chain (level α's (L,): 0, α_1/2, α_2, …) reads its gap level 1 for a probe whose
-    materials are mirrors (α = 0, read at x = 0 exactly) and α ≥ ``alpha_min_nonzero``: x(α) ∈ (0, 2) only for
-    0 < α < α_2, so it is read iff alpha_min_nonzero < α_2."""
+def gap_levels_skipped(level_alphas: np.ndarray, gap_levels: int, alpha_min_nonzero: float) -> int:
+    """How many of the G = ``gap_levels`` gap levels (indices 1 … G of a chain with level α's (L,): 0, α_1·2^(−G),
+    …, α_1/2, α_1, …) a probe never reads whose materials are mirrors (α = 0, read at x = 0 exactly) and
+    α ≥ ``alpha_min_nonzero``: level k is read only for α_{k−1} < α < α_{k+1}, so levels 1 … s are never read,
+    s = #{k ≤ G : α_{k+1} ≤ alpha_min_nonzero}. Without them the chain is read exactly as a chain whose gap levels
+    are s + 1 … G (:func:`bakery.reflection.splitsum.level_coordinate` of the remaining α's)."""
     la = np.asarray(level_alphas, dtype=np.float64)
-    return bool(la.size > 2 and alpha_min_nonzero < la[2])
+    g = min(int(gap_levels), la.size - 2)
+    return int(sum(1 for k in range(1, g + 1) if la[k + 1] <= alpha_min_nonzero))
 
 
 def combine(chain: np.ndarray, pq: np.ndarray, lights0: np.ndarray, lights1: np.ndarray, ab: np.ndarray,

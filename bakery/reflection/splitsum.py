@@ -606,9 +606,10 @@ class BandwidthChainSettings:
     (then α doubles per level). Sharp levels: ``formulation`` "operator" (texels brighter than
     ``operator_bright_threshold`` × the mean exactly, the rest by the sparse kernel operator with
     ``operator_tolerance``, ``operator_core``) or "fis" (``bright_threshold``, ``fis_samples``, ``fis_lod_bias``).
-    ``gap_level``: one more level at α_1/2, also at N, between the capture and level 1 (the blend of the capture
-    with level 1 is the chain's weakest region; what it buys and costs: the ``gap_level`` parameter of
-    :class:`bakery.encodings.hybrid.SHExpHybrid` and docs/reflection.md)."""
+    ``gap_levels`` G: G more levels at α_1·2^(−G), …, α_1/4, α_1/2, all at N, between the capture and the first
+    kernel level (indices 1 … G; the blend of the capture with level 1 is the chain's weakest region; what they buy
+    and cost: the ``gap_level`` and ``gap_levels`` parameters of :class:`bakery.encodings.hybrid.SHExpHybrid` and
+    docs/reflection.md)."""
 
     face_size: int = 128
     alpha_top: float = 0.5
@@ -625,12 +626,12 @@ class BandwidthChainSettings:
     operator_core: float = 2.0
     operator_bright_threshold: float = 50.0
     operator_max_bright: int = 256
-    gap_level: bool = False
+    gap_levels: int = 0
 
     def levels(self) -> tuple[tuple[float, int], ...]:
         """((α_k, N_k), …) for k = 0 … L − 1 (α_0 = 0 at N)."""
         return _chain_levels(self.face_size, self.alpha_top, self.band_energy, self.oversampling, self.min_face_size,
-                             self.gap_level)
+                             self.gap_levels)
 
     def level_alphas(self) -> np.ndarray:
         return np.array([a for a, _ in self.levels()])
@@ -649,10 +650,10 @@ class BandwidthChainSettings:
 
 @lru_cache(maxsize=64)
 def _chain_levels(face_size: int, alpha_top: float, band_energy: float, oversampling: float,
-                  min_face_size: int, gap_level: bool = False) -> tuple[tuple[float, int], ...]:
+                  min_face_size: int, gap_levels: int = 0) -> tuple[tuple[float, int], ...]:
     levels = [(0.0, int(face_size))]
     size = int(face_size)
-    while levels[-1][0] < alpha_top and len(levels) < (15 if gap_level else 16):  # ≤ 16 levels (the shaders')
+    while levels[-1][0] < alpha_top and len(levels) < 16 - gap_levels:  # ≤ 16 levels (the shaders')
         if len(levels) > 1:
             size = max(size // 2, min(min_face_size, face_size))
         alpha = alpha_for_order(size / oversampling, band_energy)
@@ -661,8 +662,9 @@ def _chain_levels(face_size: int, alpha_top: float, band_energy: float, oversamp
         levels.append((float(round(min(alpha, 1.0), 6)), size))
         if alpha >= 1.0:
             break
-    if gap_level and len(levels) > 1:  # α_1/2 at N: the capture ↔ level 1 blend halved in α
-        levels.insert(1, (float(round(levels[1][0] / 2.0, 6)), int(face_size)))
+    if len(levels) > 1:  # α_1/2, α_1/4, … at N: the capture ↔ level 1 blend halved in α per gap level
+        gaps = [(float(round(levels[1][0] / 2.0 ** j, 6)), int(face_size)) for j in range(gap_levels, 0, -1)]
+        levels[1:1] = gaps
     return tuple(levels)
 
 

@@ -618,17 +618,19 @@ void bakery_hybrid_levels(float alpha, float level_alphas[BAKERY_HYBRID_MAX_LEVE
     f = x - float(i0);
 }
 
-// The same for a `gap_level` chain (level 1 = the gap level α_1/2) with the probe's `gap_skipped` word: where it is
-// 1 (the probe's materials are a mirror and α ≥ α_2 only; level 1 is not uploaded) the chain is read as the chain
-// without level 1, exactly: between the capture and level 2 for α < α_2 (f = α/α_2), as above from α_2 up.
+// The same for a `gap_level` chain (levels 1 … G = the gap levels α_1·2^(−G) … α_1/2) with the probe's
+// `gap_skipped` word s: where s > 0 (the probe's materials are a mirror and α ≥ α_{s+1} only; levels 1 … s are not
+// uploaded) the chain is read as the chain without levels 1 … s, exactly: between the capture and level s + 1 for
+// α < α_{s+1} (f = α/α_{s+1}), as above from α_{s+1} up. A store with one gap level has s ∈ {0, 1}.
 void bakery_hybrid_levels(float alpha, float level_alphas[BAKERY_HYBRID_MAX_LEVELS], int n_levels, int first_level,
                           int gap_skipped, out int i0, out int i1, out float f)
 {
-    if (gap_skipped != 0 && first_level == 0 && n_levels > 2 && alpha < level_alphas[2])
+    int next = clamp(gap_skipped + 1, 1, BAKERY_HYBRID_MAX_LEVELS - 1);  // the first level read after the capture
+    if (gap_skipped > 0 && first_level == 0 && n_levels > next && alpha < level_alphas[next])
     {
         i0 = 0;
-        i1 = 2;
-        f = BK_SATURATE(alpha / level_alphas[2]);
+        i1 = next;
+        f = BK_SATURATE(alpha / level_alphas[next]);
     }
     else
         bakery_hybrid_levels(alpha, level_alphas, n_levels, first_level, i0, i1, f);

@@ -291,6 +291,24 @@ def test_splitsum_accepts_the_whole_range_and_keeps_its_layout():
 
 
 # ------------------------------------------------------------------------------------------------ gap level
+def _errors_against_the_exact_prefilter(encoders: dict, alpha: float) -> dict[str, float]:
+    """Relative RMS error of each encoder's E at v = n, F0 = 1 and ``alpha`` (200 directions, the first test cube)
+    against the capture prefiltered exactly at ``alpha`` × the DFG albedo (A + B)(1, α)."""
+    from bakery.reflection.tables import lookup_table
+
+    cube = _cubes()[0]
+    d = fibonacci_directions(200)
+    exact = sample_cube_bilinear(ss._exact_prefilter_level(cube, alpha, FACE).astype(np.float32), d)
+    dfg = next(iter(encoders.values())).shared_tables()["dfg"]
+    expected = exact * lookup_table(dfg, np.ones(len(d)), np.full(len(d), alpha)).sum(axis=1)[:, None]
+    errors = {}
+    for name, enc in encoders.items():
+        got = enc.evaluate_reflection(enc.encode(ProbeBatch(cube[None])), {}, d, d, np.full(len(d), alpha),
+                                      np.ones(len(d)))[0]
+        errors[name] = float(np.sqrt(np.mean((got - expected) ** 2)) / np.sqrt(np.mean(expected**2)))
+    return errors
+
+
 def test_the_gap_level_halves_the_first_blend_and_is_the_exact_prefiltered_environment():
     """``gap_level``: one more level at α_1/2 at the capture's face, every other level unchanged; the runtime
     coordinate hits it (x = 1), stays monotone and continuous; at α = α_1/2 the hybrid is the environment
@@ -306,19 +324,7 @@ def test_the_gap_level_halves_the_first_blend_and_is_the_exact_prefiltered_envir
     assert x[0] == 0 and np.all(np.diff(x) >= -1e-12) and np.max(np.abs(np.diff(x))) < 0.1
     assert gap.bytes_per_probe() - plain.bytes_per_probe() == 6 * FACE * FACE * 3 * 2 + 4  # + gap_skipped
 
-    cube = _cubes()[0]
-    d = fibonacci_directions(200)
-    half = float(alphas[1])
-    exact = sample_cube_bilinear(ss._exact_prefilter_level(cube, half, FACE).astype(np.float32), d)
-    from bakery.reflection.tables import lookup_table
-
-    albedo = lookup_table(gap.shared_tables()["dfg"], np.ones(len(d)), np.full(len(d), half)).sum(axis=1)
-    expected = exact * albedo[:, None]
-    errors = {}
-    for name, enc in (("plain", plain), ("gap", gap)):
-        fields = enc.encode(ProbeBatch(cube[None]))
-        got = enc.evaluate_reflection(fields, {}, d, d, np.full(len(d), half), np.ones(len(d)))[0]
-        errors[name] = float(np.sqrt(np.mean((got - expected) ** 2)) / np.sqrt(np.mean(expected**2)))
+    errors = _errors_against_the_exact_prefilter({"plain": plain, "gap": gap}, float(alphas[1]))
     assert errors["gap"] < 2e-3, errors  # measured 2.5e-4 relative RMS (float16 levels, bilinear)
     assert errors["plain"] > 0.03, errors  # measured 9.4 %: the capture blended with level 1
 
@@ -360,7 +366,7 @@ def test_a_skipped_gap_level_reads_as_the_chain_without_it():
     keeping = SHExpHybrid(face_size=FACE, gap_level=True, alpha_min_nonzero=0.99 * alpha_2, **FAST)
     assert skipping.gap_skipped and not keeping.gap_skipped
     assert not SHExpHybrid(face_size=FACE, gap_level=True, **FAST).gap_skipped  # unset: materials anywhere
-    assert hy.gap_level_read(skipping.chain.level_alphas(), 0.0)  # a material at α ≈ 0⁺ reads it
+    assert hy.gap_levels_skipped(skipping.chain.level_alphas(), 1, 0.0) == 0  # a material at α ≈ 0⁺ reads it
     cubes = _cubes()
     fields = {name: enc.encode(ProbeBatch(cubes)) for name, enc in
               (("plain", plain), ("skipping", skipping), ("keeping", keeping))}
@@ -386,6 +392,62 @@ def test_a_skipped_gap_level_reads_as_the_chain_without_it():
     reads_gap = (alpha > 0) & (alpha < alpha_2)
     np.testing.assert_allclose(e_keep[:, ~reads_gap], e_skip[:, ~reads_gap], rtol=1e-12)  # the same levels
     assert not np.allclose(e_keep[:, reads_gap], e_skip[:, reads_gap])
+
+
+def test_two_gap_levels_add_alpha_1_over_4_and_skip_as_the_chains_with_fewer():
+    """``gap_levels`` = 2: levels 1, 2 at α_1/4, α_1/2 (at the capture's face), every other level unchanged. At α_1/4
+    the hybrid is the environment prefiltered exactly at that α (× the DFG albedo), which one gap level only
+    approximates by blending the capture with α_1/2. A mirror probe whose other materials have α ≥ α_2 (= α_1/2)
+    skips level 1 and evaluates bit for bit as the one-gap-level chain; with α ≥ α_3 (= α_1) it skips both and
+    evaluates as the chain without gap levels (the same stored levels read at the same coordinates)."""
+    plain = SHExpHybrid(face_size=FACE, **FAST)
+    one = SHExpHybrid(face_size=FACE, gap_level=True, **FAST)
+    two = SHExpHybrid(face_size=FACE, gap_level=True, gap_levels=2, **FAST)
+    levels, alphas = plain.chain.levels(), two.chain.level_alphas()
+    assert two.chain.levels() == (levels[0], (round(levels[1][0] / 4, 6), FACE), (round(levels[1][0] / 2, 6), FACE),
+                                  *levels[1:])
+    np.testing.assert_allclose(two.chain.level_coordinate(alphas[1:]), np.arange(1, len(alphas)), atol=1e-9)
+    level_bytes = 6 * FACE * FACE * 3 * 2
+    assert two.bytes_per_probe() - one.bytes_per_probe() == level_bytes
+
+    errors = _errors_against_the_exact_prefilter({"one": one, "two": two}, float(alphas[1]))
+    assert errors["two"] < 2e-3, errors  # float16 levels, bilinear
+    assert errors["one"] > 5 * errors["two"], errors  # measured 1.7e-4 and 3.1 % relative RMS
+
+    skip_one = SHExpHybrid(face_size=FACE, gap_level=True, gap_levels=2, alpha_min_nonzero=float(alphas[2]), **FAST)
+    skip_two = SHExpHybrid(face_size=FACE, gap_level=True, gap_levels=2, alpha_min_nonzero=float(alphas[3]), **FAST)
+    keep = SHExpHybrid(face_size=FACE, gap_level=True, gap_levels=2, alpha_min_nonzero=0.99 * float(alphas[2]),
+                       **FAST)
+    assert (keep.gap_skipped, skip_one.gap_skipped, skip_two.gap_skipped) == (0, 1, 2)
+    cubes = _cubes()
+    encoders = {"plain": plain, "one": one, "skip_one": skip_one, "skip_two": skip_two}
+    fields = {name: enc.encode(ProbeBatch(cubes)) for name, enc in encoders.items()}
+    assert fields["skip_one"]["gap_skipped"].tolist() == [[1], [1]]
+    assert fields["skip_two"]["gap_skipped"].tolist() == [[2], [2]]
+    assert not np.any(fields["skip_one"]["level1"]) and np.any(fields["skip_one"]["level2"])
+    assert not np.any(fields["skip_two"]["level1"]) and not np.any(fields["skip_two"]["level2"])
+    upload = {name: enc.upload_bytes(fields[name]) for name, enc in encoders.items()}
+    np.testing.assert_array_equal(upload["skip_one"], upload["one"])
+    np.testing.assert_array_equal(upload["skip_two"], upload["plain"] + 4)  # + the gap_skipped word
+    assert {"level1", "level2"} & set(SHExpHybrid.layer_fields({k: v[:1] for k, v in fields["skip_two"].items()})) \
+        == set()
+    assert "level2" in SHExpHybrid.layer_fields({k: v[:1] for k, v in fields["skip_one"].items()})
+
+    v, n = _rows(64)
+    alpha = np.concatenate([[0.0, 1e-4, *alphas[1:4], 0.5 * alphas[2]], np.linspace(0.0, 1.0, 58)])
+    v, n, f0 = v[: len(alpha)], n[: len(alpha)], np.full(len(alpha), 0.04)
+    e = {name: enc.evaluate_reflection(fields[name], enc.shared_tables(), v, n, alpha, f0)
+         for name, enc in encoders.items()}
+    np.testing.assert_array_equal(e["skip_one"], e["one"])
+    np.testing.assert_array_equal(e["skip_two"], e["plain"])
+
+
+@pytest.mark.parametrize("value", [0, 5, True, 1.5])
+def test_gap_levels_outside_one_to_four_is_refused(value):
+    from bakery.encodings.base import ParamsError
+
+    with pytest.raises(ParamsError, match="gap_levels"):
+        SHExpHybrid.Params(gap_level=True, gap_levels=value)
 
 
 def test_the_pipeline_tells_the_hybrid_the_smallest_non_zero_alpha_only_where_it_matters():

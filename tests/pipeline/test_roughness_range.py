@@ -98,9 +98,11 @@ def test_reflection_probes_fit_the_roughness_they_can_see(tmp_path):
     assert np.all(np.isfinite(values))
 
 
-def test_a_mirror_probe_skips_the_hybrid_gap_level_its_materials_never_read(tmp_path):
-    """With ``gap_level``, probe A sees a mirror and r = 0.4 (α ≥ 0.16 ≥ α_2 = 0.144 at face 16): the gap level is
-    never read, so it is skipped (not uploaded); probe B sees a mirror and r = 0.12 (α ≈ 0.014 < α_2): kept."""
+@pytest.mark.parametrize("gap_levels", [1, 2])
+def test_a_mirror_probe_skips_the_hybrid_gap_level_its_materials_never_read(tmp_path, gap_levels):
+    """With ``gap_level``, probe A sees a mirror and r = 0.4 (α ≥ 0.16 ≥ α_1 = 0.144 at face 16, the first kernel
+    level): its gap levels (α_1/2, and α_1/4 with ``gap_levels`` = 2) are never read, so they are skipped (not
+    uploaded); probe B sees a mirror and r = 0.12 (α ≈ 0.014 < α_1/4): kept."""
     from bakery.encodings.hybrid import SHExpHybrid
 
     text = (header() + _material("Mirror", 0.0) + _material("Satin", 0.4) + _material("Gloss", 0.12)
@@ -111,19 +113,20 @@ def test_a_mirror_probe_skips_the_hybrid_gap_level_its_materials_never_read(tmp_
     scene = write(tmp_path / "scene.usda", text)
     store_path = tmp_path / "s.h5"
     summary = bakery.bake(scene, store_path, encodings=("shexp_hybrid",), face_size=16, samples=1,
-                          encoding_settings={"shexp_hybrid": {"gap_level": True}})
+                          encoding_settings={"shexp_hybrid": {"gap_level": True, "gap_levels": gap_levels}})
     store = bakery.open_store(store_path)
     fields = store.fields("shexp_hybrid")
     by_probe = dict(zip(store.probe_names, np.asarray(fields["gap_skipped"]).reshape(-1).tolist(), strict=True))
-    assert by_probe == {"/A": 1, "/B": 0}
+    assert by_probe == {"/A": gap_levels, "/B": 0}
     assert np.asarray(fields["first_level"]).reshape(-1).tolist() == [0, 0]
     encoding = SHExpHybrid(**store.encodings["shexp_hybrid"].settings)
     upload = dict(zip(store.probe_names, encoding.upload_bytes(fields).tolist(), strict=True))
-    assert upload["/B"] - upload["/A"] == 6 * 16 * 16 * 3 * 2  # the gap level at the capture's face
+    assert upload["/B"] - upload["/A"] == gap_levels * 6 * 16 * 16 * 3 * 2  # the gap levels at the capture's face
     from pxr import Usd  # the layer an engine imports holds each probe's upload: A's has no gap level
 
     stage = Usd.Stage.Open(summary.layer)
-    attribute = "bakery:reflection:shexp_hybrid:level1"
-    assert not stage.GetPrimAtPath("/A").GetAttribute(attribute).HasAuthoredValue()  # (the schema declares it)
-    assert stage.GetPrimAtPath("/B").GetAttribute(attribute).HasAuthoredValue()
-    assert stage.GetPrimAtPath("/A").GetAttribute("bakery:reflection:shexp_hybrid:gap_skipped").Get() == [1]
+    for k in range(1, gap_levels + 2):
+        attribute = f"bakery:reflection:shexp_hybrid:level{k}"  # (the schema declares them)
+        assert stage.GetPrimAtPath("/A").GetAttribute(attribute).HasAuthoredValue() == (k > gap_levels)
+        assert stage.GetPrimAtPath("/B").GetAttribute(attribute).HasAuthoredValue()
+    assert stage.GetPrimAtPath("/A").GetAttribute("bakery:reflection:shexp_hybrid:gap_skipped").Get() == [gap_levels]

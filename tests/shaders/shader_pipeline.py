@@ -314,9 +314,9 @@ def _job(store, label: str, name: str, info, spec: dict, variant: str, probe: in
                 sizes.append(size)
                 if variant == "cube" and i < int(first.min()):
                     continue  # below the probe's first_level: not uploaded (store-reflection.md), never read
-                if (variant == "cube" and i == 1 and hybrid and argument.get("gap_skipped") in fields
-                        and np.all(np.asarray(fields[argument["gap_skipped"]]) == 1)):
-                    continue  # a skipped gap level: not uploaded, never read
+                if (variant == "cube" and hybrid and argument.get("gap_skipped") in fields
+                        and 1 <= i <= int(np.min(np.asarray(fields[argument["gap_skipped"]])))):
+                    continue  # a skipped gap level (1 … s): not uploaded, never read
                 faces = _rgba(level.astype(np.float16).reshape(count * 6, size, size, 3), fill=1.0)
                 target = "CUBE" if variant == "cube" else "2D_ARRAY"
                 textures.append({"uniform": f"u_level{i}", "target": target, "internal": "RGBA16F", "width": size,

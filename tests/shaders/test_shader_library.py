@@ -3,8 +3,9 @@
 The shipped examples (examples/indoor, examples/outdoor, examples/environments/city_512.hdr) are baked with every
 registered encoding, plus a store of non-default settings (the paper's Fresnel-tail SH exponentials, a fitted
 hallucination curve, quantized layouts without companding), two ``shexp_hybrid`` stores whose probes need only
-part of the chain (first_level 2 of 5; the levels below are not uploaded) or none of it (first_level = L), and three
-with ``gap_level`` (6 levels: from level 0, from the gap level 1, and with the gap level skipped). For
+part of the chain (first_level 2 of 5; the levels below are not uploaded) or none of it (first_level = L), three
+with ``gap_level`` (6 levels: from level 0, from the gap level 1, and with the gap level skipped) and three with two
+gap levels (7 levels: whole, and with one or both gap levels skipped). For
 every (store, encoding) headless Chromium renders, with WebGL2 (SwiftShader where there is no GPU), the manifest's
 GLSL entry point into an RGBA32F target at 64 normals (irradiance) or 96 (v, n, α, F0) rows (reflection; 18 of
 them with n·v < 0, down to −0.999, which the shaders clamp to the horizon, and α from 0, below the SH exponentials'
@@ -28,6 +29,7 @@ stores and rows (SPIR-V → GLSL ES 3.00 by spirv-cross → this WebGL2 page).
 
 from __future__ import annotations
 
+import itertools
 import json
 from pathlib import Path
 
@@ -57,13 +59,18 @@ VARIANT_SETTINGS = {
 #: (first_level = L: SH exponential + lights only), from the settings' material range (city map, no per-probe range);
 #: and the chain with ``gap_level`` (6 levels, α = 0, 0.072, 0.144, …): whole (the α_1/2 level between the capture and
 #: level 2), from the gap level up (α_min 0.1 → first_level 1: the capture is not uploaded), and with the gap level
-#: skipped (a mirror and α ≥ 0.2 only: ``gap_skipped``, level 1 not uploaded, read as the chain without it).
+#: skipped (a mirror and α ≥ 0.2 only: ``gap_skipped``, level 1 not uploaded, read as the chain without it); with
+#: ``gap_levels`` = 2 (7 levels, α = 0, 0.036, 0.072, 0.144, …): whole, with the first gap level skipped (a mirror and
+#: α ≥ 0.1 only: ``gap_skipped`` = 1, read from the capture to level 2) and with both skipped (α ≥ 0.2: 2).
 HYBRID_VARIANTS = {
     "hybrid_glossy": (16, {"alpha_min": 0.3}),
     "hybrid_rough": (8, {"alpha_min": 0.9}),
     "hybrid_gap": (16, {"gap_level": True}),
     "hybrid_gap_sharp": (16, {"gap_level": True, "alpha_min": 0.1}),
     "hybrid_gap_skipped": (16, {"gap_level": True, "alpha_min_nonzero": 0.2}),
+    "hybrid_gap2": (16, {"gap_level": True, "gap_levels": 2}),
+    "hybrid_gap2_skip1": (16, {"gap_level": True, "gap_levels": 2, "alpha_min_nonzero": 0.1}),
+    "hybrid_gap2_skip2": (16, {"gap_level": True, "gap_levels": 2, "alpha_min_nonzero": 0.2}),
 }
 #: Budget of the browser part (page load, 100+ shader compiles, draws and read-backs).
 BROWSER_SECONDS = 60.0
@@ -180,19 +187,22 @@ def test_the_inputs_exercise_the_reflection_validity_rules(stores):
             levels = len(settings["level_alphas"])
             first = np.asarray(store.fields("shexp_hybrid")["first_level"]).reshape(-1)
             first_levels |= {"all" if k == 0 else "none" if k == levels else "part" for k in first}
-            if settings.get("gap_level"):  # rows read the gap level α_1 (between the capture and α_2) and around it
+            if settings.get("gap_level"):  # rows read every gap level 1 … G, between its neighbours and around it
+                gaps = settings.get("gap_levels", 1)
                 skipped = np.asarray(store.fields("shexp_hybrid")["gap_skipped"]).reshape(-1)
-                gap_first_levels |= {(int(k), int(g)) for k, g in zip(first, skipped, strict=True)}
-                alpha_1, alpha_2 = settings["level_alphas"][1:3]
-                assert np.count_nonzero((rows["alpha"] > 0) & (rows["alpha"] < alpha_1)) >= 2
-                assert np.count_nonzero((rows["alpha"] > alpha_1) & (rows["alpha"] < alpha_2)) >= 1
+                gap_first_levels |= {(gaps, int(k), int(g)) for k, g in zip(first, skipped, strict=True)}
+                edges = settings["level_alphas"][: gaps + 2]
+                assert np.count_nonzero((rows["alpha"] > 0) & (rows["alpha"] < edges[1])) >= 2
+                for lo, hi in itertools.pairwise(edges[1:]):
+                    assert np.count_nonzero((rows["alpha"] > lo) & (rows["alpha"] < hi)) >= 1, (lo, hi)
             w0 = hy.chain_weight(rows["alpha"], settings["crossover"], settings["blend_octaves"])
             w1 = hy.chain_weight(rows["alpha"], settings["tail_crossover"], settings["blend_octaves"])
             assert np.count_nonzero((w0 > 0) & (w0 < 1)) >= 5 and np.count_nonzero((w1 > 0) & (w1 < 1)) >= 5
             assert np.count_nonzero(w0 == 1.0) >= 5 and np.count_nonzero(w1 == 0.0) >= 5
     assert first_levels == {"all", "part", "none"}
-    # gap_level chains read from the capture, from the gap level up, and from the capture without the gap level
-    assert gap_first_levels == {(0, 0), (1, 0), (0, 1)}
+    # (gap levels, first level, gap levels skipped): gap_level chains read from the capture, from the gap level up,
+    # and from the capture without the gap level; with two gap levels, whole and without one or both
+    assert gap_first_levels == {(1, 0, 0), (1, 1, 0), (1, 0, 1), (2, 0, 0), (2, 0, 1), (2, 0, 2)}
 
 
 # ------------------------------------------------------------------------------------------------------ WebGL2

@@ -97,8 +97,9 @@ def test_schema_declares_every_encoding_field_with_its_type_and_documentation():
 
 
 def test_the_schema_declares_every_field_the_recipe_presets_write():
-    """A preset may turn on a setting that adds fields (``shexp_hybrid`` ``gap_level``: level L and ``gap_skipped``):
-    the layer of a bake with any preset writes only declared attributes (``Encoding.schema_layouts``)."""
+    """A preset may turn on a setting that adds fields (``shexp_hybrid`` ``gap_level``, ``gap_levels``: levels L,
+    L + 1 and ``gap_skipped``): the layer of a bake with any preset writes only declared attributes
+    (``Encoding.schema_layouts``)."""
     from bakery.pipeline.recipe import RECIPE_DIR, load_recipe
 
     declared = declared_attributes()
