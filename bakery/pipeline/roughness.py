@@ -84,16 +84,27 @@ def fit_alpha_range(roughness: list[float]) -> tuple[float, float] | None:
     return float(round(lo * lo, 6)), float(round(hi * hi, 6))
 
 
+#: Buckets per octave of α for :func:`smallest_nonzero_alpha` (2^(1/4): never more than 19 % below the true α).
+NONZERO_ALPHA_BUCKETS_PER_OCTAVE = 4
+
+
 def smallest_nonzero_alpha(roughness: list[float]) -> float | None:
-    """GGX α of the smallest perceptual roughness above 0 among ``roughness``, bucketed down as the range's lower end
-    (r_lo², so never above the true α), or None when every material is a mirror (or none is given). With a mirror in
-    range it tells the hybrid whether any material reads its gap level (``shexp_hybrid`` ``alpha_min_nonzero``)."""
+    """GGX α of the smallest perceptual roughness above 0 among ``roughness``, bucketed down (never above the true
+    α), or None when every material is a mirror (or none is given). With a mirror in range it tells the hybrid which
+    of its gap levels (α_1/2, α_1/4, … : octaves) any material reads (``shexp_hybrid`` ``alpha_min_nonzero``), so the
+    bucket is the finer of the range's (r rounded down to 0.1, squared: 0.04 for r = 0.25; 0 below r = 0.1) and a
+    quarter octave of α (α = 0.0225 for r = 0.15 → 0.0221, where the range's bucket gives 0.01)."""
     r = np.clip(np.asarray(roughness, dtype=np.float64), 0.0, 1.0)
     r = r[r > 0.0]
     if r.size == 0:
         return None
-    lo = _bucket_down(r.min())
-    return float(round(lo * lo, 6))
+    alpha = float(r.min()) ** 2
+    by_roughness = round(_bucket_down(float(r.min())) ** 2, 6)  # the range's lower end
+    if alpha < 1e-6:  # below the 6 decimals kept (r < 0.001)
+        return by_roughness
+    steps = np.floor(NONZERO_ALPHA_BUCKETS_PER_OCTAVE * np.log2(alpha) + 1e-9)
+    by_octave = np.floor(min(2.0 ** (steps / NONZERO_ALPHA_BUCKETS_PER_OCTAVE), alpha) * 1e6) / 1e6  # rounded down
+    return float(max(by_roughness, by_octave))
 
 
 def _bucket_down(roughness: float) -> float:

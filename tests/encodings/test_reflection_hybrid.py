@@ -5,6 +5,8 @@ clamp rules, memory accounting, and the α / n·v input rules of every reflectio
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from bakery.encodings.hybrid import SHExpHybrid
 from bakery.encodings.registry import ENCODINGS
@@ -450,14 +452,32 @@ def test_gap_levels_outside_one_to_four_is_refused(value):
         SHExpHybrid.Params(gap_level=True, gap_levels=value)
 
 
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.floats(0.0, 1.0), min_size=1, max_size=6))
+def test_the_smallest_non_zero_alpha_is_never_above_the_true_one_and_at_most_a_quarter_octave_below(roughness):
+    """Bucketed down: a probe may keep a gap level none of its materials reads, never skip one that one reads
+    (6 decimals: within 1e-6)."""
+    from bakery.pipeline.roughness import smallest_nonzero_alpha
+
+    got = smallest_nonzero_alpha(roughness)
+    nonzero = [r for r in roughness if r > 0.0]
+    if not nonzero:
+        assert got is None
+        return
+    alpha = min(nonzero) ** 2
+    assert got <= alpha + 5e-7
+    assert got >= alpha * 2.0**-0.25 - 1e-6
+
+
 def test_the_pipeline_tells_the_hybrid_the_smallest_non_zero_alpha_only_where_it_matters():
     """``probe_alpha_overrides``: the range for every ranged encoding; ``alpha_min_nonzero`` for the hybrid only with
     ``gap_level`` and a mirror in range (elsewhere it would change the probes' hash and nothing else);
-    ``smallest_nonzero_alpha`` buckets down as the range does (never above the true α)."""
+    ``smallest_nonzero_alpha`` buckets down (never above the true α; property test below)."""
     from bakery.pipeline.roughness import smallest_nonzero_alpha
 
-    assert smallest_nonzero_alpha([0.0, 0.25, 0.7]) == pytest.approx(0.04)  # r 0.25 → bucket 0.2 → α 0.04 ≤ 0.0625
-    assert smallest_nonzero_alpha([0.0, 0.05]) == 0.0  # below the first bucket: as sharp as a mirror, reads the gap
+    assert smallest_nonzero_alpha([0.0, 0.25, 0.7]) == 0.0625  # α = 2^−4: on a quarter-octave bucket
+    assert smallest_nonzero_alpha([0.0, 0.3, 0.7]) == 0.09  # the range's bucket (r = 0.3) is finer here
+    assert smallest_nonzero_alpha([0.0, 0.15]) == pytest.approx(2.0**-5.5, abs=1e-6)  # α 0.0225; range bucket: 0.01
     assert smallest_nonzero_alpha([0.0]) is None and smallest_nonzero_alpha([]) is None
     on, off = SHExpHybrid.Params(gap_level=True), SHExpHybrid.Params()
     assert SHExpHybrid.probe_alpha_overrides(on, (0.0, 1.0), 0.04) == {

@@ -140,3 +140,14 @@ def test_a_damaged_reference_cache_file_is_recomputed_not_used(tmp_path, monkeyp
     before = len(calls)
     bench.reference_e0_e1(tmp_path / "sky.exr", image, view, normal, alpha, tmp_path / "cache")
     assert len(calls) == before and [p.name for p in (tmp_path / "cache").iterdir()] == [cached.name]
+
+
+def test_the_bench_scores_the_hybrid_with_the_gap_levels_asked_for():
+    """``bakery bench reflection --gap-level --gap-levels G`` scores ``shexp_hybrid`` with G gap levels (recorded in
+    ``reflection.json``'s settings); without ``--gap-level``, with the encoding's defaults."""
+    from bakery.bench.reflection import _encoders
+
+    default, two = _encoders(16)[HYBRID], _encoders(16, hybrid_gap_levels=2)[HYBRID]
+    assert not default.params.gap_level
+    assert two.params.gap_level and two.params.gap_levels == 2
+    assert two.settings["level_alphas"][1] == pytest.approx(default.settings["level_alphas"][1] / 4, rel=1e-4)
