@@ -239,13 +239,14 @@ class SHExpHybrid(SHExpLights):
 
     @classmethod
     def layer_fields(cls, fields: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        """Every field except the levels below the smallest ``first_level`` of the prim's probes: zero-filled and
-        never uploaded (a reflection probe is one prim, so its layer holds exactly its upload)."""
-        first = int(np.min(np.asarray(fields["first_level"]))) if len(fields["first_level"]) else 0
-        unused = {f"level{k}" for k in range(first)}
-        skipped = int(np.min(_gap_skipped(fields, np.asarray(fields["first_level"]).reshape(-1)))) \
-            if len(fields["first_level"]) else 0
-        unused |= {f"level{k}" for k in range(1, skipped + 1)}
+        """Every field except the levels below the smallest ``first_level`` of the prim's probes and the gap levels
+        1 … s every probe of the prim skips: zero-filled and never uploaded (a reflection probe is one prim, so its
+        layer holds exactly its upload)."""
+        first = np.asarray(fields["first_level"]).reshape(-1)
+        if first.size == 0:
+            return fields
+        skipped = int(np.min(_gap_skipped(fields, first)))
+        unused = {f"level{k}" for k in [*range(int(first.min())), *range(1, skipped + 1)]}
         return {name: value for name, value in fields.items() if name not in unused}
 
     @classmethod

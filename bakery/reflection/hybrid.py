@@ -65,8 +65,7 @@ def gap_levels_skipped(level_alphas: np.ndarray, gap_levels: int, alpha_min_nonz
     s = #{k ≤ G : α_{k+1} ≤ alpha_min_nonzero}. Without them the chain is read exactly as a chain whose gap levels
     are s + 1 … G (:func:`bakery.reflection.splitsum.level_coordinate` of the remaining α's)."""
     la = np.asarray(level_alphas, dtype=np.float64)
-    g = min(int(gap_levels), la.size - 2)
-    return int(sum(1 for k in range(1, g + 1) if la[k + 1] <= alpha_min_nonzero))
+    return int(np.count_nonzero(la[2 : int(gap_levels) + 2] <= alpha_min_nonzero))  # α_{k+1}, k = 1 … G
 
 
 def combine(chain: np.ndarray, pq: np.ndarray, lights0: np.ndarray, lights1: np.ndarray, ab: np.ndarray,

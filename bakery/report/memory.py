@@ -13,7 +13,8 @@ per-probe total + that. Encodings with no probe are not counted (nothing of thei
 Uploaded bytes per probe (what an engine uploads): each encoding's :meth:`~bakery.encodings.base.Encoding.upload_bytes`
 of its stored fields — ``bytes_per_probe``, except for ``shexp_hybrid`` (``schemas/store-reflection.md``), whose levels
 below a probe's ``first_level`` (and the gap levels it skips, ``gap_skipped``) are zero-filled in the fixed layout and
-not uploaded: a probe that needs no chain uploads its SH exponential and lights only. Mean, min and max over the encoding's probes.
+not uploaded: a probe that needs no chain uploads its SH exponential and lights only. Mean, min and max over the
+encoding's probes.
 
 Comparisons (computed, not measured on a GPU)
     * SH3 floats: 9 coefficients × 3 channels × 4 bytes = 108 bytes per probe.
