@@ -31,10 +31,12 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from pxr import Plug, Tf, Usd
 
+from bakery.conventions import MAX_FACE_SIZE
 from bakery.files import write_bytes_atomic
 
 #: The packaged plugin directory (plugInfo.json + generatedSchema.usda).
@@ -84,17 +86,30 @@ def schemas_registered() -> bool:
     ) and bool(Tf.Type.FindByName(PROBE_TYPES[0]))
 
 
+def schema_layouts(cls: type) -> dict[str, dict[str, Any]]:
+    """Label → Params overrides of every layout the schema declares for encoding ``cls``: the default settings, its
+    :attr:`~bakery.encodings.base.Encoding.schema_layouts`, and, for an encoding whose levels follow the bake's face
+    size, each of those at the largest face size a bake accepts (the most levels: a bake at any face size writes
+    only declared attributes)."""
+    from bakery.conventions import MAX_FACE_SIZE
+
+    layouts = {"the default settings": {}, **cls.schema_layouts}
+    if cls.follows_bake_face_size:
+        layouts |= {(f"{label}, " if overrides else "") + f"face_size = {MAX_FACE_SIZE}":
+                    {**overrides, "face_size": MAX_FACE_SIZE} for label, overrides in list(layouts.items())}
+    return layouts
+
+
 def baked_field_attributes() -> list[tuple[str, str, str]]:
     """(attribute name, USD type name, documentation) of every field of every registered encoding, with the
-    encoding's default parameters, then the fields its :attr:`~bakery.encodings.base.Encoding.schema_layouts` add,
-    in registration order."""
+    encoding's default parameters, then the fields its other :func:`schema_layouts` add, in registration order."""
     from bakery.encodings import ENCODINGS
     from bakery.usd.layer import MAX_VALUES_PER_PROBE, attribute_name, usd_type_for
 
     attributes = []
     for cls in ENCODINGS.values():
         seen = set()
-        for label, overrides in {"the default settings": {}, **cls.schema_layouts}.items():
+        for label, overrides in schema_layouts(cls).items():
             for spec in cls(**overrides).field_specs():
                 if spec.name in seen:
                     continue

@@ -98,23 +98,49 @@ def test_schema_declares_every_encoding_field_with_its_type_and_documentation():
 
 def test_the_schema_declares_every_field_the_recipe_presets_write():
     """A preset may turn on a setting that adds fields (``shexp_hybrid`` ``gap_level``, ``gap_levels``: levels L,
-    L + 1 and ``gap_skipped``): the layer of a bake with any preset writes only declared attributes
-    (``Encoding.schema_layouts``)."""
+    L + 1 and ``gap_skipped``), and a bake's face size sets the level count of the encodings that follow it (the
+    hybrid's chain has 7 levels at 4², 16 at 4096² with 4 gap levels): the layer of a bake with any preset at any face
+    size writes only declared attributes (``Encoding.schema_layouts``, at the largest face size as well)."""
+    from bakery.conventions import MAX_FACE_SIZE
     from bakery.pipeline.recipe import RECIPE_DIR, load_recipe
 
     declared = declared_attributes()
     problems = []
     presets = sorted(path.stem for path in RECIPE_DIR.glob("*.toml"))
     assert {"console", "pc-high"} <= set(presets)
+    face_sizes = [4, 5, 7, 48, 100, 1000, 3000, *(1 << k for k in range(2, MAX_FACE_SIZE.bit_length()))]
     for preset in presets:
         recipe = load_recipe(preset)
         for name in recipe.encodings:
             cls = ENCODINGS[name]
-            for spec in cls(**recipe.encoding_settings.get(name, {})).field_specs():
-                attribute = attribute_name(cls.kind, cls.name, spec.name)
-                if attribute not in declared or declared[attribute][0] != usd_type_for(spec.dtype, spec.shape):
-                    problems.append(f"{preset}: {attribute}")
+            settings = recipe.encoding_settings.get(name, {})
+            for face_size in face_sizes if cls.follows_bake_face_size else [None]:
+                overrides = settings | ({"face_size": face_size} if face_size else {})
+                for spec in cls(**overrides).field_specs():
+                    attribute = attribute_name(cls.kind, cls.name, spec.name)
+                    if attribute not in declared or declared[attribute][0] != usd_type_for(spec.dtype, spec.shape):
+                        problems.append(f"{preset} at face size {face_size}: {attribute}")
     assert problems == [], "declare them through Encoding.schema_layouts and run `python -m bakery.usd.sync_schemas`"
+
+
+def test_the_schema_declares_every_level_of_the_largest_chain():
+    """Every encoding whose levels follow the bake's face size, at every layout the schema declares and every face
+    size a bake accepts, writes only declared attributes (before, levels 11–15 of a 4 gap-level chain above 64² were
+    written undeclared)."""
+    from bakery.conventions import MAX_FACE_SIZE
+    from bakery.usd.plugin import schema_layouts
+
+    declared = declared_attributes()
+    problems = []
+    for cls in ENCODINGS.values():
+        if not cls.follows_bake_face_size:
+            continue
+        for overrides in schema_layouts(cls).values():
+            for face_size in (4, 64, 129, 1024, 2047, MAX_FACE_SIZE):
+                for spec in cls(**(overrides | {"face_size": face_size})).field_specs():
+                    if attribute_name(cls.kind, cls.name, spec.name) not in declared:
+                        problems.append(f"{cls.name} {overrides} at {face_size}: {spec.name}")
+    assert problems == []
 
 
 def test_a_new_field_without_a_schema_declaration_fails():
