@@ -610,9 +610,12 @@ def bench_splitsum(environments: tuple[Path, ...], output: Path, face_size: int,
 @click.option("--directions", type=click.IntRange(min=1), default=600, show_default=True)
 @click.option("--max-gap-levels", type=click.IntRange(0, 4), default=2, show_default=True,
               help="Score shexp_hybrid without gap levels and with 1 … this many.")
+@click.option("--supersample", type=click.IntRange(min=1), default=4, show_default=True,
+              help="The reference filters the capture's bilinear reconstruction at this many times the face size "
+                   "(1: its texels, piecewise constant).")
 @click.option("--force", is_flag=True, help="Replace result files in the folder that bench did not write.")
 def bench_sharp_chain(environments: tuple[Path, ...], output: Path, face_size: int, directions: int,
-                      max_gap_levels: int, force: bool) -> None:
+                      max_gap_levels: int, supersample: int, force: bool) -> None:
     """The hybrid's chain below its first kernel level (alpha 0.003-0.03), with 0, 1, 2 … gap levels, against the
     kernel applied exactly, and the floor of a level at exactly each alpha (ENVIRONMENTS: HDR images)."""
     from bakery.bench.output import check_bench_outputs, write_bench_file
@@ -620,7 +623,7 @@ def bench_sharp_chain(environments: tuple[Path, ...], output: Path, face_size: i
 
     check_bench_outputs(output, ("sharp_chain.json", "sharp_chain.md"), force)
     result = run_sharp_chain_bench(list(environments), face_size=face_size, directions=directions,
-                                   max_gap_levels=max_gap_levels, echo=click.echo)
+                                   max_gap_levels=max_gap_levels, supersample=supersample, echo=click.echo)
     write_bench_file(output, "sharp_chain.json", json.dumps(result, indent=2), force)
     write_bench_file(output, "sharp_chain.md", format_table(result) + "\n", force)
 

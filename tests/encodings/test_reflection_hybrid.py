@@ -444,6 +444,32 @@ def test_two_gap_levels_add_alpha_1_over_4_and_skip_as_the_chains_with_fewer():
     np.testing.assert_array_equal(e["skip_two"], e["plain"])
 
 
+def test_a_probe_skipping_s_of_three_gap_levels_evaluates_as_the_chain_with_three_minus_s():
+    """``gap_levels`` = 3: levels 1–3 at α_1/8, α_1/4, α_1/2. A mirror probe whose other materials all have
+    α ≥ α_{s+1} skips gap levels 1 … s and evaluates bit for bit as the chain with 3 − s gap levels (3 − s = 0:
+    without gap levels), uploading the same bytes (+ the ``gap_skipped`` word against the chain without any)."""
+    three = SHExpHybrid(face_size=FACE, gap_level=True, gap_levels=3, **FAST)
+    alphas = three.chain.level_alphas()
+    first = SHExpHybrid(face_size=FACE, **FAST).chain.level_alphas()[1]
+    np.testing.assert_allclose(alphas[1:4], [first / 8, first / 4, first / 2], rtol=1e-4)  # stored to 6 digits
+    cubes = _cubes()
+    v, n = _rows(64)
+    alpha = np.concatenate([[0.0, 1e-4, *alphas[1:5], 0.5 * alphas[1]], np.linspace(0.0, 1.0, 57)])
+    v, n, f0 = v[: len(alpha)], n[: len(alpha)], np.full(len(alpha), 1.0)
+    for skipped in (1, 2, 3):
+        skipping = SHExpHybrid(face_size=FACE, gap_level=True, gap_levels=3,
+                               alpha_min_nonzero=float(alphas[skipped + 1]), **FAST)
+        fewer = (SHExpHybrid(face_size=FACE, gap_level=True, gap_levels=3 - skipped, **FAST) if skipped < 3
+                 else SHExpHybrid(face_size=FACE, **FAST))
+        assert skipping.gap_skipped == skipped
+        fields = {"skipping": skipping.encode(ProbeBatch(cubes)), "fewer": fewer.encode(ProbeBatch(cubes))}
+        e_skipping = skipping.evaluate_reflection(fields["skipping"], skipping.shared_tables(), v, n, alpha, f0)
+        e_fewer = fewer.evaluate_reflection(fields["fewer"], fewer.shared_tables(), v, n, alpha, f0)
+        np.testing.assert_array_equal(e_skipping, e_fewer)
+        np.testing.assert_array_equal(skipping.upload_bytes(fields["skipping"]),
+                                      fewer.upload_bytes(fields["fewer"]) + (4 if skipped == 3 else 0))
+
+
 @pytest.mark.parametrize("value", [0, 5, True, 1.5])
 def test_gap_levels_outside_one_to_four_is_refused(value):
     from bakery.encodings.base import ParamsError
