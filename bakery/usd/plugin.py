@@ -91,8 +91,6 @@ def schema_layouts(cls: type) -> dict[str, dict[str, Any]]:
     :attr:`~bakery.encodings.base.Encoding.schema_layouts`, and, for an encoding whose levels follow the bake's face
     size, each of those at the largest face size a bake accepts (the most levels: a bake at any face size writes
     only declared attributes)."""
-    from bakery.conventions import MAX_FACE_SIZE
-
     layouts = {"the default settings": {}, **cls.schema_layouts}
     if cls.follows_bake_face_size:
         layouts |= {(f"{label}, " if overrides else "") + f"face_size = {MAX_FACE_SIZE}":

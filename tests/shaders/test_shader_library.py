@@ -61,7 +61,8 @@ VARIANT_SETTINGS = {
 #: level 2), from the gap level up (α_min 0.1 → first_level 1: the capture is not uploaded), and with the gap level
 #: skipped (a mirror and α ≥ 0.2 only: ``gap_skipped``, level 1 not uploaded, read as the chain without it); with
 #: ``gap_levels`` = 2 (7 levels, α = 0, 0.036, 0.072, 0.144, …): whole, with the first gap level skipped (a mirror and
-#: α ≥ 0.1 only: ``gap_skipped`` = 1, read from the capture to level 2) and with both skipped (α ≥ 0.2: 2).
+#: α ≥ 0.1 only: ``gap_skipped`` = 1, read from the capture to level 2) and with both skipped (α ≥ 0.2: 2); with
+#: ``gap_levels`` = 3 (8 levels, α = 0, 0.018, 0.036, 0.072, …) and the first skipped (a mirror and α ≥ 0.05 only).
 HYBRID_VARIANTS = {
     "hybrid_glossy": (16, {"alpha_min": 0.3}),
     "hybrid_rough": (8, {"alpha_min": 0.9}),
@@ -71,6 +72,7 @@ HYBRID_VARIANTS = {
     "hybrid_gap2": (16, {"gap_level": True, "gap_levels": 2}),
     "hybrid_gap2_skip1": (16, {"gap_level": True, "gap_levels": 2, "alpha_min_nonzero": 0.1}),
     "hybrid_gap2_skip2": (16, {"gap_level": True, "gap_levels": 2, "alpha_min_nonzero": 0.2}),
+    "hybrid_gap3_skip1": (16, {"gap_level": True, "gap_levels": 3, "alpha_min_nonzero": 0.05}),
 }
 #: Budget of the browser part (page load, 100+ shader compiles, draws and read-backs).
 BROWSER_SECONDS = 60.0
@@ -201,8 +203,9 @@ def test_the_inputs_exercise_the_reflection_validity_rules(stores):
             assert np.count_nonzero(w0 == 1.0) >= 5 and np.count_nonzero(w1 == 0.0) >= 5
     assert first_levels == {"all", "part", "none"}
     # (gap levels, first level, gap levels skipped): gap_level chains read from the capture, from the gap level up,
-    # and from the capture without the gap level; with two gap levels, whole and without one or both
-    assert gap_first_levels == {(1, 0, 0), (1, 1, 0), (1, 0, 1), (2, 0, 0), (2, 0, 1), (2, 0, 2)}
+    # and from the capture without the gap level; with two gap levels, whole and without one or both; with three,
+    # without the first
+    assert gap_first_levels == {(1, 0, 0), (1, 1, 0), (1, 0, 1), (2, 0, 0), (2, 0, 1), (2, 0, 2), (3, 0, 1)}
 
 
 # ------------------------------------------------------------------------------------------------------ WebGL2
