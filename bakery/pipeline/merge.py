@@ -31,6 +31,7 @@ from bakery.pipeline.settings import DEFAULT_BAND_TOLERANCE, BakeSettings, build
 from bakery.pipeline.skip import band_skip_decisions
 from bakery.probe import Probe
 from bakery.sphere.fibonacci import fibonacci_directions
+from bakery.zero_pages import MIN_BYTES, lazy_zeros, nonzero_rows
 
 
 #: Per-probe diagnostics key of the backface fraction (rendered probes; NaN for loaded images and older stores).
@@ -140,12 +141,26 @@ def _merge_per_probe(parts_of: list[dict[str, np.ndarray]], counts: list[int],
 
 def _scatter(parts: list[np.ndarray], destination: np.ndarray) -> np.ndarray:
     """``out[destination] = np.concatenate(parts)`` without the concatenated copy: each part is written straight to
-    its rows (the parent's peak memory at merge is the batches plus one merged copy, not two)."""
-    out = np.empty((destination.size, *np.shape(parts[0])[1:]), dtype=np.result_type(*parts))
+    its rows (the parent's peak memory at merge is the batches plus one merged copy, not two). A large numeric
+    result is allocated by :func:`bakery.zero_pages.lazy_zeros` and only the parts' rows with a non-zero byte are
+    written, so its all-zero rows (levels a probe does not upload) take no memory."""
+    shape = (destination.size, *np.shape(parts[0])[1:])
+    dtype = np.result_type(*parts)
+    lazy = dtype.kind in "biufc" and int(np.prod(shape, dtype=np.int64)) * dtype.itemsize >= MIN_BYTES
+    out = lazy_zeros(shape, dtype) if lazy else np.empty(shape, dtype=dtype)
     start = 0
     for part in parts:
-        out[destination[start : start + len(part)]] = part
+        rows = destination[start : start + len(part)]
         start += len(part)
+        if not lazy:
+            out[rows] = part
+            continue
+        part = np.asarray(part)
+        keep = nonzero_rows(part)
+        if keep.all():
+            out[rows] = part
+        elif keep.any():
+            out[rows[keep]] = part[keep]
     return out
 
 

@@ -86,6 +86,7 @@ from bakery.store.format import (
     read_store,
     write_store_file,
 )
+from bakery.zero_pages import without_resident_zeros
 
 STORE_SUFFIXES = (".h5", ".hdf5")
 LAYER_SUFFIXES = (".usda", ".usdc", ".usd")
@@ -519,6 +520,17 @@ def _longest_first(batches: list[BatchTask], request: BakeRequest, source: Sourc
     return sorted(batches, key=lambda b: (-cost[b.key], b.key))
 
 
+def _zero_rows_not_resident(outcome: BatchOutcome) -> BatchOutcome:
+    """``outcome`` with its large encoded fields' all-zero rows not resident (:mod:`bakery.zero_pages`): the parent
+    holds every batch until the merge, and a fixed-layout chain is mostly zero rows (a 128² hybrid probe stores
+    2.6 MB with 2 gap levels, a hall's probe uploads ~0.6 MB of them)."""
+    if outcome.result is not None:
+        for fields in outcome.result.encoded.values():
+            for key in list(fields):
+                fields[key] = without_resident_zeros(fields[key])
+    return outcome
+
+
 def execute_batches(batches: list[BatchTask], request: BakeRequest, source: Source, plan: Plan, executor: Executor,
                     journal: Journal, progress: Callable[[int, int], None] | None,
                     ) -> tuple[list[BatchOutcome], int]:
@@ -526,7 +538,7 @@ def execute_batches(batches: list[BatchTask], request: BakeRequest, source: Sour
     ``request.resume``, batches the journal already holds are not run again. Returns (every outcome, the number of
     resumed batches). Progress is reported in probes of ``batches``."""
     done = journal.load({b.key for b in batches}) if request.resume else {}
-    outcomes = list(done.values())
+    outcomes = [_zero_rows_not_resident(outcome) for outcome in done.values()]
     total = sum(len(b.probes) for b in batches)
     finished = sum(len(b.probes) for b in batches if b.key in done)
     if progress:
@@ -540,7 +552,7 @@ def execute_batches(batches: list[BatchTask], request: BakeRequest, source: Sour
         size_of = {b.key: len(b.probes) for b in todo}
         for outcome in executor.run([replace(b, source=handle) for b in todo]):
             journal.save(outcome)
-            outcomes.append(outcome)
+            outcomes.append(_zero_rows_not_resident(outcome))
             finished += size_of[outcome.key]
             if progress:
                 progress(finished, total)

@@ -38,6 +38,7 @@ from bakery.files import (
     sha256_running,
     with_filename,
 )
+from bakery.zero_pages import MIN_BYTES, lazy_zeros, nonzero_rows
 
 FORMAT_NAME = "bakery.probe-store"
 FORMAT_VERSION = "1.2.0"
@@ -486,9 +487,13 @@ def read_store(path: str | os.PathLike[str], load_fields: bool = True, *, strict
     integrity = StoreIntegrity()
     unreadable: dict[str, str] = {}
 
-    def value(item: h5py.Dataset) -> Any:
-        """The dataset's values; a read failure (fletcher32 mismatch, damaged chunk) is recorded, not raised."""
+    def value(item: h5py.Dataset, rows_lazily: bool = False) -> Any:
+        """The dataset's values; a read failure (fletcher32 mismatch, damaged chunk) is recorded, not raised.
+        ``rows_lazily``: a large numeric dataset is read by blocks of rows, its all-zero rows left unwritten in a
+        :func:`~bakery.zero_pages.lazy_zeros` array (the same values; those rows take no memory)."""
         try:
+            if rows_lazily:
+                return _read_rows_lazily(item)
             return item[()]
         except (OSError, RuntimeError, ValueError) as error:
             unreadable[item.name] = os_error_message(error)
@@ -535,7 +540,7 @@ def read_store(path: str | os.PathLike[str], load_fields: bool = True, *, strict
                                          "descriptions": {}}
                 for key, item in group.items():
                     if isinstance(item, h5py.Dataset):
-                        entry["fields"][key] = value(item) if load_fields else None
+                        entry["fields"][key] = value(item, rows_lazily=True) if load_fields else None
                         if "description" in item.attrs:
                             entry["descriptions"][key] = str(item.attrs["description"])
                 if "shared" in group:
@@ -593,6 +598,32 @@ def read_store(path: str | os.PathLike[str], load_fields: bool = True, *, strict
         check_encoding_layout(path, encodings, count)
     return StoreContents(attributes, names, kinds, np.asarray(positions), encodings, diagnostics, hashes,
                          np.asarray(bake_ids, dtype=np.int32), history, integrity)
+
+
+#: Rows read at once by :func:`_read_rows_lazily` (bytes, rounded to whole chunks).
+_LAZY_READ_BYTES = 1 << 25
+
+
+def _read_rows_lazily(dataset: h5py.Dataset) -> np.ndarray:
+    """``dataset[()]``, read in blocks of whole chunks of rows into a :func:`~bakery.zero_pages.lazy_zeros` array
+    where only the rows with a non-zero byte are written (a numeric dataset of at least
+    :data:`~bakery.zero_pages.MIN_BYTES`; others are read whole)."""
+    if (dataset.ndim == 0 or dataset.dtype.kind not in "biufc" or dataset.shape[0] == 0
+            or dataset.size * dataset.dtype.itemsize < MIN_BYTES):
+        return dataset[()]
+    count = dataset.shape[0]
+    row_bytes = max(1, dataset.size // count * dataset.dtype.itemsize)
+    chunk_rows = dataset.chunks[0] if dataset.chunks else 1
+    block = max(chunk_rows, _LAZY_READ_BYTES // row_bytes // chunk_rows * chunk_rows)
+    out = lazy_zeros(dataset.shape, dataset.dtype)
+    for start in range(0, count, block):
+        values = dataset[start : start + block]
+        keep = nonzero_rows(values)
+        if keep.all():
+            out[start : start + len(values)] = values
+        elif keep.any():
+            out[start : start + len(values)][keep] = values[keep]
+    return out
 
 
 def failed_probes(attributes: dict[str, Any]) -> dict[str, str]:
@@ -752,7 +783,11 @@ def _verify(f: h5py.File, integrity: StoreIntegrity, unreadable: dict[str, str],
         if is_field and not load_fields:
             continue
         item = f[path]
-        values = item[()]
+        # a field's values as read_store read them (not a second read of the largest datasets: the store's size
+        # again in time and, for one dataset at a time, in memory)
+        values = encodings[path.split("/")[2]]["fields"].get(path.split("/")[3]) if is_field else None
+        if values is None:
+            values = item[()]
         if _dataset_digest(item, values) != digest:
             actual = _describe(item)
             detail = f"is {actual}, written as {description}" if actual != description else "holds other values"
