@@ -6,9 +6,12 @@ rename), so a SIGKILL at any moment leaves only whole files. A batch key is the 
 (which include the settings and code version), so a journal entry is reused only by a bake that would compute
 exactly the same batch. The journal is deleted after the store has been written.
 
-Integrity: each file starts with a header line ``bakery-journal 1 <sha256 of the pickle>``; an entry whose bytes do
-not match (a damaged disk, an edited file) or that cannot be unpickled is ignored — its batch is baked again — so a
-checkpoint is never reused unverified.
+Integrity: each file starts with a header line ``bakery-journal 2 <sha256 of the body>``; the body is the pickle
+compressed by zlib (level 1: a fixed-layout chain is mostly zero rows — a production batch of 64 hybrid probes at
+128² pickles to 156 MB and compresses to 2.2 MB in 0.24 s, 2026-12-07 — and a bake of 1 000 such probes wrote
+2.6 GB of checkpoints). An entry whose bytes do not match (a damaged disk, an edited file), of another journal
+version (version 1: uncompressed), or that cannot be decompressed or unpickled is ignored — its batch is baked again
+— so a checkpoint is never reused unverified.
 """
 
 from __future__ import annotations
@@ -17,12 +20,15 @@ import os
 import pickle
 import shutil
 import stat
+import zlib
 from pathlib import Path
 
 from bakery.files import OutputError, atomic_replace, os_error_message, sha256_bytes
 from bakery.pipeline.worker import BatchOutcome
 
-_MAGIC = b"bakery-journal 1 "
+_MAGIC = b"bakery-journal 2 "
+#: zlib level of the checkpoints' bodies (module doc).
+_COMPRESSION_LEVEL = 1
 
 
 class Journal:
@@ -64,16 +70,17 @@ class Journal:
                 header, _, body = data.partition(b"\n")
                 if not header.startswith(_MAGIC) or header[len(_MAGIC):].decode() != sha256_bytes(body):
                     continue
-                outcome = pickle.loads(body)  # our own checkpoint, verified above
+                outcome = pickle.loads(zlib.decompress(body))  # our own checkpoint, verified above
                 if isinstance(outcome, BatchOutcome) and outcome.key == key:
                     found[key] = outcome
-            except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ValueError, UnicodeDecodeError):
+            except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ValueError, UnicodeDecodeError,
+                    zlib.error):
                 continue
         return found
 
     def save(self, outcome: BatchOutcome) -> None:
         self.directory.mkdir(parents=True, exist_ok=True)
-        body = pickle.dumps(outcome, protocol=pickle.HIGHEST_PROTOCOL)
+        body = zlib.compress(pickle.dumps(outcome, protocol=pickle.HIGHEST_PROTOCOL), _COMPRESSION_LEVEL)
         with atomic_replace(self.directory / f"{outcome.key}.pkl") as tmp, open(tmp, "wb") as handle:
             handle.write(_MAGIC + sha256_bytes(body).encode() + b"\n")
             handle.write(body)

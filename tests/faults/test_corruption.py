@@ -158,8 +158,35 @@ def test_damaged_checkpoint_is_recomputed_not_reused(tmp_path):
     data = bytearray(path.read_bytes())
     data[-5] ^= 0x01  # one flipped bit in the pickle, header intact
     path.write_bytes(bytes(data))
-    (journal.directory / "k2.pkl").write_bytes(b"bakery-journal 1 " + b"0" * 64 + b"\n" + b"garbage")
+    (journal.directory / "k2.pkl").write_bytes(b"bakery-journal 2 " + b"0" * 64 + b"\n" + b"garbage")
     assert journal.load({"k1", "k2"}) == {}
+
+
+def test_a_checkpoint_is_compressed_and_one_of_another_journal_version_is_recomputed(tmp_path):
+    """A checkpoint's body is the zlib-compressed pickle (a chain's zero rows cost nothing on disk); a verified body
+    that is not zlib (version 1, uncompressed) or of another version is baked again, never misread."""
+    import hashlib
+    import pickle
+
+    from bakery.pipeline.encode import EncodedBatch
+    from bakery.pipeline.journal import Journal
+    from bakery.pipeline.worker import BatchOutcome
+    from bakery.probe import Probe
+
+    levels = np.zeros((16, 6, 64, 64, 3), dtype=np.float16)
+    levels[3] = 1.5
+    batch = EncodedBatch([Probe(f"/p{i}", ("reflection",), (0.0, 0.0, 0.0)) for i in range(16)],
+                         {"e": {"level": levels}}, {"e": np.arange(16)}, {})
+    journal = Journal(tmp_path / "s.h5")
+    journal.save(BatchOutcome("k1", batch))
+    path = journal.directory / "k1.pkl"
+    assert path.stat().st_size < levels.nbytes / 100
+    loaded = journal.load({"k1"})["k1"].result.encoded["e"]["level"]
+    np.testing.assert_array_equal(loaded.view(np.uint16), levels.view(np.uint16))
+    body = pickle.dumps(BatchOutcome("k1", batch))  # a version-1 entry: uncompressed, its header valid
+    for magic in (b"bakery-journal 1 ", b"bakery-journal 2 "):
+        path.write_bytes(magic + hashlib.sha256(body).hexdigest().encode() + b"\n" + body)
+        assert journal.load({"k1"}) == {}
 
 
 def _header_byte_flipped(path):
