@@ -9,9 +9,9 @@ exactly the same batch. The journal is deleted after the store has been written.
 Integrity: each file starts with a header line ``bakery-journal 2 <sha256 of the body>``; the body is the pickle
 compressed by zlib (level 1: a fixed-layout chain is mostly zero rows — a production batch of 64 hybrid probes at
 128² pickles to 156 MB and compresses to 2.2 MB in 0.24 s, 2026-12-07: a bake of 1 000 such probes wrote 2.5 GB of
-checkpoints; the hall's captures are smooth, a Poly Haven capture compresses to 75–83 %). An entry whose bytes do not match (a damaged disk, an edited file), of another journal
-version (version 1: uncompressed), or that cannot be decompressed or unpickled is ignored — its batch is baked again
-— so a checkpoint is never reused unverified.
+checkpoints; the hall's captures are smooth, a Poly Haven capture compresses to 75–83 %). An entry whose bytes do
+not match (a damaged disk, an edited file), of another journal version (version 1: uncompressed), or that cannot be
+decompressed or unpickled is ignored — its batch is baked again — so a checkpoint is never reused unverified.
 """
 
 from __future__ import annotations
