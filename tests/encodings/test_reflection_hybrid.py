@@ -444,7 +444,7 @@ def test_two_gap_levels_add_alpha_1_over_4_and_skip_as_the_chains_with_fewer():
     np.testing.assert_array_equal(e["skip_two"], e["plain"])
 
 
-def test_a_probe_skipping_s_of_three_gap_levels_evaluates_as_the_chain_with_three_minus_s():
+def test_skipping_s_of_three_gap_levels_evaluates_as_three_minus_s():
     """``gap_levels`` = 3: levels 1–3 at α_1/8, α_1/4, α_1/2. A mirror probe whose other materials all have
     α ≥ α_{s+1} skips gap levels 1 … s and evaluates bit for bit as the chain with 3 − s gap levels (3 − s = 0:
     without gap levels), uploading the same bytes (+ the ``gap_skipped`` word against the chain without any)."""

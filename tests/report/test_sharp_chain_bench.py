@@ -42,7 +42,7 @@ def test_the_cli_prints_and_writes_the_table_and_refuses_alphas_above_the_chain_
         run_sharp_chain_bench([CITY], face_size=8, alphas=(0.2,), directions=10, echo=None)
 
 
-def test_as_alpha_goes_to_zero_a_chain_converges_to_the_reference_of_the_reconstruction_it_is_read_with():
+def test_as_alpha_goes_to_zero_a_chain_converges_to_the_bilinear_reference():
     """K_α * (bilinear capture) → the bilinear capture as α → 0, which is what a chain reads there (its α = 0 level,
     bilinear): against the supersampled reconstruction the error falls with S, against the texels (S = 1, piecewise
     constant) it stays at the difference of the two reconstructions."""
