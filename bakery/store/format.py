@@ -785,7 +785,10 @@ def _verify(f: h5py.File, integrity: StoreIntegrity, unreadable: dict[str, str],
         item = f[path]
         # a field's values as read_store read them (not a second read of the largest datasets: the store's size
         # again in time and, for one dataset at a time, in memory)
-        values = encodings[path.split("/")[2]]["fields"].get(path.split("/")[3]) if is_field else None
+        values = None
+        if is_field:
+            _, _, encoding, key = path.split("/")
+            values = encodings[encoding]["fields"].get(key)
         if values is None:
             values = item[()]
         if _dataset_digest(item, values) != digest:
