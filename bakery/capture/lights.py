@@ -15,11 +15,15 @@ place that knows the kind:
 
 Samplers (pbrt-v4, "Light Sampling")
     distant   uniform in the cone of half-angle α around the light direction (a delta direction when α = 0).
-    sphere    uniform in the cone the sphere subtends, pdf = 1/(2π(1−cos θmax)) [pbrt-v4 §12.2.2].
+    sphere    uniform in the cone the sphere subtends, pdf = 1/(2π(1−cos θmax)) [pbrt-v4 §12.2.2]; an ellipsoid
+              (a sphere under a non-uniform scale, E = M·S²) the same cone in the space where it is the unit
+              sphere, mapped back: pdf_ω = pdf_ω' · |det M⁻¹| / |M⁻¹ω|³ (the Jacobian of ω' = M⁻¹ω/|M⁻¹ω|).
     rect      uniform on the area, pdf_ω = d²/(A·cos θ_l); emits towards local −Z only.
     disk      uniform on the area (ρ = √u on the unit disk, stretched to the semi-axes a, b), as rect.
     cylinder  uniform on the half of the lateral surface facing the point (axis = local X, as UsdLuxCylinderLight;
-              no caps, as HdEmbree), pdf_ω = d²/(½A·cos θ_l); the cylinder's own surface occludes shadow rays.
+              no caps, as HdEmbree), pdf_ω = d²/(½A·cos θ_l); the cylinder's own surface occludes shadow rays. An
+              elliptic section (semi-axes a, b): uniform in its unit circle's angle, the area density
+              1/(π·L·√(a²sin²φ + b²cos²φ)).
 
 Shaping (UsdLuxShapingAPI, as HdEmbree evaluates it)
     with c = cos of the angle between the emission direction and the light's −Z axis:
@@ -494,14 +498,16 @@ class SphereLightModel(LightModel):
 
     @classmethod
     def from_usd(cls, name, inputs, placement, emission, normalize):  # noqa: ANN001, ANN206
-        """The sphere of ``radius`` (its magnitude, as HdEmbree's areas) under the light's transform. UsdLux's
-        ``normalize`` divides by the world-space surface area (stage units²) of that ellipsoid (Knud Thomsen's
-        p = 1.6 formula, as HdEmbree's ``_AreaSphere``); under a non-uniform scale it is drawn as the sphere of the
-        same area (its power exact). ``treatAsPoint`` (and radius 0): a point of the same radiant intensity
-        I = L·πr² as the sphere, drawn as a tiny sphere that probes see (splatted, as small light shapes) and
-        nothing hits; a normalized one of radius 0 is the limit of the normalized spheres, I = intensity/4 (in
-        stage-unit² areas: × metersPerUnit²), an unnormalized one I = intensity (UsdLux leaves zero-area lights to
-        the renderer; HdEmbree's emit nothing)."""
+        """The sphere of ``radius`` (its magnitude, as HdEmbree's areas) under the light's transform: under a
+        non-uniform scale the ellipsoid of semi-axes a, b, c (the radius × the scale of local X, Y, Z; ``size`` =
+        (a, b, c), a sphere keeps (r, 0) so its capture hash is unchanged; before 2026-12-08 it was drawn as the
+        sphere of the ellipsoid's area). UsdLux's ``normalize`` divides by the world-space surface area (stage
+        units²) of that ellipsoid (Knud Thomsen's p = 1.6 formula, as HdEmbree's ``_AreaSphere``).
+        ``treatAsPoint`` (and radius 0): a point of the same radiant intensity I = L·πr² as the sphere of the
+        ellipsoid's area, drawn as a tiny sphere that probes see (splatted, as small light shapes) and nothing
+        hits; a normalized one of radius 0 is the limit of the normalized spheres, I = intensity/4 (in stage-unit²
+        areas: × metersPerUnit²), an unnormalized one I = intensity (UsdLux leaves zero-area lights to the renderer;
+        HdEmbree's emit nothing)."""
         lengths = np.asarray(placement.lengths)
         notes = []
         radius_local = float(inputs["radius"])
@@ -516,9 +522,6 @@ class SphereLightModel(LightModel):
         area_su = 4.0 * math.pi * (((a * b) ** p + (a * c) ** p + (b * c) ** p) / 3.0) ** (1.0 / p)
         # the sphere of the ellipsoid's area (the mean axis for a uniform scale: the same sphere)
         radius = math.sqrt(area_su / (4.0 * math.pi)) * placement.meters_per_unit
-        if radius_local > 0 and _non_uniform(lengths):
-            notes.append("SphereLight under a non-uniform scale is drawn as the sphere of its ellipsoid's area "
-                         f"(radius {radius:.4g} m; power exact, shape approximate)")
         radiance = _normalized(emission, normalize, area_su)
         if bool(inputs["treatAsPoint"]) or radius <= 0:
             # a point of the same radiant intensity I = L·πr² as the sphere, drawn as a tiny sphere
@@ -531,42 +534,87 @@ class SphereLightModel(LightModel):
                 factor = 1.0 / (math.pi * tiny**2)
             return Light("sphere", name, radiance=tuple(float(x) for x in radiance * factor),
                          position=placement.position, axes=placement.axes, size=(tiny, 0.0)), notes
+        semi_axes = tuple(float(x) for x in radius_local * lengths)
+        flat = min(semi_axes) <= 1e-9 * max(semi_axes)
+        if flat:  # scaled to zero along an axis: no volume to draw; the sphere of its area keeps its power
+            notes.append("SphereLight scaled to zero along an axis is drawn as the sphere of its ellipsoid's area "
+                         f"(radius {radius:.4g} m)")
+        size = semi_axes if _non_uniform(lengths) and not flat else (radius, 0.0)
         return Light("sphere", name, radiance=tuple(float(x) for x in radiance), position=placement.position,
-                     axes=placement.axes, size=(radius, 0.0)), notes
+                     axes=placement.axes, size=size), notes
+
+    def __init__(self, light: Light, textures: tuple = ()) -> None:
+        super().__init__(light, textures)
+        #: an ellipsoid (size = semi-axes a, b, c): M = [a·X | b·Y | c·Z] maps the unit sphere onto it, M⁻¹ back
+        self.ellipsoid = len(light.size) == 3
+        if self.ellipsoid:
+            self._from_unit = self.axes.T * np.asarray(light.size, dtype=np.float64)
+            self._to_unit = np.linalg.inv(self._from_unit)
+            self._det_to_unit = abs(float(np.linalg.det(self._to_unit)))
 
     @property
     def radius(self) -> float:
-        return float(self.light.size[0])
+        """The sphere's radius (an ellipsoid's largest semi-axis)."""
+        return float(max(self.light.size))
 
     @property
     def bounding_radius(self) -> float:
         return self.radius
 
-    def _cone(self, points: np.ndarray):  # noqa: ANN202
-        centre, _ = self._cols(points.dtype)
-        return _sphere_cone(points, centre, self.radius)
-
     @property
     def plain(self) -> bool:
-        """Radiance independent of direction (no shaping, no IES profile): :class:`LightSampler` samples it with
-        the other plain spheres."""
-        return not self.light.shaping and self.light.ies is None
+        """A sphere of radiance independent of direction (no shaping, no IES profile): :class:`LightSampler`
+        samples it with the other plain spheres."""
+        return not self.ellipsoid and not self.light.shaping and self.light.ies is None
+
+    def _unit_space(self, v: np.ndarray) -> np.ndarray:
+        """Vectors (3, M) in the space where the ellipsoid is the unit sphere at the origin: M⁻¹·v."""
+        return self._to_unit.astype(v.dtype) @ v
+
+    def _unit_points(self, points: np.ndarray) -> np.ndarray:
+        """Points (3, M) in that space: M⁻¹·(p − c)."""
+        centre, _ = self._cols(points.dtype)
+        return self._unit_space(points - centre)
 
     def sample_soa(self, points, u0, u1):  # noqa: ANN001, ANN201
         centre, _ = self._cols(points.dtype)
-        wi, dist, outside, pdf = _sample_sphere(points, centre, self.radius, u0, u1)
-        return wi, dist, self.emitted_soa(wi, None, outside), pdf
+        if not self.ellipsoid:
+            wi, dist, outside, pdf = _sample_sphere(points, centre, self.radius, u0, u1)
+            return wi, dist, self.emitted_soa(wi, None, outside), pdf
+        origin = np.zeros((3, 1), dtype=points.dtype)
+        wi_unit, dist_unit, outside, pdf_unit = _sample_sphere(self._unit_points(points), origin, 1.0, u0, u1)
+        v = self._from_unit.astype(points.dtype) @ wi_unit  # M·ω'
+        length = np.sqrt(dot(v, v))
+        wi = v / np.maximum(length, TINY)
+        # the hit p' + t'·ω' maps to p + t'·M·ω': world distance t'·|M·ω'|; |M⁻¹ω| = 1/|M·ω'|
+        pdf = pdf_unit * self._det_to_unit * length**3
+        return wi, dist_unit * length, self.emitted_soa(wi, None, outside), pdf.astype(points.dtype, copy=False)
 
     def pdf_soa(self, points, wi, t):  # noqa: ANN001, ANN201
-        _, _, outside, one_minus_cos = self._cone(points)
-        return (outside / (2.0 * np.pi * np.maximum(one_minus_cos, TINY))).astype(points.dtype, copy=False)
+        if not self.ellipsoid:
+            centre, _ = self._cols(points.dtype)
+            _, _, outside, one_minus_cos = _sphere_cone(points, centre, self.radius)
+            return (outside / (2.0 * np.pi * np.maximum(one_minus_cos, TINY))).astype(points.dtype, copy=False)
+        origin = np.zeros((3, 1), dtype=points.dtype)
+        _, _, outside, one_minus_cos = _sphere_cone(self._unit_points(points), origin, 1.0)
+        w = self._unit_space(wi)
+        inv_length = np.sqrt(dot(w, w))  # |M⁻¹ω|
+        pdf = outside / (2.0 * np.pi * np.maximum(one_minus_cos, TINY)) * self._det_to_unit / inv_length**3
+        return pdf.astype(points.dtype, copy=False)
 
     def intersect_soa(self, origins, directions):  # noqa: ANN001, ANN201
         m = origins.shape[1]
         if not self.visible:
             return np.full(m, FAR, dtype=origins.dtype), None
         centre, _ = self._cols(origins.dtype)
-        return _sphere_hits(origins, directions, centre, self.radius * self.radius), None
+        if not self.ellipsoid:
+            return _sphere_hits(origins, directions, centre, self.radius * self.radius), None
+        # the unit sphere along M⁻¹(o − c) + t·M⁻¹d: the same t once the direction is normalised back
+        d = self._unit_space(directions)
+        scale = np.sqrt(dot(d, d))
+        t_unit = _sphere_hits(self._unit_points(origins), d / np.maximum(scale, TINY),
+                              np.zeros((3, 1), dtype=origins.dtype), 1.0)
+        return np.where(t_unit < FAR, t_unit / np.maximum(scale, TINY), FAR).astype(origins.dtype, copy=False), None
 
 
 class _PlanarLight(LightModel):
@@ -711,10 +759,11 @@ class CylinderLightModel(LightModel):
 
     @classmethod
     def from_usd(cls, name, inputs, placement, emission, normalize):  # noqa: ANN001, ANN206
-        """The lateral surface of ``radius`` and ``length`` (their magnitudes) under the light's transform;
-        ``normalize`` divides by its world-space area, Ramanujan's perimeter of the elliptic section × the length
-        (stage units², as HdEmbree's ``_AreaCylinder``). A section scaled non-uniformly is drawn as the circle of
-        the same perimeter (the area, so the power, exact; before, the mean radius)."""
+        """The lateral surface of ``radius`` and ``length`` (their magnitudes) under the light's transform: a
+        section scaled non-uniformly is the ellipse of semi-axes a, b (the radius × the scale of local Y, Z;
+        ``size`` = (a, b, length), a circular one keeps (r, length) so its capture hash is unchanged; before
+        2026-12-08 it was drawn as the circle of the same perimeter). ``normalize`` divides by its world-space area,
+        Ramanujan's perimeter of the section × the length (stage units², as HdEmbree's ``_AreaCylinder``)."""
         notes: list[str] = []
         r_local = _magnitude("CylinderLight radius", float(inputs["radius"]), notes)
         l_local = _magnitude("CylinderLight length", float(inputs["length"]), notes)
@@ -724,50 +773,89 @@ class CylinderLightModel(LightModel):
         a, b, c = r_local * lengths[1] / mpu, r_local * lengths[2] / mpu, l_local * lengths[0] / mpu
         perimeter = math.pi * (3.0 * (a + b) - math.sqrt((3.0 * a + b) * (a + 3.0 * b)))  # Ramanujan, as HdEmbree
         radius = perimeter / (2.0 * math.pi) * mpu  # the circle of the same perimeter (a for a = b)
+        size: tuple[float, ...] = (radius, length)
         if r_local > 0 and _non_uniform(lengths[1:]):
-            notes.append("CylinderLight with a non-uniformly scaled section is drawn as the circular cylinder of the "
-                         f"same area (radius {radius:.4g} m; power exact, shape approximate)")
+            if min(a, b) > 1e-9 * max(a, b):
+                size = (a * mpu, b * mpu, length)
+            else:  # flattened to a strip: no section to draw; the circle of its perimeter keeps its power
+                notes.append("CylinderLight scaled to zero across its axis is drawn as the circular cylinder of the "
+                             f"same area (radius {radius:.4g} m)")
         radiance = _normalized(emission, normalize, perimeter * c)
         if bool(inputs["treatAsLine"]):
             notes.append("treatAsLine is a hint; the cylinder's surface is rendered")
         return Light("cylinder", name, radiance=tuple(float(x) for x in radiance), position=placement.position,
-                     axes=placement.axes, size=(radius, length)), notes
+                     axes=placement.axes, size=size), notes
+
+    @property
+    def _section(self) -> tuple[float, float]:
+        """The section's semi-axes (along local Y, Z): (r, r) for a circle."""
+        size = self.light.size
+        return (float(size[0]), float(size[1])) if len(size) == 3 else (float(size[0]), float(size[0]))
+
+    @property
+    def _length(self) -> float:
+        return float(self.light.size[-1])
 
     @property
     def bounding_radius(self) -> float:
-        return math.hypot(self.light.size[0], 0.5 * self.light.size[1])
+        return math.hypot(max(self._section), 0.5 * self._length)
 
     def _facing_angle(self, rel: np.ndarray) -> np.ndarray:
-        """Azimuth (M,) around the axis of the points' projections (rel = point − centre, (3, M)): the surface
-        facing them lies within ±π/2."""
-        return np.arctan2(dotc(self.z_axis, rel), dotc(self.y_axis, rel))
+        """Azimuth (M,) around the axis of the points' projections (rel = point − centre, (3, M)) in the section's
+        unit-circle coordinates (y/a, z/b): the surface facing them lies within ±π/2 (facing is affine-invariant)."""
+        a, b = self._section
+        return np.arctan2(dotc(self.z_axis, rel) / b, dotc(self.y_axis, rel) / a)
 
     def sample_soa(self, points, u0, u1):  # noqa: ANN001, ANN201
-        """Uniform on the half of the lateral surface that faces the point (everything it can see lies there)."""
-        r, length = float(self.light.size[0]), float(self.light.size[1])
+        """Uniform on the half of the lateral surface that faces the point (everything it can see lies there); an
+        elliptic section uniform in its unit circle's angle, the pdf divided by the arc-length element
+        √(a²·sin²φ + b²·cos²φ) (of the point (a·cos φ, b·sin φ))."""
+        length = self._length
         centre, _ = self._cols(points.dtype)
         rel = points - centre
         z = (u0 - 0.5) * length
         phi = self._facing_angle(rel) + np.pi * (u1 - 0.5)
         cp, sp = np.cos(phi), np.sin(phi)
         x, y, zz = self.x_axis, self.y_axis, self.z_axis
-        normal = np.stack([cp * y[0] + sp * zz[0], cp * y[1] + sp * zz[1], cp * y[2] + sp * zz[2]])
-        to_q = r * normal - rel + np.stack([z * x[0], z * x[1], z * x[2]])
+        if len(self.light.size) == 3:
+            a, b = self._section
+            # the outward normal ∝ (cos φ / a, sin φ / b), and the half-surface's area π·L·⟨arc element⟩ per radian
+            arc = np.sqrt((a * sp) ** 2 + (b * cp) ** 2)
+            ny, nz = b * cp / arc, a * sp / arc
+            normal = np.stack([ny * y[0] + nz * zz[0], ny * y[1] + nz * zz[1], ny * y[2] + nz * zz[2]])
+            ay, bz = a * cp, b * sp
+            point = np.stack([ay * y[0] + bz * zz[0], ay * y[1] + bz * zz[1], ay * y[2] + bz * zz[2]])
+            to_q = point - rel + np.stack([z * x[0], z * x[1], z * x[2]])
+            area_density = 1.0 / (np.pi * length * arc)  # per unit area: 1/(π·L) per (φ, x), ÷ the arc element
+        else:
+            r = float(self.light.size[0])
+            normal = np.stack([cp * y[0] + sp * zz[0], cp * y[1] + sp * zz[1], cp * y[2] + sp * zz[2]])
+            to_q = r * normal - rel + np.stack([z * x[0], z * x[1], z * x[2]])
+            area_density = 1.0 / (0.5 * self.light.area)
         dist = np.sqrt(dot(to_q, to_q))
         wi = to_q / np.maximum(dist, TINY)
         cos_l = -dot(wi, normal)
         facing = cos_l > 0
         with np.errstate(over="ignore"):  # as the planar lights'
-            pdf = np.where(facing, dist * dist / (0.5 * self.light.area * np.maximum(cos_l, TINY)), 0)
+            pdf = np.where(facing, dist * dist * area_density / np.maximum(cos_l, TINY), 0)
         return wi, dist, self.emitted_soa(wi, None, facing), pdf.astype(points.dtype, copy=False)
 
     def _hit(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        r, length = float(self.light.size[0]), float(self.light.size[1])
+        """Nearest t (M,) (FAR if none) of rays with the lateral surface, and the outward normal's direction there
+        (3, M) (unnormalised): an elliptic section is the unit circle in coordinates (y/a, z/b)."""
+        length = self._length
         centre, _ = self._cols(origins.dtype)
         o = origins - centre
         ox, dx = dotc(self.x_axis, o), dotc(self.x_axis, directions)
         oy, oz = dotc(self.y_axis, o), dotc(self.z_axis, o)
         dy, dz = dotc(self.y_axis, directions), dotc(self.z_axis, directions)
+        elliptic = len(self.light.size) == 3
+        if elliptic:
+            sa, sb = self._section
+            oy, dy, oz, dz = oy / sa, dy / sa, oz / sb, dz / sb
+            r = 1.0
+        else:
+            r = float(self.light.size[0])
         a = dy * dy + dz * dz
         b = oy * dy + oz * dz
         c = oy * oy + oz * oz - r * r
@@ -782,6 +870,11 @@ class CylinderLightModel(LightModel):
             x = ox + t * dx
             ok = ok0 & np.isfinite(t) & (t > 0) & (np.abs(x) <= 0.5 * length)
             best = np.where(ok & (t < best), t, best)
+        if elliptic:  # ∇((y/a)² + (z/b)²) ∝ (y'/a)·Y + (z'/b)·Z with the unit-circle coordinates y', z'
+            hit = np.where(best < FAR, best, 0)
+            ny, nz = (oy + hit * dy) / sa, (oz + hit * dz) / sb
+            y_axis, z_axis = (np.asarray(v, dtype=origins.dtype)[:, None] for v in (self.y_axis, self.z_axis))
+            return best, ny * y_axis + nz * z_axis
         p = o + np.where(best < FAR, best, 0) * directions
         radial = p - dotc(self.x_axis, p) * np.asarray(self.x_axis, dtype=origins.dtype)[:, None]
         return best, radial
@@ -790,8 +883,15 @@ class CylinderLightModel(LightModel):
         _, radial = self._hit(points, wi)
         n = radial / np.maximum(np.sqrt(dot(radial, radial)), TINY)
         cos_l = np.abs(dot(wi, n))
-        return np.where(cos_l > 0, t * t / (0.5 * self.light.area * np.maximum(cos_l, TINY)), 0).astype(
-            wi.dtype, copy=False)
+        if len(self.light.size) == 3:  # the sampler's area density at the hit: 1/(π·L·arc element)
+            a, b = self._section
+            centre, _ = self._cols(points.dtype)
+            q = points + t * wi - centre
+            cp, sp = dotc(self.y_axis, q) / a, dotc(self.z_axis, q) / b
+            area_density = 1.0 / (np.pi * self._length * np.sqrt((a * sp) ** 2 + (b * cp) ** 2))
+        else:
+            area_density = 1.0 / (0.5 * self.light.area)
+        return np.where(cos_l > 0, t * t * area_density / np.maximum(cos_l, TINY), 0).astype(wi.dtype, copy=False)
 
     def intersect_soa(self, origins, directions):  # noqa: ANN001, ANN201
         if not self.visible:
@@ -829,7 +929,8 @@ class LightSet:
             self._shape_bvh = LightBVH([LightBound(tuple(c - r), tuple(c + r), 1.0)
                                         for c, r in zip(centres, radii, strict=True)])
         #: with the BVH, the sphere shapes' (segment, shape) pairs are intersected together (:func:`_sphere_hits`)
-        self._sphere = np.array([isinstance(m, SphereLightModel) for m in self.surfaces], dtype=bool)
+        self._sphere = np.array([isinstance(m, SphereLightModel) and not m.ellipsoid for m in self.surfaces],
+                                dtype=bool)
         self._sphere_centres = np.array([m.centre for m in self.surfaces], dtype=np.float64).reshape(-1, 3).T
         self._sphere_r2 = [m.radius * m.radius if isinstance(m, SphereLightModel) else 0.0 for m in self.surfaces]
 

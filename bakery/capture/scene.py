@@ -38,9 +38,10 @@ class Light:
         position: (3,) centre in metres (area lights).
         axes: (3, 3) rows = local X, Y, Z axes in the bake frame, unit length (the light emits towards -Z for
             ``rect``/``disk``; a ``distant`` light shines along -Z, i.e. it comes *from* +Z).
-        size: (2,) ``rect`` width, height in metres; ``sphere`` radius in ``size[0]`` (metres); ``disk`` semi-axes
-            along local X, Y (metres), or (radius, 0) for a circle;
-            ``cylinder`` radius, length (along local X) in metres.
+        size: (2,) ``rect`` width, height in metres; ``sphere`` radius in ``size[0]`` (metres), or (3,) an
+            ellipsoid's semi-axes along local X, Y, Z; ``disk`` semi-axes along local X, Y (metres), or (radius, 0)
+            for a circle; ``cylinder`` radius, length (along local X) in metres, or (3,) an elliptic section's
+            semi-axes along local Y, Z and the length.
         angle: distant light angular diameter in degrees.
         visible: whether the light's shape is a surface in the scene: seen by camera and bounce rays, and
             occluding (False for point-like lights, which are reached by next-event estimation only).
@@ -72,7 +73,7 @@ class Light:
     illuminance: tuple[float, float, float] = (0.0, 0.0, 0.0)
     position: tuple[float, float, float] = (0.0, 0.0, 0.0)
     axes: tuple[tuple[float, float, float], ...] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
-    size: tuple[float, float] = (0.0, 0.0)
+    size: tuple[float, ...] = (0.0, 0.0)
     angle: float = 0.53
     visible: bool = True
     shaping: tuple[float, ...] = ()
@@ -105,8 +106,15 @@ class Light:
             return float(self.size[0] * self.size[1])
         if self.kind == "disk":  # semi-axes (a, b), or (r, 0) for a circle
             return float(np.pi * self.size[0] * (self.size[1] if self.size[1] > 0 else self.size[0]))
+        if self.kind == "sphere" and len(self.size) == 3:  # Knud Thomsen's p = 1.6 (within 1.061 %)
+            a, b, c = self.size
+            p = 1.6
+            return float(4.0 * np.pi * (((a * b) ** p + (a * c) ** p + (b * c) ** p) / 3.0) ** (1.0 / p))
         if self.kind == "sphere":
             return float(4.0 * np.pi * self.size[0] ** 2)
+        if self.kind == "cylinder" and len(self.size) == 3:  # Ramanujan's perimeter × the length
+            a, b, length = self.size
+            return float(np.pi * (3.0 * (a + b) - np.sqrt((3.0 * a + b) * (a + 3.0 * b))) * length)
         if self.kind == "cylinder":
             return float(2.0 * np.pi * self.size[0] * self.size[1])
         return 0.0

@@ -246,13 +246,15 @@ def test_every_light_kind_is_one_class_with_the_whole_interface():
             assert callable(getattr(cls, method))
 
 
-@pytest.mark.parametrize("kind", ["sphere", "rect", "disk", "cylinder"])
+@pytest.mark.parametrize("kind", ["sphere", "rect", "disk", "cylinder", "ellipsoid", "elliptic cylinder"])
 def test_light_pdf_matches_its_sampler(kind):
     """For each area light, pdf(points, wi, t) of a sampled direction equals the sampler's pdf (MIS needs both)."""
     from bakery.capture.scene import Light
 
-    light = Light(kind, f"/{kind}", radiance=(1.0, 1.0, 1.0), position=(0.0, 2.0, 0.0),
-                  axes=((1.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, 1.0, 0.0)), size=(0.4, 0.8))
+    size = (0.4, 0.15, 0.8) if kind in ("ellipsoid", "elliptic cylinder") else (0.4, 0.8)
+    light = Light({"ellipsoid": "sphere", "elliptic cylinder": "cylinder"}.get(kind, kind), f"/{kind}",
+                  radiance=(1.0, 1.0, 1.0),
+                  position=(0.0, 2.0, 0.0), axes=((1.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, 1.0, 0.0)), size=size)
     model = light_model(light)
     rng = np.random.default_rng(1)
     points = rng.uniform(-1, 1, (500, 3)) * np.array([1.0, 0.2, 1.0])
@@ -261,3 +263,93 @@ def test_light_pdf_matches_its_sampler(kind):
     t, _ = model.intersect(points[ok], s.wi[ok])
     np.testing.assert_allclose(t, s.distance[ok], rtol=1e-6)
     np.testing.assert_allclose(model.pdf(points[ok], s.wi[ok], t), s.pdf[ok], rtol=1e-6)
+
+
+def ellipsoid_solid_angles(semi_axes, axes, centre, point, n: int = 800) -> tuple[np.ndarray, np.ndarray]:
+    """The ellipsoid q = c + M·s(θ, φ), M = axesᵀ·diag(semi_axes), seen from ``point``: directions ω (K, 3) to the
+    midpoint-rule nodes of its surface and their solid angles dω = cos θ_l / ρ² · dA (K,), 0 on the part that faces
+    away (convex: the part seen), with the exact area element dA = |∂q/∂θ × ∂q/∂φ|·dθ·dφ — the test's own
+    parametrisation, independent of the sampler's."""
+    theta = (np.arange(n) + 0.5) / n * np.pi
+    phi = (np.arange(2 * n) + 0.5) / (2 * n) * 2 * np.pi
+    th, ph = np.meshgrid(theta, phi, indexing="ij")
+    m = np.asarray(axes, dtype=np.float64).T * np.asarray(semi_axes, dtype=np.float64)
+    s = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], axis=-1).reshape(-1, 3)
+    ds_th = np.stack([np.cos(th) * np.cos(ph), np.cos(th) * np.sin(ph), -np.sin(th)], axis=-1).reshape(-1, 3)
+    ds_ph = np.stack([-np.sin(th) * np.sin(ph), np.sin(th) * np.cos(ph), np.zeros_like(th)], axis=-1).reshape(-1, 3)
+    cross = np.cross(ds_th @ m.T, ds_ph @ m.T)
+    area = np.linalg.norm(cross, axis=1) * (np.pi / n) * (np.pi / n)
+    to_q = s @ m.T + np.asarray(centre, dtype=np.float64) - np.asarray(point, dtype=np.float64)
+    rho2 = np.einsum("ij,ij->i", to_q, to_q)
+    omega = to_q / np.sqrt(rho2)[:, None]
+    cos_l = np.maximum(-np.einsum("ij,ij->i", omega, cross), 0.0) / np.linalg.norm(cross, axis=1)
+    return omega, cos_l / rho2 * area
+
+
+def test_ellipsoid_sampler_integrates_its_solid_angle_and_irradiance():
+    """A sphere light scaled non-uniformly (and turned) is the ellipsoid M·S²: its next-event samples all reach it,
+    E[1/pdf] is its solid angle and E[⟨n, ω⟩₊/pdf] its irradiance per unit radiance, against the quadrature over
+    its surface."""
+    from bakery.capture.scene import Light
+
+    c, s = math.cos(0.6), math.sin(0.6)
+    axes = ((c, s, 0.0), (-s, c, 0.0), (0.0, 0.0, 1.0))
+    semi_axes, centre = (0.9, 0.1, 0.3), (0.2, 1.0, -0.1)
+    model = light_model(Light("sphere", "/E", radiance=(1.0, 1.0, 1.0), position=centre, axes=axes,
+                              size=semi_axes))
+    rng = np.random.default_rng(7)
+    m = 400_000
+    for point, normal in (((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)), ((1.4, 0.9, 0.3), (-1.0, 0.0, 0.0))):
+        points = np.tile(point, (m, 1))
+        sample = model.sample(points, rng.random((m, 2)))
+        assert np.all(sample.pdf > 0) and np.all(sample.radiance == 1.0)
+        t, _ = model.intersect(points, sample.wi)
+        np.testing.assert_allclose(t, sample.distance, rtol=1e-6)
+        omega, d_omega = ellipsoid_solid_angles(semi_axes, axes, centre, point)
+        np.testing.assert_allclose(np.mean(1.0 / sample.pdf), d_omega.sum(), rtol=2e-3)
+        e = np.mean(np.maximum(sample.wi @ np.asarray(normal), 0.0) / sample.pdf)
+        np.testing.assert_allclose(e, (np.maximum(omega @ np.asarray(normal), 0.0) * d_omega).sum(), rtol=5e-3)
+
+
+def elliptic_cylinder_solid_angles(a: float, b: float, length: float, axes, centre, point, n: int = 1000
+                                   ) -> tuple[np.ndarray, np.ndarray]:
+    """The lateral surface q = c + x·X + a·cos φ·Y + b·sin φ·Z (|x| ≤ L/2) seen from ``point``: directions (K, 3) to
+    midpoint-rule nodes and their solid angles cos θ_l/ρ²·dA (K,), dA = √(a²sin²φ + b²cos²φ)·dφ·dx, 0 where the
+    outward normal faces away (what the point sees of a tube's outside)."""
+    x = ((np.arange(n) + 0.5) / n - 0.5) * length
+    phi = (np.arange(2 * n) + 0.5) / (2 * n) * 2 * np.pi
+    xx, ph = np.meshgrid(x, phi, indexing="ij")
+    xx, ph = xx.reshape(-1), ph.reshape(-1)
+    ax, ay, az = (np.asarray(v, dtype=np.float64) for v in axes)
+    q = np.asarray(centre) + np.outer(xx, ax) + np.outer(a * np.cos(ph), ay) + np.outer(b * np.sin(ph), az)
+    normal = np.outer(b * np.cos(ph), ay) + np.outer(a * np.sin(ph), az)
+    arc = np.linalg.norm(normal, axis=1)
+    to_q = q - np.asarray(point, dtype=np.float64)
+    rho2 = np.einsum("ij,ij->i", to_q, to_q)
+    omega = to_q / np.sqrt(rho2)[:, None]
+    cos_l = np.maximum(-np.einsum("ij,ij->i", omega, normal) / arc, 0.0)
+    return omega, cos_l / rho2 * arc * (length / n) * (np.pi / n)
+
+
+def test_elliptic_cylinder_sampler_integrates_its_solid_angle_and_irradiance():
+    """A CylinderLight whose section is scaled non-uniformly is the elliptic cylinder: E[1/pdf] over its next-event
+    samples is the solid angle of what a point sees of it, and E[⟨n, ω⟩₊/pdf] its irradiance per unit radiance,
+    against the quadrature over its surface."""
+    from bakery.capture.scene import Light
+
+    c, s = math.cos(0.4), math.sin(0.4)
+    axes = ((c, s, 0.0), (-s, c, 0.0), (0.0, 0.0, 1.0))
+    a, b, length, centre = 0.5, 0.1, 1.2, (0.1, 0.9, 0.2)
+    model = light_model(Light("cylinder", "/T", radiance=(1.0, 1.0, 1.0), position=centre, axes=axes,
+                              size=(a, b, length)))
+    rng = np.random.default_rng(3)
+    m = 400_000
+    for point, normal in (((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)), ((1.2, 0.5, -0.7), (-1.0, 0.0, 1.0))):
+        normal = np.asarray(normal) / np.linalg.norm(normal)
+        points = np.tile(point, (m, 1))
+        sample = model.sample(points, rng.random((m, 2)))
+        weight = np.where(sample.pdf > 0, 1.0 / np.where(sample.pdf > 0, sample.pdf, 1.0), 0.0)
+        omega, d_omega = elliptic_cylinder_solid_angles(a, b, length, axes, centre, point)
+        np.testing.assert_allclose(weight.mean(), d_omega.sum(), rtol=5e-3)
+        e = np.mean(np.maximum(sample.wi @ normal, 0.0) * weight)
+        np.testing.assert_allclose(e, (np.maximum(omega @ normal, 0.0) * d_omega).sum(), rtol=5e-3)

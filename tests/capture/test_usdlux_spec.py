@@ -35,13 +35,14 @@ def _read(tmp_path, text: str, meters_per_unit: float = 1.0):
     return read_scene(write(tmp_path / "light.usda", header(meters_per_unit=meters_per_unit) + text + probe("P")))
 
 
-def _irradiance(tmp_path, text: str, normal=(0.0, 1.0, 0.0), samples: int = 16, meters_per_unit: float = 1.0
-                ) -> np.ndarray:
-    """E (3,) on ``normal`` at the probe at the origin: Σ L·max(0, n·ω)·Ω over the captured cube."""
-    reading = _read(tmp_path, text, meters_per_unit)
+def _irradiance(tmp_path, text: str, normal=(0.0, 1.0, 0.0), samples: int = 16, meters_per_unit: float = 1.0,
+                copies: int = 1) -> np.ndarray:
+    """E (3,) on ``normal`` at the probe at the origin: Σ L·max(0, n·ω)·Ω over the captured cube (the mean over
+    ``copies`` probes there, each with its own random numbers)."""
+    reading = _read(tmp_path, text + "".join(probe(f"Copy{i}") for i in range(1, copies)), meters_per_unit)
     cubes, _ = capture_probes(reading.scene, N, samples=samples, bounces=0)
     cos = np.maximum(0.0, cube_texel_directions(N) @ np.asarray(normal, dtype=np.float64))
-    return np.einsum("fijc,fij->c", cubes[0].astype(np.float64), cos * cube_texel_solid_angles(N))
+    return np.einsum("pfijc,fij->c", np.asarray(cubes, dtype=np.float64), cos * cube_texel_solid_angles(N)) / copies
 
 
 def _issues(reading) -> list[str]:
@@ -158,6 +159,67 @@ def test_sphere_light_and_its_point_limits(tmp_path):
     np.testing.assert_allclose(_irradiance(tmp_path, _light("SphereLight", zero, (0, d, 0))), normalized, rtol=0.01)
     np.testing.assert_allclose(_irradiance(tmp_path, _light("SphereLight", zero, (0, 100 * d, 0)),
                                            meters_per_unit=0.01), normalized * 1e-4, rtol=0.01)
+
+
+def test_sphere_light_under_a_non_uniform_scale_is_its_ellipsoid(tmp_path):
+    """A SphereLight of radius R scaled (3, 1/3, 1) is the ellipsoid of semi-axes 3R, R/3, R. Close to the probe
+    (seen by its rays) on normals along and across the long axis, and far away edge-on and face-on (splatted from
+    its next-event samples), E against the quadrature over the ellipsoid's surface. The sphere of the ellipsoid's
+    area, which bakery drew before, differs by more than 10 % in every case: the test sees the shape."""
+    from test_capture_lights import ellipsoid_solid_angles
+
+    intensity, r = 10.0, 0.5
+    body = f"    float inputs:intensity = {intensity}\n    float inputs:radius = {r}"
+    semi_axes = (3 * r, r / 3, r)
+    a, b, c = semi_axes
+    p = 1.6
+    equal_area = math.sqrt((((a * b) ** p + (a * c) ** p + (b * c) ** p) / 3.0) ** (1.0 / p))
+    cases = [((0, 1.0, 0), None, (1.0, 1.0, 0.0), 32), ((0, 1.0, 0), None, (0.0, 1.0, 1.0), 32),
+             ((0, 40.0, 0), None, (0.0, 1.0, 0.0), 16), ((0, 40.0, 0), -90, (0.0, 1.0, 0.0), 16)]
+    for centre, rotate_x, normal, samples in cases:
+        normal = np.asarray(normal) / np.linalg.norm(normal)
+        text = _light("SphereLight", body, centre, rotate_x, (3, 1 / 3, 1))
+        # rotateX −90 turns local Y (the short axis) to world −Z and local Z to world +Y (face-on from below)
+        axes = ((1, 0, 0), (0, 0, -1), (0, 1, 0)) if rotate_x else ((1, 0, 0), (0, 1, 0), (0, 0, 1))
+        omega, d_omega = ellipsoid_solid_angles(semi_axes, axes, centre, (0, 0, 0))
+        expected = intensity * float((np.maximum(omega @ normal, 0.0) * d_omega).sum())
+        np.testing.assert_allclose(_irradiance(tmp_path, text, normal=tuple(normal), samples=samples), expected,
+                                   rtol=0.02)
+        omega, d_omega = ellipsoid_solid_angles((equal_area,) * 3, axes, centre, (0, 0, 0))
+        sphere = intensity * float((np.maximum(omega @ normal, 0.0) * d_omega).sum())
+        assert abs(sphere / expected - 1.0) > 0.1
+    assert not any("SphereLight" in i for i in _issues(_read(tmp_path, _light("SphereLight", body, (0, 1, 0), None,
+                                                                                 (3, 1 / 3, 1)))))
+
+
+def test_cylinder_light_with_a_non_uniformly_scaled_section_is_its_elliptic_cylinder(tmp_path):
+    """A CylinderLight (axis local X) of radius R, length 2 scaled (1, 3, 1/3) is the elliptic cylinder of
+    semi-axes 3R (local Y), R/3 (local Z). Close to the probe (seen by its rays) on two normals, and far away
+    broadside and edge-on (splatted from its next-event samples), E against the quadrature over its surface. The
+    circular cylinder of the same perimeter, which bakery drew before, differs by more than 10 % in every case."""
+    from test_capture_lights import elliptic_cylinder_solid_angles
+
+    intensity, r, length = 10.0, 0.3, 2.0
+    body = f"    float inputs:intensity = {intensity}\n    float inputs:radius = {r}\n    float inputs:length = {length}"
+    a, b = 3 * r, r / 3
+    circle = (3.0 * (a + b) - math.sqrt((3.0 * a + b) * (a + 3.0 * b))) / 2.0  # Ramanujan's perimeter / 2π
+    # far away, each probe's splat is a stratified grid of 36 samples (≈ 3 % noise on a tube): 8 probes' mean
+    cases = [((0, 1.2, 0), None, (0.0, 1.0, 1.0), 32, 1), ((0, 1.2, 0), None, (1.0, 1.0, 0.0), 32, 1),
+             ((0, 40.0, 0), None, (0.0, 1.0, 0.0), 16, 8), ((0, 40.0, 0), -90, (0.0, 1.0, 0.0), 16, 8)]
+    for centre, rotate_x, normal, samples, copies in cases:
+        normal = np.asarray(normal) / np.linalg.norm(normal)
+        text = _light("CylinderLight", body, centre, rotate_x, (1, 3, 1 / 3))
+        # unturned, the wide semi-axis (local Y) faces the probe edge-on; rotateX −90 turns it to world −Z,
+        # the thin one (local Z) to world +Y: the probe below sees the tube's broad side
+        axes = ((1, 0, 0), (0, 0, -1), (0, 1, 0)) if rotate_x else ((1, 0, 0), (0, 1, 0), (0, 0, 1))
+        omega, d_omega = elliptic_cylinder_solid_angles(a, b, length, axes, centre, (0, 0, 0))
+        expected = intensity * float((np.maximum(omega @ normal, 0.0) * d_omega).sum())
+        np.testing.assert_allclose(_irradiance(tmp_path, text, normal=tuple(normal), samples=samples, copies=copies),
+                                   expected, rtol=0.02)
+        omega, d_omega = elliptic_cylinder_solid_angles(circle, circle, length, axes, centre, (0, 0, 0))
+        assert abs(intensity * float((np.maximum(omega @ normal, 0.0) * d_omega).sum()) / expected - 1.0) > 0.1
+    assert not any("CylinderLight" in i for i in _issues(_read(tmp_path, _light("CylinderLight", body, (0, 1, 0),
+                                                                                   None, (1, 3, 1 / 3)))))
 
 
 # ---- distant lights --------------------------------------------------------------------------------------------------
