@@ -20,10 +20,11 @@ Samplers (pbrt-v4, "Light Sampling")
               sphere, mapped back: pdf_ω = pdf_ω' · |det M⁻¹| / |M⁻¹ω|³ (the Jacobian of ω' = M⁻¹ω/|M⁻¹ω|).
     rect      uniform on the area, pdf_ω = d²/(A·cos θ_l); emits towards local −Z only.
     disk      uniform on the area (ρ = √u on the unit disk, stretched to the semi-axes a, b), as rect.
-    cylinder  uniform on the half of the lateral surface facing the point (axis = local X, as UsdLuxCylinderLight;
-              no caps, as HdEmbree), pdf_ω = d²/(½A·cos θ_l); the cylinder's own surface occludes shadow rays. An
-              elliptic section (semi-axes a, b): uniform in its unit circle's angle, the area density
-              1/(π·L·√(a²sin²φ + b²cos²φ)).
+    cylinder  on the half of the lateral surface facing the point (axis = local X, as UsdLuxCylinderLight; no
+              caps, as HdEmbree): uniform along the axis and in the projected width, φ = φ₀ + asin(2u − 1) around
+              the point's azimuth φ₀, area density cos(φ − φ₀)/(2·L·arc), arc = r or, for an elliptic section
+              (a·cos φ, b·sin φ), √(a²sin²φ + b²cos²φ); pdf_ω = d²·density/cos θ_l; the cylinder's own surface
+              occludes shadow rays.
 
 Shaping (UsdLuxShapingAPI, as HdEmbree evaluates it)
     with c = cos of the angle between the emission direction and the light's −Z axis:
@@ -800,38 +801,47 @@ class CylinderLightModel(LightModel):
     def bounding_radius(self) -> float:
         return math.hypot(max(self._section), 0.5 * self._length)
 
-    def _facing_angle(self, rel: np.ndarray) -> np.ndarray:
-        """Azimuth (M,) around the axis of the points' projections (rel = point − centre, (3, M)) in the section's
-        unit-circle coordinates (y/a, z/b): the surface facing them lies within ±π/2 (facing is affine-invariant)."""
+    def _facing(self, rel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(cos φ₀, sin φ₀) (M,) each: the unit-circle direction of the points' projections (rel = point − centre,
+        (3, M)) in the section's coordinates (y/a, z/b). The surface the points see lies within ±π/2 of φ₀
+        (facing, n·(p − q) > 0, is affine-invariant)."""
         a, b = self._section
-        return np.arctan2(dotc(self.z_axis, rel) / b, dotc(self.y_axis, rel) / a)
+        cy, cz = dotc(self.y_axis, rel) / a, dotc(self.z_axis, rel) / b
+        norm = np.sqrt(cy * cy + cz * cz)
+        axial = norm <= 0  # on the axis: no outside point is seen; any direction
+        norm = np.where(axial, 1, norm)
+        return np.where(axial, 1, cy / norm), cz / norm
 
     def sample_soa(self, points, u0, u1):  # noqa: ANN001, ANN201
-        """Uniform on the half of the lateral surface that faces the point (everything it can see lies there); an
-        elliptic section uniform in its unit circle's angle, the pdf divided by the arc-length element
-        √(a²·sin²φ + b²·cos²φ) (of the point (a·cos φ, b·sin φ))."""
+        """On the half of the lateral surface that faces the point (everything it can see lies there), uniform
+        along the axis and in the azimuth φ = φ₀ + asin(2u − 1) around the points' direction φ₀: density
+        cos(φ − φ₀)/2, the surface's projected width seen from afar, so a distant tube's samples all weigh the same
+        (uniform in φ, until 2026-12-08: 3 % noise on a splatted tube's 36 samples, 65–90 % per sample on a floor
+        beside it). The area density is that over L·(arc element): r for a circle, √(a²sin²φ + b²cos²φ) for the
+        ellipse (a·cos φ, b·sin φ)."""
         length = self._length
         centre, _ = self._cols(points.dtype)
+        if not self.light.area > 0:  # radius or length 0: nothing emits (no sample)
+            m = points.shape[1]
+            wi = np.zeros_like(points)
+            wi[2] = 1
+            return wi, np.zeros(m, points.dtype), np.zeros_like(points), np.zeros(m, points.dtype)
         rel = points - centre
         z = (u0 - 0.5) * length
-        phi = self._facing_angle(rel) + np.pi * (u1 - 0.5)
-        cp, sp = np.cos(phi), np.sin(phi)
+        c0, s0 = self._facing(rel)
+        s = 2.0 * u1 - 1.0  # sin(φ − φ₀), uniform: the projected width
+        c = 2.0 * np.sqrt(np.maximum(0, u1 * (1.0 - u1)))  # cos(φ − φ₀) = √((1 − s)(1 + s)), no cancellation
+        cp, sp = c * c0 - s * s0, c * s0 + s * c0  # cos φ, sin φ
         x, y, zz = self.x_axis, self.y_axis, self.z_axis
-        if len(self.light.size) == 3:
-            a, b = self._section
-            # the outward normal ∝ (cos φ / a, sin φ / b), and the half-surface's area π·L·⟨arc element⟩ per radian
-            arc = np.sqrt((a * sp) ** 2 + (b * cp) ** 2)
-            ny, nz = b * cp / arc, a * sp / arc
-            normal = np.stack([ny * y[0] + nz * zz[0], ny * y[1] + nz * zz[1], ny * y[2] + nz * zz[2]])
-            ay, bz = a * cp, b * sp
-            point = np.stack([ay * y[0] + bz * zz[0], ay * y[1] + bz * zz[1], ay * y[2] + bz * zz[2]])
-            to_q = point - rel + np.stack([z * x[0], z * x[1], z * x[2]])
-            area_density = 1.0 / (np.pi * length * arc)  # per unit area: 1/(π·L) per (φ, x), ÷ the arc element
-        else:
-            r = float(self.light.size[0])
-            normal = np.stack([cp * y[0] + sp * zz[0], cp * y[1] + sp * zz[1], cp * y[2] + sp * zz[2]])
-            to_q = r * normal - rel + np.stack([z * x[0], z * x[1], z * x[2]])
-            area_density = 1.0 / (0.5 * self.light.area)
+        a, b = self._section
+        arc = np.sqrt((a * sp) ** 2 + (b * cp) ** 2) if len(self.light.size) == 3 else a
+        # the outward normal ∝ (b·cos φ, a·sin φ) (Y, Z), ÷ the arc element; the point (a·cos φ, b·sin φ)
+        ny, nz = b * cp / arc, a * sp / arc
+        normal = np.stack([ny * y[0] + nz * zz[0], ny * y[1] + nz * zz[1], ny * y[2] + nz * zz[2]])
+        ay, bz = a * cp, b * sp
+        point = np.stack([ay * y[0] + bz * zz[0], ay * y[1] + bz * zz[1], ay * y[2] + bz * zz[2]])
+        to_q = point - rel + np.stack([z * x[0], z * x[1], z * x[2]])
+        area_density = 0.5 * c / (length * arc)
         dist = np.sqrt(dot(to_q, to_q))
         wi = to_q / np.maximum(dist, TINY)
         cos_l = -dot(wi, normal)
@@ -880,17 +890,20 @@ class CylinderLightModel(LightModel):
         return best, radial
 
     def pdf_soa(self, points, wi, t):  # noqa: ANN001, ANN201
+        if not self.light.area > 0:
+            return np.zeros(points.shape[1], dtype=wi.dtype)
         _, radial = self._hit(points, wi)
         n = radial / np.maximum(np.sqrt(dot(radial, radial)), TINY)
         cos_l = np.abs(dot(wi, n))
-        if len(self.light.size) == 3:  # the sampler's area density at the hit: 1/(π·L·arc element)
-            a, b = self._section
-            centre, _ = self._cols(points.dtype)
-            q = points + t * wi - centre
-            cp, sp = dotc(self.y_axis, q) / a, dotc(self.z_axis, q) / b
-            area_density = 1.0 / (np.pi * self._length * np.sqrt((a * sp) ** 2 + (b * cp) ** 2))
-        else:
-            area_density = 1.0 / (0.5 * self.light.area)
+        # the sampler's area density at the hit: cos(φ − φ₀)/(2·L·arc element), φ from the hit's unit-circle point
+        a, b = self._section
+        centre, _ = self._cols(points.dtype)
+        rel = points - centre
+        q = rel + t * wi
+        cp, sp = dotc(self.y_axis, q) / a, dotc(self.z_axis, q) / b
+        c0, s0 = self._facing(rel)
+        arc = np.sqrt((a * sp) ** 2 + (b * cp) ** 2) if len(self.light.size) == 3 else a
+        area_density = 0.5 * np.maximum(cp * c0 + sp * s0, 0) / (self._length * arc)
         return np.where(cos_l > 0, t * t * area_density / np.maximum(cos_l, TINY), 0).astype(wi.dtype, copy=False)
 
     def intersect_soa(self, origins, directions):  # noqa: ANN001, ANN201

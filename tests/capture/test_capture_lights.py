@@ -353,3 +353,40 @@ def test_elliptic_cylinder_sampler_integrates_its_solid_angle_and_irradiance():
         np.testing.assert_allclose(weight.mean(), d_omega.sum(), rtol=5e-3)
         e = np.mean(np.maximum(sample.wi @ normal, 0.0) * weight)
         np.testing.assert_allclose(e, (np.maximum(omega @ normal, 0.0) * d_omega).sum(), rtol=5e-3)
+
+
+@pytest.mark.parametrize("size", [(0.1, 2.0), (0.3, 0.1, 2.0)])
+def test_a_distant_tube_samples_its_projected_width(size):
+    """Seen from D ≫ its size across its axis, a tube is a rectangle of its projected width w (2r; an ellipse seen
+    along local Y: 2b) by L, of solid angle w·L/D². The sampler is uniform in that width, so every sample's 1/pdf
+    is that solid angle to O(size/D) but for the samples at the silhouette, where the finite distance shows — a
+    splatted tube's samples weigh the same (uniform in azimuth: a relative spread of 0.49, 3 % noise on its 36
+    samples)."""
+    from bakery.capture.scene import Light
+
+    model = light_model(Light("cylinder", "/T", radiance=(1.0, 1.0, 1.0), position=(0.0, 0.0, 0.0),
+                              axes=((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)), size=size))
+    distance, length = 200.0, size[-1]
+    width = 2.0 * size[1] if len(size) == 3 else 2.0 * size[0]
+    rng = np.random.default_rng(5)
+    sample = model.sample(np.tile([0.0, -distance, 0.0], (10_000, 1)), rng.random((10_000, 2)))
+    assert np.all(sample.pdf > 0)
+    weight = 1.0 / sample.pdf
+    np.testing.assert_allclose(weight.mean(), width * length / distance**2, rtol=4.0 * length / distance)
+    assert weight.std() < 0.01 * weight.mean()
+
+
+@pytest.mark.parametrize("size", [(0.0, 2.0), (0.2, 0.0), (0.3, 0.1, 0.0)])
+def test_a_tube_of_zero_area_gives_no_samples(size):
+    """A CylinderLight of radius or length 0 has no surface to emit from: no next-event sample (pdf 0, no
+    radiance), no NaN (its samples' azimuth would divide by the radius)."""
+    import warnings
+
+    from bakery.capture.scene import Light
+
+    model = light_model(Light("cylinder", "/T", radiance=(1.0, 1.0, 1.0), position=(0.0, 1.0, 0.0), size=size))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        sample = model.sample(np.zeros((8, 3)), np.random.default_rng(0).random((8, 2)))
+        pdf = model.pdf(np.zeros((1, 3)), np.array([[0.0, 1.0, 0.0]]), np.array([1.0]))
+    assert np.all(sample.pdf == 0) and np.all(sample.radiance == 0) and np.all(pdf == 0)

@@ -116,7 +116,10 @@ def test_light_float32_soa_agrees_with_float64(kind):
     assert ok.mean() > 0.3 and np.mean((s.pdf > 0) != (pdf > 0)) < 0.01
     np.testing.assert_allclose(wi.T[ok], s.wi[ok], atol=1e-5)
     np.testing.assert_allclose(dist[ok], s.distance[ok], rtol=1e-4)
-    np.testing.assert_allclose(pdf[ok], s.pdf[ok], rtol=1e-3)
+    # the estimators weigh a sample by 1/pdf: at a grazing sample (cos θ_l ~ 1e-5) float32 loses the pdf's digits
+    # to cancellation (one of 2 000 here, 1.3 %), and its weight is 1e-5 of the typical one
+    weight = 1.0 / s.pdf[ok]
+    np.testing.assert_allclose(1.0 / pdf[ok], weight, rtol=1e-3, atol=1e-5 * np.median(weight))
     np.testing.assert_allclose(radiance.T[ok], s.radiance[ok], rtol=1e-3, atol=1e-5)
 
 
