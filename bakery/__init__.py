@@ -10,10 +10,10 @@ from __future__ import annotations
 __version__ = "0.1.0"
 
 
-def open_store(path):  # noqa: ANN001, ANN201, D103 - documented in bakery.api
+def open_store(path, lazy=False):  # noqa: ANN001, ANN201, D103 - documented in bakery.api
     from bakery.api import open_store as _open
 
-    return _open(path)
+    return _open(path, lazy=lazy)
 
 
 def bake(  # noqa: PLR0913 - a façade over BakeRequest

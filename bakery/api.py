@@ -38,7 +38,7 @@ from bakery.errors import (
     UnknownProbeError,
 )
 from bakery.reflection.validation import check_directions, check_reflection_inputs
-from bakery.store.format import read_store, store_path, version_tuple
+from bakery.store.format import LazyField, read_store, store_path, version_tuple
 
 
 @dataclass(frozen=True)
@@ -126,14 +126,19 @@ class _Evaluator:
 
 
 class ProbeStore:
-    """A probe store opened for reading (all arrays are loaded; stores are small). Opening verifies the store's
-    checksums (``schemas/store-v1.md``, Integrity) and raises :class:`bakery.errors.StoreFormatError` naming the
-    datasets that fail them, and checks the metadata readers rely on (encoding attributes, JSON root attributes,
-    the encodings' ``probe_index``) naming the attribute or dataset that is malformed."""
+    """A probe store opened for reading. Opening verifies the store's checksums (``schemas/store-v1.md``,
+    Integrity) and raises :class:`bakery.errors.StoreFormatError` naming the datasets that fail them, and checks
+    the metadata readers rely on (encoding attributes, JSON root attributes, the encodings' ``probe_index``) naming
+    the attribute or dataset that is malformed.
 
-    def __init__(self, path: str | os.PathLike[str]) -> None:
+    Every array is loaded, or with ``lazy`` the large fields (a chain's levels: ≥ 4 MiB a field) are
+    :class:`bakery.store.format.LazyField` objects that read the rows they are indexed with from the verified file,
+    which stays open until :meth:`close` (or the end of a ``with`` block): a reader that walks the probes in blocks
+    holds one block (``bakery export``)."""
+
+    def __init__(self, path: str | os.PathLike[str], lazy: bool = False) -> None:
         self.path = str(store_path(path))
-        self._contents = read_store(self.path)
+        self._contents = read_store(self.path, lazy_fields=lazy)
         a = self._contents.attributes
         self.attributes: dict[str, Any] = a
         self.format_version: str = str(a["format_version"])
@@ -155,6 +160,16 @@ class ProbeStore:
         self.encodings: dict[str, EncodingInfo] = {
             name: self._encoding_info(name, entry) for name, entry in self._contents.encodings.items()}
         self._evaluators: dict[str, _Evaluator] = {}
+
+    def close(self) -> None:
+        """Close the store's file (a ``lazy`` store's fields cannot be read afterwards; a loaded store has none)."""
+        self._contents.close()
+
+    def __enter__(self) -> ProbeStore:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     # ------------------------------------------------------------------------------------------------ metadata
     def _malformed(self, where: str, problem: str) -> StoreFormatError:
@@ -294,7 +309,7 @@ class ProbeStore:
                     continue
                 raise self._malformed(f"dataset {where}/{spec.name}", f"is missing ({name} {info.version} stores "
                                       f"{spec.name} {expected} {spec.dtype})")
-            array = np.asarray(values)
+            array = values if isinstance(values, LazyField) else np.asarray(values)
             if array.shape != expected:
                 raise self._malformed(f"dataset {where}/{spec.name}", f"has shape {array.shape}, expected {expected} "
                                       f"({spec.dtype}, from the encoding's settings)")
@@ -400,7 +415,7 @@ class ProbeStore:
                          self._selected(evaluator.entry, rows), evaluator.entry["shared"], v, n, a, f)
 
 
-def open_store(path: str | os.PathLike[str]) -> ProbeStore:
+def open_store(path: str | os.PathLike[str], lazy: bool = False) -> ProbeStore:
     """Open a bakery probe store for reading (raises :class:`bakery.errors.StoreFormatError` if it is not one, and
-    :class:`bakery.errors.ArgumentError` if ``path`` is not a file path)."""
-    return ProbeStore(path)
+    :class:`bakery.errors.ArgumentError` if ``path`` is not a file path); ``lazy``: :class:`ProbeStore`."""
+    return ProbeStore(path, lazy=lazy)

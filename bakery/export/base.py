@@ -686,9 +686,18 @@ def _export_locked(store_path: Path, output: str | os.PathLike[str], format: str
                    locked: bool = False) -> ExportResult:
     """:func:`export_store` once the store's lock is held (``locked``, when a layer is edited)."""
     from bakery.api import open_store
+
+    with open_store(store_path, lazy=True) as store:  # the chains' levels read a block of probes at a time
+        return _export_opened(store, store_path, output, format, cls, prof, params, probes, layer, layer_path,
+                              locked)
+
+
+def _export_opened(store: Any, store_path: Path, output: str | os.PathLike[str], format: str,  # noqa: A002
+                   cls: type[ExportFormat], prof: Profile, params: Any, probes: str | None, layer: Any,
+                   layer_path: Path | None, locked: bool) -> ExportResult:
+    """:func:`_export_locked` with the store open (``bakery.api.ProbeStore``, lazy)."""
     from bakery.usd.layer import open_export_layer, staged_export_attributes
 
-    store = open_store(store_path)
     selected = select_probes(store, probes)
     output = Path(output)
     _check_writable(output)

@@ -109,6 +109,129 @@ class StoreContents:
     history: list[dict[str, str]] = field(default_factory=list)
     #: what reading found when it verified the checksums (1.2.0; set by :func:`read_store`).
     integrity: StoreIntegrity | None = None
+    #: the open file the :class:`LazyField` fields read from (``lazy_fields``), else None; :meth:`close` closes it.
+    file: Any = None
+
+    def close(self) -> None:
+        """Close the file lazy fields read from (they cannot be read afterwards)."""
+        if self.file is not None:
+            self.file.close()
+            self.file = None
+
+
+class LazyField:
+    """A large field of a store read with ``lazy_fields`` (:func:`read_store`): (P_k, ...) rows read from the open
+    file when indexed, so a consumer that walks the probes in blocks (an export) holds one block, not the store.
+
+    Indexing takes a row, a slice, a 1-D array of rows or a boolean mask, optionally followed by indices into the
+    row (``field[rows, 0]``); values are little-endian numpy arrays, as the eager reader returns them. ``np.asarray``
+    reads it whole. The file handle is the one :func:`read_store` verified (a store renamed over the path meanwhile
+    is not read)."""
+
+    def __init__(self, dataset: h5py.Dataset) -> None:
+        self._dataset = dataset
+        self.name: str = dataset.name
+        self.shape: tuple[int, ...] = tuple(dataset.shape)
+        self.dtype: np.dtype = dataset.dtype.newbyteorder("<") if dataset.dtype.byteorder == ">" else dataset.dtype
+        self.ndim = len(self.shape)
+        self.size = int(np.prod(self.shape, dtype=np.int64))
+        self.nbytes = self.size * self.dtype.itemsize
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __repr__(self) -> str:
+        return f"LazyField({self.name}, {self.dtype.str} {self.shape})"
+
+    def _rows(self, key: Any) -> np.ndarray:
+        """Rows ``key`` (an array of row numbers or a boolean mask) in the given order, repeats allowed: the
+        distinct rows read by runs of consecutive rows (HDF5 reads a slice at a time; h5py's point selections are
+        slow), then put in order."""
+        index = np.asarray(key)
+        if index.dtype == bool:
+            if index.shape != (self.shape[0],):
+                raise IndexError(f"{self.name}: boolean index of shape {index.shape} for {self.shape[0]} rows")
+            index = np.flatnonzero(index)
+        if index.ndim != 1 or (index.size and index.dtype.kind not in "iu"):
+            raise IndexError(f"{self.name}: rows must be a 1-D array of integers, got {index.dtype} {index.shape}")
+        index = index.astype(np.int64)
+        count = self.shape[0]
+        if np.any((index < -count) | (index >= count)):
+            raise IndexError(f"{self.name}: row out of range for {count} rows")
+        index = np.where(index < 0, index + count, index)
+        distinct, inverse = np.unique(index, return_inverse=True)
+        out = np.empty((distinct.size, *self.shape[1:]), dtype=self.dtype)
+        starts = np.flatnonzero(np.r_[True, np.diff(distinct) != 1]) if distinct.size else np.zeros(0, np.int64)
+        for a, b in zip(starts.tolist(), np.r_[starts[1:], distinct.size].tolist()):
+            out[a:b] = self._dataset[int(distinct[a]) : int(distinct[b - 1]) + 1]
+        return out[inverse]
+
+    def _open(self) -> h5py.Dataset:
+        if not self._dataset.id.valid:
+            raise StoreFormatError(f"{self.name}: the store it was read from is closed; open it again to read it")
+        return self._dataset
+
+    def __getitem__(self, key: Any) -> np.ndarray:
+        return self._reading(self._index, key)
+
+    def _reading(self, read: Any, *args: Any) -> np.ndarray:
+        dataset = self._open()
+        try:
+            return read(*args)
+        except (OSError, RuntimeError) as error:  # a chunk that fails its fletcher32 check, a damaged file
+            raise StoreIntegrityError(f"{dataset.file.filename}: dataset {self.name} cannot be read: "
+                                      f"{os_error_message(error)}; the file is damaged — re-bake it or restore a "
+                                      "copy") from None
+
+    def _index(self, key: Any) -> np.ndarray:
+        rest: tuple = ()
+        if isinstance(key, tuple):
+            key, rest = (key[0], key[1:]) if key else (slice(None), ())
+        if isinstance(key, (int, np.integer)):
+            row = int(key) + (self.shape[0] if int(key) < 0 else 0)
+            if not 0 <= row < self.shape[0]:
+                raise IndexError(f"{self.name}: row {int(key)} out of range for {self.shape[0]} rows")
+            values = _le(self._dataset[row]).reshape(self.shape[1:])  # a 1-D field's row: a scalar, as numpy's
+            return values[rest] if rest else values[()]
+        values = _le(self._dataset[key] if isinstance(key, slice) else self._rows(key))
+        return values[(slice(None), *rest)] if rest else values
+
+    def __array__(self, dtype: Any = None, copy: Any = None) -> np.ndarray:
+        values = _le(self._reading(_read_rows_lazily, self._dataset))
+        return values if dtype is None else values.astype(dtype, copy=False)
+
+
+def _is_lazy(values: Any) -> bool:
+    return isinstance(values, LazyField)
+
+
+class _DigestedInPassing:
+    """A :class:`LazyField` as :func:`probe_checksums` reads it, block after block of rows from the first: its
+    dataset digest (:func:`bakery.files.sha256_array`'s: dtype, shape, then the C-order bytes) is fed by those
+    blocks as they pass, so verifying a lazily read store reads each large field once."""
+
+    def __init__(self, lazy: LazyField) -> None:
+        self.lazy = lazy
+        self.dtype, self.shape = lazy.dtype, lazy.shape
+        self._digest = sha256_running()
+        self._digest.update(json.dumps([lazy.dtype.str, list(lazy.shape)]).encode())
+        self._next = 0
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, key: Any) -> np.ndarray:
+        values = self.lazy[key]
+        if isinstance(key, slice) and key.step in (None, 1) and (key.start or 0) == self._next and len(values):
+            self._digest.update(memoryview(np.ascontiguousarray(values)).cast("B"))
+            self._next += len(values)
+        return values
+
+    def hexdigest(self) -> str:
+        """The field's digest; the rest of it read now if the blocks that passed did not cover it."""
+        while self._next < self.shape[0]:
+            self[self._next : self._next + max(1, _LAZY_READ_BYTES // max(1, self.lazy.nbytes // self.shape[0]))]
+        return self._digest.hexdigest()
 
 
 def version_tuple(version: str) -> tuple[int, int, int]:
@@ -148,7 +271,8 @@ def _update_by_rows(digests: list[Any], index: np.ndarray, header: bytes, keys: 
     if rows == 0:
         return
     prefixes = {key: np.frombuffer(_field_prefix(key, arrays[key]), dtype=np.uint8) for key in keys}
-    row_bytes = len(header) + sum(prefixes[key].size + arrays[key][:1].nbytes for key in keys)
+    row_bytes = len(header) + sum(prefixes[key].size + arrays[key].dtype.itemsize
+                                  * int(np.prod(arrays[key].shape[1:], dtype=np.int64)) for key in keys)
     block = max(1, _CHECKSUM_BLOCK_BYTES // row_bytes)
     header_bytes = np.frombuffer(header, dtype=np.uint8)
     probes = index.tolist()
@@ -185,7 +309,8 @@ def probe_checksums(names: list[str], kinds: list[str], positions: np.ndarray, h
         fields = encodings[name]["fields"]
         index = np.asarray(fields.get("probe_index", np.zeros(0, dtype=np.int32))).reshape(-1)
         keys = sorted(k for k in fields if k != "probe_index")
-        arrays = {k: _le(fields[k]) for k in keys if fields[k] is not None}
+        arrays = {k: fields[k] if isinstance(fields[k], (LazyField, _DigestedInPassing)) else _le(fields[k])
+                  for k in keys if fields[k] is not None}
         header = b"encoding\0" + name.encode() + b"\0"
         if all(k in arrays and len(arrays[k]) >= len(index) and arrays[k].dtype.kind in "biuf" for k in keys):
             _update_by_rows(digests, index, header, keys, arrays)
@@ -463,8 +588,15 @@ def _integrity_error(path: Path, integrity: StoreIntegrity) -> StoreIntegrityErr
                                "a copy")
 
 
-def read_store(path: str | os.PathLike[str], load_fields: bool = True, *, strict: bool = True) -> StoreContents:
+def read_store(path: str | os.PathLike[str], load_fields: bool = True, *, strict: bool = True,
+               lazy_fields: bool = False) -> StoreContents:
     """Read a store and verify its checksums (module docstring).
+
+    ``lazy_fields``: the large numeric fields (≥ :data:`~bakery.zero_pages.MIN_BYTES`) are :class:`LazyField` objects
+    that read their rows from the file when indexed, the file kept open (``StoreContents.file``; close it with
+    :meth:`StoreContents.close`). They are verified as the eager reader verifies them — the per-probe and
+    per-dataset checksums, by one pass over each field in blocks of rows — so what is read later is what was
+    verified (the open handle keeps reading the verified file even if another is renamed over its path).
 
     Raises :class:`StoreFormatError` for a missing, corrupt, foreign or newer-major file, and (``strict``)
     :class:`StoreIntegrityError` naming the datasets that fail their checksums. With ``strict=False`` the findings
@@ -490,8 +622,11 @@ def read_store(path: str | os.PathLike[str], load_fields: bool = True, *, strict
     def value(item: h5py.Dataset, rows_lazily: bool = False) -> Any:
         """The dataset's values; a read failure (fletcher32 mismatch, damaged chunk) is recorded, not raised.
         ``rows_lazily``: a large numeric dataset is read by blocks of rows, its all-zero rows left unwritten in a
-        :func:`~bakery.zero_pages.lazy_zeros` array (the same values; those rows take no memory)."""
+        :func:`~bakery.zero_pages.lazy_zeros` array (the same values; those rows take no memory), or with
+        ``lazy_fields`` not read (a :class:`LazyField`)."""
         try:
+            if rows_lazily and lazy_fields and _large_numeric(item):
+                return LazyField(item)
             if rows_lazily:
                 return _read_rows_lazily(item)
             return item[()]
@@ -502,7 +637,8 @@ def read_store(path: str | os.PathLike[str], load_fields: bool = True, *, strict
                                           "the file is damaged — re-bake it or restore a copy") from None
             return None
 
-    with f:
+    keep_open = False
+    try:
         try:
             attributes = _read_attributes(f)
         except _DAMAGED as error:
@@ -583,6 +719,26 @@ def read_store(path: str | os.PathLike[str], load_fields: bool = True, *, strict
         except (AttributeError, TypeError, ValueError) as error:  # a node of an unexpected type or shape
             raise StoreFormatError(f"{path}: store is malformed ({type(error).__name__}: {error}); the file was not "
                                    "written by bakery or is corrupt") from None
+        keep_open = lazy_fields and any(_is_lazy(v) for e in encodings.values() for v in e["fields"].values())
+    finally:
+        if not keep_open:
+            f.close()
+    try:
+        return _checked_contents(path, strict, load_fields, attributes, names, kinds, positions, encodings,
+                                 diagnostics, hashes, bake_ids, history, integrity, f if keep_open else None)
+    except BaseException:
+        if keep_open:
+            f.close()
+        raise
+
+
+def _checked_contents(path: Path, strict: bool, load_fields: bool, attributes: dict[str, Any], names: list[str],
+                      kinds: list[str], positions: Any, encodings: dict[str, dict[str, Any]],
+                      diagnostics: dict[str, np.ndarray], hashes: list[str], bake_ids: Any,
+                      history: list[dict[str, str]], integrity: StoreIntegrity, file: Any) -> StoreContents:
+    """:func:`read_store`'s last checks, once the file is read: the /probes datasets' lengths, the integrity
+    findings (``strict``: raised) and the encodings' layout."""
+    count = len(names)
     if len(hashes) != count or len(kinds) != count or np.shape(positions) != (count, 3) \
             or np.shape(bake_ids) != (count,):
         if strict or not integrity.problems:
@@ -597,19 +753,24 @@ def read_store(path: str | os.PathLike[str], load_fields: bool = True, *, strict
     if strict and load_fields:
         check_encoding_layout(path, encodings, count)
     return StoreContents(attributes, names, kinds, np.asarray(positions), encodings, diagnostics, hashes,
-                         np.asarray(bake_ids, dtype=np.int32), history, integrity)
+                         np.asarray(bake_ids, dtype=np.int32), history, integrity, file)
 
 
 #: Rows read at once by :func:`_read_rows_lazily` (bytes, rounded to whole chunks).
 _LAZY_READ_BYTES = 1 << 25
 
 
+def _large_numeric(dataset: h5py.Dataset) -> bool:
+    """A numeric dataset of rows of at least :data:`~bakery.zero_pages.MIN_BYTES` (read by rows, or lazily)."""
+    return (dataset.ndim > 0 and dataset.dtype.kind in "biufc" and dataset.shape[0] > 0
+            and dataset.size * dataset.dtype.itemsize >= MIN_BYTES)
+
+
 def _read_rows_lazily(dataset: h5py.Dataset) -> np.ndarray:
     """``dataset[()]``, read in blocks of whole chunks of rows into a :func:`~bakery.zero_pages.lazy_zeros` array
     where only the rows with a non-zero byte are written (a numeric dataset of at least
     :data:`~bakery.zero_pages.MIN_BYTES`; others are read whole)."""
-    if (dataset.ndim == 0 or dataset.dtype.kind not in "biufc" or dataset.shape[0] == 0
-            or dataset.size * dataset.dtype.itemsize < MIN_BYTES):
+    if not _large_numeric(dataset):
         return dataset[()]
     count = dataset.shape[0]
     row_bytes = max(1, dataset.size // count * dataset.dtype.itemsize)
@@ -723,7 +884,7 @@ def check_encoding_layout(path: str | os.PathLike[str], encodings: dict[str, dic
         for key, values in fields.items():
             if key == "probe_index" or values is None:
                 continue
-            array = np.asarray(values)
+            array = values if _is_lazy(values) else np.asarray(values)
             if array.ndim == 0 or array.shape[0] != index.size:
                 raise StoreFormatError(f"{path}: dataset {where}/{key} is {_array_description(array)}, expected "
                                        f"{index.size} rows (one per entry of {where}/probe_index)")
@@ -737,7 +898,8 @@ def _array_description(array: np.ndarray) -> str:
 def _verify(f: h5py.File, integrity: StoreIntegrity, unreadable: dict[str, str], names: list[str], kinds: list[str],
             positions: np.ndarray, hashes: list[str], bake_ids: np.ndarray, encodings: dict[str, dict[str, Any]],
             load_fields: bool) -> None:
-    """Check ``/checksums`` against what was read (module docstring); findings go into ``integrity``."""
+    """Check ``/checksums`` against what was read (module docstring); findings go into ``integrity``. A
+    :class:`LazyField` is hashed as the per-probe checksums read it (:class:`_DigestedInPassing`)."""
     integrity.verified = True
     problems = integrity.problems
     field_paths = {f"/encodings/{e}/{k}": e for e, entry in encodings.items() for k in entry["fields"]}
@@ -757,6 +919,20 @@ def _verify(f: h5py.File, integrity: StoreIntegrity, unreadable: dict[str, str],
         problems.append(f"/checksums cannot be read: {os_error_message(error)}")
         integrity.whole_store = True
         return
+
+    def mismatch(item: h5py.Dataset, path: str, description: str, values: Any) -> None:
+        actual = _describe(item)
+        detail = f"is {actual}, written as {description}" if actual != description else "holds other values"
+        if values is not None and item.dtype.kind == "f" and not np.all(np.isfinite(values)):
+            detail += f", {int(np.sum(~np.isfinite(values)))} of them non-finite"
+        problems.append(f"dataset {path} does not match its checksum ({detail})")
+        if path.startswith("/encodings/") and path.count("/") == 3:
+            mismatched[path] = path.split("/")[2]
+        else:
+            integrity.whole_store = True
+
+    # lazy fields: {path: (the digest written, its description, the field as the per-probe pass reads it)}
+    passing: dict[str, tuple[str, str, _DigestedInPassing]] = {}
     listed = set()
     for row in table.tolist():
         path, digest, description = (v.decode() if isinstance(v, bytes) else str(v) for v in row)
@@ -789,18 +965,13 @@ def _verify(f: h5py.File, integrity: StoreIntegrity, unreadable: dict[str, str],
         if is_field:
             _, _, encoding, key = path.split("/")
             values = encodings[encoding]["fields"].get(key)
+            if _is_lazy(values):
+                passing[path] = (digest, description, _DigestedInPassing(values))
+                continue
         if values is None:
             values = item[()]
         if _dataset_digest(item, values) != digest:
-            actual = _describe(item)
-            detail = f"is {actual}, written as {description}" if actual != description else "holds other values"
-            if item.dtype.kind == "f" and not np.all(np.isfinite(values)):
-                detail += f", {int(np.sum(~np.isfinite(values)))} of them non-finite"
-            problems.append(f"dataset {path} does not match its checksum ({detail})")
-            if is_field:
-                mismatched[path] = path.split("/")[2]
-            else:
-                integrity.whole_store = True
+            mismatch(item, path, description, values)
     for path, encoding in field_paths.items():
         if path not in listed:
             problems.append(f"dataset {path} was not written by bakery")
@@ -810,12 +981,18 @@ def _verify(f: h5py.File, integrity: StoreIntegrity, unreadable: dict[str, str],
             integrity.whole_store = True
         return
     count = len(names)
+    hashed = {name: {**entry, "fields": {k: passing[f"/encodings/{name}/{k}"][2] if f"/encodings/{name}/{k}" in
+                                         passing else v for k, v in entry["fields"].items()}}
+              for name, entry in encodings.items()}
     try:
-        computed = probe_checksums(names, kinds, positions, hashes, bake_ids, encodings)
+        computed = probe_checksums(names, kinds, positions, hashes, bake_ids, hashed)
     except (ValueError, TypeError) as error:
         problems.append(f"per-probe checksums cannot be computed: {error}")
         integrity.whole_store = True
         return
+    for path, (digest, description, field_) in passing.items():
+        if field_.hexdigest() != digest:
+            mismatch(f[path], path, description, None)
     if stored.shape != (count, 32):
         problems.append(f"dataset /checksums/probe has shape {stored.shape}, expected ({count}, 32)")
         integrity.whole_store = True
