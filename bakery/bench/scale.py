@@ -150,6 +150,11 @@ class _MemorySampler:
     of all workers *together* is the largest sum of their current sizes at one look (a lower bound between looks).
     Without ``/proc`` (not Linux) the peaks are the sizes seen at the looks.
 
+    ``VmHWM`` counts every resident page, those of the files a process maps included: a bake's parent maps the
+    fields it spills to its work folder (:data:`bakery.pipeline.run.SPILL_FOLDER`), page cache the kernel may
+    reclaim. Its anonymous memory (``RssAnon``: heap and private pages, what must stay in memory) has no kernel
+    high-water mark: ``peak_parent_anon_mb`` is the largest seen at the looks (a lower bound between looks).
+
     The store's forked writer (:mod:`bakery.pipeline.background`) is not a worker: its resident size counts the
     parent's pages it shares, so its own pages (USS) are reported apart, looked at every
     :data:`WRITER_SAMPLE_SECONDS` while it runs. Children already running when sampling starts (an earlier trial's
@@ -158,6 +163,7 @@ class _MemorySampler:
     def __init__(self) -> None:
         self.parent = psutil.Process()
         self.peak_parent = self.peak_worker = self.peak_workers_total = self.peak_writer = 0
+        self.peak_parent_anon = 0
         self._parent_mark = False
         self._before: set[int] = set()
         self._stop = threading.Event()
@@ -221,9 +227,13 @@ class _MemorySampler:
     def _parent_peak(self) -> None:
         marks = _status_kib("self", "VmHWM") if self._parent_mark else None
         self.peak_parent = max(self.peak_parent, marks[0] * 1024 if marks else self.parent.memory_info().rss)
+        anon = _status_kib("self", "RssAnon")
+        if anon is not None:
+            self.peak_parent_anon = max(self.peak_parent_anon, anon[0] * 1024)
 
     def as_dict(self) -> dict[str, float]:
-        return {"peak_parent_mb": self.peak_parent / 2**20, "peak_worker_mb": self.peak_worker / 2**20,
+        anon = {"peak_parent_anon_mb": self.peak_parent_anon / 2**20} if self.peak_parent_anon else {}
+        return {"peak_parent_mb": self.peak_parent / 2**20, **anon, "peak_worker_mb": self.peak_worker / 2**20,
                 "peak_workers_total_mb": self.peak_workers_total / 2**20,
                 "peak_store_writer_uss_mb": self.peak_writer / 2**20}
 
@@ -272,9 +282,9 @@ def run_scale_bench(out_dir: Path, volume_counts=(25, 16, 25), reflection: int =
     """Bake the generated scene with each worker count (then export the last store in each of ``exports``);
     returns and writes ``scale.json``.
 
-    Per run: wall seconds, peak memory of the parent, of the largest worker and of all workers together (and the own
-    pages of the store's forked writer, ``peak_store_writer_uss_mb``), store size,
-    probes/s, capture rays/s, the parent's stages and the summed worker seconds per step (``capture_seconds``,
+    Per run: wall seconds, peak memory of the parent (and its anonymous memory, sampled: ``peak_parent_anon_mb``),
+    of the largest worker and of all workers together (and the own pages of the store's forked writer,
+    ``peak_store_writer_uss_mb``), store size, probes/s, capture rays/s, the parent's stages and the summed worker seconds per step (``capture_seconds``,
     ``encode/<encoding>``, ``diagnostics/…``; summed over workers, so they exceed the wall time with 2 workers).
 
     With ``repeats`` > 1 the worker counts alternate (1, 2, 1, 2, …: the shared machine's drift falls on both) and each

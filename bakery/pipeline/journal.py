@@ -4,7 +4,8 @@ Layout: ``<store>.partial/<batch key>.pkl`` (beside the source's snapshot for wo
 :class:`~bakery.pipeline.worker.BatchOutcome` per finished batch, each written atomically (temp file + fsync +
 rename), so a SIGKILL at any moment leaves only whole files. A batch key is the hash of its probes' content hashes
 (which include the settings and code version), so a journal entry is reused only by a bake that would compute
-exactly the same batch. The journal is deleted after the store has been written.
+exactly the same batch. The journal is deleted after the store has been written. The parent's spilled fields
+(``fields/``, :data:`bakery.pipeline.run.SPILL_FOLDER`) share the folder; they are not checkpoints.
 
 Integrity: each file starts with a header line ``bakery-journal 2 <sha256 of the body>``; the body is the pickle
 compressed by zlib (level 1: a fixed-layout chain is mostly zero rows — a production batch of 64 hybrid probes at

@@ -10,6 +10,7 @@ that carry no energy, and finalize encodings over every probe.
 from __future__ import annotations
 
 from collections.abc import Iterable
+from pathlib import Path
 
 import numpy as np
 
@@ -31,7 +32,7 @@ from bakery.pipeline.settings import DEFAULT_BAND_TOLERANCE, BakeSettings, build
 from bakery.pipeline.skip import band_skip_decisions
 from bakery.probe import Probe
 from bakery.sphere.fibonacci import fibonacci_directions
-from bakery.zero_pages import MIN_BYTES, lazy_zeros, nonzero_rows
+from bakery.zero_pages import MIN_BYTES, SparseRows, discard, lazy_zeros, nonzero_rows
 
 
 #: Per-probe diagnostics key of the backface fraction (rendered probes; NaN for loaded images and older stores).
@@ -82,12 +83,14 @@ def inside_geometry_warning(merged: EncodedBatch, shown: int = 3) -> BakeWarning
 
 
 def merge_batches(batches: list[EncodedBatch], order: list[str] | None = None, *,
-                  release_inputs: bool = False) -> EncodedBatch:
+                  release_inputs: bool = False, scratch: Path | None = None) -> EncodedBatch:
     """Concatenate batches and reorder their probes to ``order`` (names; default: concatenation order).
 
     ``release_inputs``: each batch's encoded fields are dropped from it as soon as they are merged, so the peak is
     the merged fields plus the one being merged instead of the merged fields plus every batch (the parent of a
-    production bake: 1.4 GB of hybrid chains each); the batches' fields are gone afterwards."""
+    production bake: 1.4 GB of hybrid chains each); the batches' fields are gone afterwards, and those spilled to
+    files (:func:`bakery.zero_pages.spilled`) removed. ``scratch``: a folder where the large merged fields are
+    sparse files (:class:`bakery.zero_pages.SparseRows`), not memory."""
     probes = [p for b in batches for p in b.probes]
     offsets = np.cumsum([0] + [len(b.probes) for b in batches])
     names = [p.name for p in probes]
@@ -111,10 +114,11 @@ def merge_batches(batches: list[EncodedBatch], order: list[str] | None = None, *
         destination[sort] = np.arange(sort.size)  # concatenated row -> merged row
         encoded[name] = {}
         for f in list(parts[0][0].encoded[name]):
-            encoded[name][f] = _scatter([b.encoded[name][f] for b, _ in parts], destination)
+            encoded[name][f] = _scatter([b.encoded[name][f] for b, _ in parts], destination,
+                                        None if scratch is None else scratch / f"merged.{name}.{f}")
             if release_inputs:
                 for b, _ in parts:
-                    del b.encoded[name][f]
+                    discard(b.encoded[name].pop(f))
     diagnostics = _merge_per_probe([b.diagnostics for b in batches], [len(b.probes) for b in batches], permutation)
     transient = _merge_per_probe([b.transient for b in batches], [len(b.probes) for b in batches], permutation)
     timings: dict[str, float] = {}
@@ -139,14 +143,27 @@ def _merge_per_probe(parts_of: list[dict[str, np.ndarray]], counts: list[int],
     return merged
 
 
-def _scatter(parts: list[np.ndarray], destination: np.ndarray) -> np.ndarray:
+def _scatter(parts: list[np.ndarray], destination: np.ndarray, scratch: Path | None = None) -> np.ndarray:
     """``out[destination] = np.concatenate(parts)`` without the concatenated copy: each part is written straight to
     its rows (the parent's peak memory at merge is the batches plus one merged copy, not two). A large numeric
-    result is allocated by :func:`bakery.zero_pages.lazy_zeros` and only the parts' rows with a non-zero byte are
-    written, so its all-zero rows (levels a probe does not upload) take no memory."""
+    result is allocated by :func:`bakery.zero_pages.lazy_zeros` — or is the sparse file ``scratch``
+    (:class:`bakery.zero_pages.SparseRows`) — and only the parts' rows with a non-zero byte are written, so its
+    all-zero rows (levels a probe does not upload) take no memory."""
     shape = (destination.size, *np.shape(parts[0])[1:])
     dtype = np.result_type(*parts)
     lazy = dtype.kind in "biufc" and int(np.prod(shape, dtype=np.int64)) * dtype.itemsize >= MIN_BYTES
+    if lazy and scratch is not None:
+        rows = SparseRows(shape, dtype, scratch)
+        try:
+            start = 0
+            for part in parts:
+                part = np.asarray(part)
+                for row in np.flatnonzero(nonzero_rows(part)).tolist():
+                    rows.write(int(destination[start + row]), part[row])
+                start += len(part)
+        finally:
+            rows.close()
+        return rows.mapped()
     out = lazy_zeros(shape, dtype) if lazy else np.empty(shape, dtype=dtype)
     start = 0
     for part in parts:

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import time
 import warnings
 from collections.abc import Callable, Iterator
@@ -86,7 +87,7 @@ from bakery.store.format import (
     read_store,
     write_store_file,
 )
-from bakery.zero_pages import without_resident_zeros
+from bakery.zero_pages import spilled, without_resident_zeros
 
 STORE_SUFFIXES = (".h5", ".hdf5")
 LAYER_SUFFIXES = (".usda", ".usdc", ".usd")
@@ -307,7 +308,7 @@ def _reemit(batch: EncodedBatch) -> None:
 
 # --- parent-side tail, shared by bake() and bakery.pipeline.shards.merge_shards (issue 16) -------------------------
 def finalize_and_write(request: BakeRequest, source: Source, plan: Plan, batches: list[EncodedBatch],
-                       failures: dict[str, str], previous: StoreContents | None,
+                       failures: dict[str, str], previous: StoreContents | None, spill: Path | None = None,
                        ) -> tuple[EncodedBatch, StoreContents, dict[str, Any], list[dict[str, str]], dict[str, Any]]:
     """The parent-side steps that need every probe: merge ``batches`` (worker results and reused probes) into plan
     order, re-emit worker warnings, band skipping refined over neighbours, each encoding's ``finalize`` over every
@@ -319,7 +320,8 @@ def finalize_and_write(request: BakeRequest, source: Source, plan: Plan, batches
     ``bakery merge`` calls it on the results of shard stores, so a merged farm bake is the same bytes as one
     process's. ``batches`` is emptied once merged, and each batch's fields are released as they are merged: from
     there on the merged copy is all the parent holds of them (its peak memory is the merged fields plus the one
-    being merged, not the merge plus the batches)."""
+    being merged, not the merge plus the batches). ``spill``: the folder where the large merged fields are sparse
+    files (:func:`bakery.pipeline.merge.merge_batches`)."""
     settings = request.settings
     given, batches = batches, refuse_non_finite(batches, failures)
     if failures and not batches:
@@ -327,8 +329,8 @@ def finalize_and_write(request: BakeRequest, source: Source, plan: Plan, batches
         raise InputError(f"no probe could be baked; nothing was written. First failure: {first}"
                          if len(failures) > 1 else first)
     # No probe at all (a scene without probes, or none with an applicable encoding): an empty, valid store.
-    merged = (merge_batches(batches, [n for n in plan.order if n not in failures], release_inputs=True) if batches
-              else EncodedBatch([], {}, {}, {}))
+    merged = (merge_batches(batches, [n for n in plan.order if n not in failures], release_inputs=True,
+                            scratch=spill) if batches else EncodedBatch([], {}, {}, {}))
     given.clear()
     batches.clear()
     planned = {task.probe.name: task.probe for task in plan.tasks}  # reused probes come back without their settings
@@ -486,7 +488,22 @@ def bake(request: BakeRequest, executor: Executor | None = None,
     source = source_for(request.sources, request.layout, request.capture)
     check_output_paths(request, source)
     with locked_outputs(request, source):
-        return _bake_locked(request, executor, progress, source, start)
+        try:
+            return _bake_locked(request, executor, progress, source, start)
+        finally:  # the spilled fields are no checkpoints: a resumed bake spills again from those
+            _remove_spilled(request)
+
+
+def _remove_spilled(request: BakeRequest) -> None:
+    """Remove the spill folder of ``request``'s work folder, if the work folder is one bakery may use (a real folder
+    of this user: :class:`Journal`; never through a symbolic link)."""
+    if SPILL_FOLDER is None:
+        return
+    try:
+        journal = Journal(request.output)
+    except OutputError:
+        return
+    shutil.rmtree(journal.directory / SPILL_FOLDER, ignore_errors=True)
 
 
 @contextmanager
@@ -520,25 +537,43 @@ def _longest_first(batches: list[BatchTask], request: BakeRequest, source: Sourc
     return sorted(batches, key=lambda b: (-cost[b.key], b.key))
 
 
-def _zero_rows_not_resident(outcome: BatchOutcome) -> BatchOutcome:
+#: The folder of a bake's work folder (:class:`Journal`) where the parent keeps the large fields of the batches and
+#: of their merge as sparse files (:func:`bakery.zero_pages.spilled`); None on Windows, which cannot remove a
+#: mapped file (the fields then stay in memory, their zero rows not resident).
+SPILL_FOLDER = None if os.name == "nt" else "fields"
+
+
+def spill_folder(journal: Journal) -> Path | None:
+    """Where this bake's parent spills its large fields (:data:`SPILL_FOLDER`), emptied of what a killed bake left
+    there; None: kept in memory."""
+    if SPILL_FOLDER is None:
+        return None
+    folder = journal.directory / SPILL_FOLDER
+    shutil.rmtree(folder, ignore_errors=True)
+    return folder
+
+
+def _zero_rows_not_resident(outcome: BatchOutcome, spill: Path | None = None) -> BatchOutcome:
     """``outcome`` with its large encoded fields' all-zero rows not resident (:mod:`bakery.zero_pages`): the parent
     holds every batch until the merge, and a fixed-layout chain is mostly zero rows (a 128² hybrid probe stores
-    2.6 MB with 2 gap levels, a hall's probe uploads ~0.6 MB of them)."""
+    2.6 MB with 2 gap levels, a hall's probe uploads ~0.6 MB of them). With ``spill`` (a folder), those fields are
+    sparse files there instead (:func:`bakery.zero_pages.spilled`): page cache, not the parent's memory."""
     if outcome.result is not None:
-        for fields in outcome.result.encoded.values():
+        for encoding, fields in outcome.result.encoded.items():
             for key in list(fields):
-                fields[key] = without_resident_zeros(fields[key])
+                fields[key] = (without_resident_zeros(fields[key]) if spill is None else
+                               spilled(fields[key], spill / f"{outcome.key}.{encoding}.{key}"))
     return outcome
 
 
 def execute_batches(batches: list[BatchTask], request: BakeRequest, source: Source, plan: Plan, executor: Executor,
-                    journal: Journal, progress: Callable[[int, int], None] | None,
+                    journal: Journal, progress: Callable[[int, int], None] | None, spill: Path | None = None,
                     ) -> tuple[list[BatchOutcome], int]:
     """Run ``batches`` on ``executor`` (longest first), checkpointing every outcome in ``journal``; with
     ``request.resume``, batches the journal already holds are not run again. Returns (every outcome, the number of
-    resumed batches). Progress is reported in probes of ``batches``."""
+    resumed batches). Progress is reported in probes of ``batches``. ``spill``: :func:`_zero_rows_not_resident`."""
     done = journal.load({b.key for b in batches}) if request.resume else {}
-    outcomes = [_zero_rows_not_resident(outcome) for outcome in done.values()]
+    outcomes = [_zero_rows_not_resident(outcome, spill) for outcome in done.values()]
     total = sum(len(b.probes) for b in batches)
     finished = sum(len(b.probes) for b in batches if b.key in done)
     if progress:
@@ -552,7 +587,7 @@ def execute_batches(batches: list[BatchTask], request: BakeRequest, source: Sour
         size_of = {b.key: len(b.probes) for b in todo}
         for outcome in executor.run([replace(b, source=handle) for b in todo]):
             journal.save(outcome)
-            outcomes.append(_zero_rows_not_resident(outcome))
+            outcomes.append(_zero_rows_not_resident(outcome, spill))
             finished += size_of[outcome.key]
             if progress:
                 progress(finished, total)
@@ -615,7 +650,8 @@ def _bake_locked(request: BakeRequest, executor: Executor, progress: Callable[[i
     stage_start = time.perf_counter()
 
     journal = Journal(request.output)
-    outcomes, resumed = execute_batches(plan.batches, request, source, plan, executor, journal, progress)
+    spill = spill_folder(journal)
+    outcomes, resumed = execute_batches(plan.batches, request, source, plan, executor, journal, progress, spill)
     stage["parent/workers"] = time.perf_counter() - stage_start
     stage_start = time.perf_counter()
     failures: dict[str, str] = {}
@@ -634,7 +670,7 @@ def _bake_locked(request: BakeRequest, executor: Executor, progress: Callable[[i
         extra = make_batches([t for t in plan.tasks if t.probe.name in again],
                              request.batch_size or source.default_batch_size, settings.as_json())
         plan.batches = plan.batches + extra
-        more, more_resumed = execute_batches(extra, request, source, plan, executor, journal, progress)
+        more, more_resumed = execute_batches(extra, request, source, plan, executor, journal, progress, spill)
         resumed += more_resumed
         fresh = []
         for outcome in sorted(more, key=lambda o: o.key):
@@ -650,7 +686,7 @@ def _bake_locked(request: BakeRequest, executor: Executor, progress: Callable[[i
         raise InputError(f"no probe could be baked; nothing was written. First failure: {first}"
                          if len(failures) > 1 else first)
     merged, _contents, encodings, skipped, extra = finalize_and_write(request, source, plan, batches, failures,
-                                                                      previous)
+                                                                      previous, spill)
     journal.remove()
     stage["parent/merge_finalize_write"] = time.perf_counter() - stage_start
 

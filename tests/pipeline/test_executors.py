@@ -204,3 +204,62 @@ def test_a_guarded_script_is_not_refused(tmp_path):
         assert result.returncode == 0 and "where None" in result.stdout, result.stderr
     result = _run_script(tmp_path / "unguarded.py", probe + "main()\n")
     assert f"where ('{tmp_path / 'unguarded.py'}', 6)" in result.stdout, result.stdout + result.stderr
+
+
+def test_spilled_fields_give_the_same_store_bytes_and_leave_no_file(tmp_path, monkeypatch):
+    """With every field spilled (the size threshold lowered to one byte, where a production bake's chains spill at
+    4 MiB): the parent keeps the batches' and the merge's fields as sparse files in the work folder, the store is
+    byte-identical to the one baked with the fields in memory, and no spilled file is left afterwards (nor after a
+    bake that fails once the batches have run)."""
+    import numpy as np
+    import pytest
+
+    import bakery
+    import bakery.pipeline.merge as merge
+    import bakery.pipeline.run as run
+    import bakery.zero_pages as zero_pages
+    from usd_scenes import header, material, plane_mesh, probe, write
+
+    text = (header() + material("Grey", diffuse=(0.5, 0.5, 0.5)) + plane_mesh("Floor", 5.0, "/Grey")
+            + '\ndef DomeLight "Sky"\n{\n    float inputs:intensity = 1\n}\n'
+            + "".join(probe(f"I{i}", (0.5 * i, 1.0, 0.0)) for i in range(3))
+            + "".join(probe(f"R{i}", (0.5 * i, 2.0, 0.0), "BakeryReflectionProbe") for i in range(3)))
+    scene = write(tmp_path / "mixed.usda", text)
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "1700000000")
+    kw = dict(encodings=("sh3", "shexp_hybrid"), face_size=8, samples=1, bounces=0, resume=False, batch_size=2,
+              jobs=1)
+    bakery.bake(scene, tmp_path / "memory.h5", layer=tmp_path / "memory.bake.usda", **kw)
+    spilled = []
+    original = zero_pages.spilled
+
+    def recording(array, path):  # noqa: ANN001, ANN202
+        out = original(array, path)
+        if isinstance(out, np.memmap):
+            spilled.append(path)
+        return out
+
+    merged = []
+    sparse_rows = merge.SparseRows
+
+    def recording_merge(shape, dtype, path):  # noqa: ANN001, ANN202
+        merged.append(path)
+        return sparse_rows(shape, dtype, path)
+
+    monkeypatch.setattr(zero_pages, "MIN_BYTES", 1)
+    monkeypatch.setattr(merge, "MIN_BYTES", 1)
+    monkeypatch.setattr(run, "spilled", recording)
+    monkeypatch.setattr(merge, "SparseRows", recording_merge)
+    bakery.bake(scene, tmp_path / "spilled.h5", layer=tmp_path / "spilled.bake.usda", **kw)
+    folder = tmp_path / "spilled.h5.partial" / "fields"
+    assert spilled and merged and all(p.parent == folder for p in spilled + merged)
+    assert any(p.name == "merged.shexp_hybrid.level0" for p in merged)
+    assert (tmp_path / "spilled.h5").read_bytes() == (tmp_path / "memory.h5").read_bytes()
+    assert not (tmp_path / "spilled.h5.partial").exists()
+
+    def failing(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(run, "commit_outputs", failing)
+    with pytest.raises(Exception, match="No space left"):
+        bakery.bake(scene, tmp_path / "failed.h5", **kw)
+    assert not (tmp_path / "failed.h5.partial" / "fields").exists() and not (tmp_path / "failed.h5").exists()

@@ -85,3 +85,47 @@ def test_a_store_read_back_holds_the_same_bytes_and_a_changed_zero_row_is_found(
         f["encodings/e/level"][2, 0, 0, 0] = 1.0
     with pytest.raises(StoreIntegrityError, match="/p2"):
         read_store(path)
+
+
+@settings(max_examples=25, deadline=None)
+@given(pattern=st.lists(st.integers(0, 3), min_size=8, max_size=12))
+def test_spilled_rows_keep_every_byte_and_the_map_is_copy_on_write(tmp_path_factory, pattern):
+    """A spilled array (a bake's parent: :func:`spilled`) holds the same bytes, −0.0 and NaN payloads included, as a
+    map of a sparse file; writing into the map changes the process's copy, not the file."""
+    from bakery.zero_pages import discard, spilled
+
+    dense = _rows(pattern)
+    path = tmp_path_factory.mktemp("spill") / "f"
+    out = spilled(dense, path)
+    assert isinstance(out, np.memmap) and dense.nbytes >= MIN_BYTES
+    np.testing.assert_array_equal(out.view(np.uint16), dense.view(np.uint16))
+    on_disk = path.read_bytes()
+    out[0] = 1
+    assert path.read_bytes() == on_disk
+    discard(out)
+    assert not path.exists()
+    np.testing.assert_array_equal(out[1:].view(np.uint16), dense[1:].view(np.uint16))  # mapped until dropped
+
+
+def test_a_spill_beyond_the_file_size_limit_is_an_os_error(tmp_path):
+    """Rows go to the file by write calls, so a disk that cannot take them is an OSError naming why (here the file
+    size limit, EFBIG), never a SIGBUS at a page fault of a shared map."""
+    import subprocess
+    import sys
+    import textwrap
+
+    script = textwrap.dedent(f"""
+        import resource, signal, sys
+        import numpy as np
+        from bakery.zero_pages import spilled
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (1 << 20, 1 << 20))
+        try:
+            spilled(np.ones((8, 6, 128, 128, 3), np.float16), __import__("pathlib").Path({str(tmp_path / "f")!r}))
+        except OSError as error:
+            print("OSError", error.errno)
+            sys.exit(0)
+        sys.exit(1)
+    """)
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0 and result.stdout.startswith("OSError"), (result.returncode, result.stderr)
