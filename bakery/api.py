@@ -139,6 +139,13 @@ class ProbeStore:
     def __init__(self, path: str | os.PathLike[str], lazy: bool = False) -> None:
         self.path = str(store_path(path))
         self._contents = read_store(self.path, lazy_fields=lazy)
+        try:
+            self._read_metadata()
+        except BaseException:  # a lazy store's file is not left open behind a malformed store's error
+            self.close()
+            raise
+
+    def _read_metadata(self) -> None:
         a = self._contents.attributes
         self.attributes: dict[str, Any] = a
         self.format_version: str = str(a["format_version"])

@@ -11,8 +11,8 @@ zero; the values, bytes included (−0.0 and NaN payloads are not zero bytes), a
 
 :func:`spilled` and :class:`SparseRows` do the same in a sparse file (a bake's parent, in its work folder): the rows
 are written through the file and mapped copy-on-write, so they are page cache the kernel may reclaim under memory
-pressure, not anonymous memory, and the zero rows are holes. The parent of a bake holds every probe's fields until the store is
-written; there, they no longer have to fit in memory. :func:`discard` removes such a file.
+pressure, not anonymous memory, and the zero rows are holes. The parent of a bake holds every probe's fields until
+the store is written; there, they no longer have to fit in memory. :func:`discard` removes such a file.
 """
 
 from __future__ import annotations
@@ -46,11 +46,16 @@ def nonzero_rows(array: np.ndarray) -> np.ndarray:
     return rows.view(np.uint8).any(axis=1) if rows.shape[1] else np.zeros(len(array), dtype=bool)
 
 
+def _large(array: np.ndarray) -> bool:
+    """A numeric array of rows of at least :data:`MIN_BYTES`."""
+    return array.ndim > 0 and array.dtype.kind in "biufc" and array.nbytes >= MIN_BYTES
+
+
 def without_resident_zeros(array: np.ndarray) -> np.ndarray:
     """``array`` with its all-zero rows not resident (:func:`lazy_zeros`, the other rows copied), when it is a numeric
     array of at least :data:`MIN_BYTES` with such a row; otherwise ``array`` itself."""
     array = np.asarray(array)
-    if array.ndim == 0 or array.dtype.kind not in "biufc" or array.nbytes < MIN_BYTES:
+    if not _large(array):
         return array
     keep = nonzero_rows(array)
     if keep.all():
@@ -59,10 +64,6 @@ def without_resident_zeros(array: np.ndarray) -> np.ndarray:
     for row in np.flatnonzero(keep).tolist():
         out[row] = array[row]
     return out
-
-
-def _large(array: np.ndarray) -> bool:
-    return array.ndim > 0 and array.dtype.kind in "biufc" and array.nbytes >= MIN_BYTES
 
 
 class SparseRows:
@@ -116,10 +117,12 @@ def spilled(array: np.ndarray, path: Path) -> np.ndarray:
     return rows.mapped()
 
 
-def discard(array: np.ndarray) -> None:
-    """Remove the file of a :class:`SparseRows` array (its map stays readable until the array is dropped, as POSIX
-    keeps an unlinked file's pages); nothing for other arrays."""
-    if isinstance(array, np.memmap) and array.filename:
+def discard(array: np.ndarray, folder: Path) -> None:
+    """Remove the file of a :class:`SparseRows` array in ``folder`` (its map stays readable until the array is
+    dropped, as POSIX keeps an unlinked file's pages); nothing for other arrays, mapped files elsewhere included."""
+    if not (isinstance(array, np.memmap) and array.filename):
+        return
+    if Path(array.filename).parent == Path(os.path.abspath(folder)):  # np.memmap keeps the absolute path
         try:
             os.unlink(array.filename)
         except FileNotFoundError:

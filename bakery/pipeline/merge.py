@@ -118,7 +118,9 @@ def merge_batches(batches: list[EncodedBatch], order: list[str] | None = None, *
                                         None if scratch is None else scratch / f"merged.{name}.{f}")
             if release_inputs:
                 for b, _ in parts:
-                    discard(b.encoded[name].pop(f))
+                    released = b.encoded[name].pop(f)
+                    if scratch is not None:  # the batches' spilled files are there too
+                        discard(released, scratch)
     diagnostics = _merge_per_probe([b.diagnostics for b in batches], [len(b.probes) for b in batches], permutation)
     transient = _merge_per_probe([b.transient for b in batches], [len(b.probes) for b in batches], permutation)
     timings: dict[str, float] = {}

@@ -102,7 +102,9 @@ def test_spilled_rows_keep_every_byte_and_the_map_is_copy_on_write(tmp_path_fact
     on_disk = path.read_bytes()
     out[0] = 1
     assert path.read_bytes() == on_disk
-    discard(out)
+    discard(out, path.parent / "elsewhere")
+    assert path.exists()  # only files of the folder given are removed
+    discard(out, path.parent)
     assert not path.exists()
     np.testing.assert_array_equal(out[1:].view(np.uint16), dense[1:].view(np.uint16))  # mapped until dropped
 
