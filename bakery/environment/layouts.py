@@ -88,12 +88,18 @@ class EnvironmentImage:
 
 # ---------------------------------------------------------------------------------------------------------------
 # Equirect
-def equirect_directions(rows: np.ndarray, cols: np.ndarray, height: int, width: int) -> np.ndarray:
-    """Directions (..., 3) at continuous pixel positions of an H × W equirect map."""
+def _equirect_directions_and_cos(rows: np.ndarray, cols: np.ndarray, height: int, width: int
+                                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Directions (..., 3) at continuous pixel positions of an H × W equirect map, and cos(latitude) (...)."""
     latitude = np.pi * (0.5 - rows / height)
     longitude = np.pi * (1.0 - 2.0 * cols / width)
     c = np.cos(latitude)
-    return np.stack([c * np.sin(longitude), np.sin(latitude), c * np.cos(longitude)], axis=-1)
+    return np.stack([c * np.sin(longitude), np.sin(latitude), c * np.cos(longitude)], axis=-1), c
+
+
+def equirect_directions(rows: np.ndarray, cols: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Directions (..., 3) at continuous pixel positions of an H × W equirect map."""
+    return _equirect_directions_and_cos(rows, cols, height, width)[0]
 
 
 def equirect_density(rows: np.ndarray, height: int, width: int) -> np.ndarray:
@@ -325,8 +331,9 @@ def layout_directions_and_density(
     layout: str, rows: np.ndarray, cols: np.ndarray, height: int, width: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """Directions (..., 3) and solid angle per unit pixel area (...) at continuous positions of any layout."""
-    if layout == "equirect":
-        return equirect_directions(rows, cols, height, width), equirect_density(rows, height, width)
+    if layout == "equirect":  # cos(latitude) evaluated once (the reflection reference's hot path)
+        directions, c = _equirect_directions_and_cos(rows, cols, height, width)
+        return directions, c * (np.pi / height) * (2.0 * np.pi / width)  # equirect_density's arithmetic
     if layout in ("angular", "mirrored_ball"):
         return (disc_directions(layout, rows, cols, height, width),
                 disc_density(layout, rows, cols, height, width))

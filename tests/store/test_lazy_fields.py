@@ -66,7 +66,7 @@ _index = st.one_of(
 )
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=25, deadline=None)
 @given(key=_index, inner=st.one_of(st.none(), st.integers(0, 5)))
 def test_lazy_indexing_is_numpy_indexing(store, key, inner):
     """Rows by a row, a slice, an array of rows (unsorted, repeated, negative) or a mask, with or without an index
