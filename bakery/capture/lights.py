@@ -45,7 +45,7 @@ import numpy as np
 from bakery.capture import vec
 from bakery.capture.ies import evaluate_ies
 from bakery.capture.light_tree import CULLED_SHAPES, LightBound, LightBVH
-from bakery.capture.scene import FAR, Light
+from bakery.capture.scene import FAR, Light, ellipse_perimeter, ellipsoid_area
 from bakery.capture.tracer import SphereCuller
 from bakery.capture.vec import TINY, dot, dotc
 from bakery.conventions import LUMINANCE_WEIGHTS
@@ -517,10 +517,8 @@ class SphereLightModel(LightModel):
         if radius_local < 0:
             notes.append(f"SphereLight radius {radius_local} is negative; its magnitude is used")
             radius_local = -radius_local
-        # world-space (stage units) ellipsoid area, Knud Thomsen's p = 1.6 formula as HdEmbree's _AreaSphere
-        a, b, c = (radius_local * lengths / placement.meters_per_unit).tolist()
-        p = 1.6
-        area_su = 4.0 * math.pi * (((a * b) ** p + (a * c) ** p + (b * c) ** p) / 3.0) ** (1.0 / p)
+        # world-space (stage units) ellipsoid area, as HdEmbree's _AreaSphere
+        area_su = ellipsoid_area(*(radius_local * lengths / placement.meters_per_unit).tolist())
         # the sphere of the ellipsoid's area (the mean axis for a uniform scale: the same sphere)
         radius = math.sqrt(area_su / (4.0 * math.pi)) * placement.meters_per_unit
         radiance = _normalized(emission, normalize, area_su)
@@ -772,7 +770,7 @@ class CylinderLightModel(LightModel):
         length = l_local * lengths[0]
         mpu = placement.meters_per_unit
         a, b, c = r_local * lengths[1] / mpu, r_local * lengths[2] / mpu, l_local * lengths[0] / mpu
-        perimeter = math.pi * (3.0 * (a + b) - math.sqrt((3.0 * a + b) * (a + 3.0 * b)))  # Ramanujan, as HdEmbree
+        perimeter = ellipse_perimeter(a, b)
         radius = perimeter / (2.0 * math.pi) * mpu  # the circle of the same perimeter (a for a = b)
         size: tuple[float, ...] = (radius, length)
         if r_local > 0 and _non_uniform(lengths[1:]):

@@ -15,6 +15,8 @@ Light radiometry (UsdLux, "Light units" in the UsdLux overview; interpretation i
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -24,6 +26,19 @@ from bakery.capture.ies import IesShaping
 LIGHT_TYPES = ("distant", "sphere", "rect", "disk", "cylinder")
 #: Distance used for "no hit" and for unbounded shadow rays (metres).
 FAR = 1e30
+
+
+def ellipsoid_area(a: float, b: float, c: float) -> float:
+    """Surface area of the ellipsoid of semi-axes a, b, c: Knud Thomsen's approximation (p = 1.6, relative error
+    ≤ 1.061 %), the formula of HdEmbree's ``_AreaSphere``; exact for a sphere."""
+    p = 1.6
+    return 4.0 * math.pi * (((a * b) ** p + (a * c) ** p + (b * c) ** p) / 3.0) ** (1.0 / p)
+
+
+def ellipse_perimeter(a: float, b: float) -> float:
+    """Perimeter of the ellipse of semi-axes a, b: Ramanujan's first approximation, as HdEmbree's
+    ``_AreaCylinder``; exact for a circle."""
+    return math.pi * (3.0 * (a + b) - math.sqrt((3.0 * a + b) * (a + 3.0 * b)))
 
 
 @dataclass(frozen=True)
@@ -106,15 +121,13 @@ class Light:
             return float(self.size[0] * self.size[1])
         if self.kind == "disk":  # semi-axes (a, b), or (r, 0) for a circle
             return float(np.pi * self.size[0] * (self.size[1] if self.size[1] > 0 else self.size[0]))
-        if self.kind == "sphere" and len(self.size) == 3:  # Knud Thomsen's p = 1.6 (within 1.061 %)
-            a, b, c = self.size
-            p = 1.6
-            return float(4.0 * np.pi * (((a * b) ** p + (a * c) ** p + (b * c) ** p) / 3.0) ** (1.0 / p))
+        if self.kind == "sphere" and len(self.size) == 3:
+            return ellipsoid_area(*self.size)
         if self.kind == "sphere":
             return float(4.0 * np.pi * self.size[0] ** 2)
-        if self.kind == "cylinder" and len(self.size) == 3:  # Ramanujan's perimeter × the length
+        if self.kind == "cylinder" and len(self.size) == 3:
             a, b, length = self.size
-            return float(np.pi * (3.0 * (a + b) - np.sqrt((3.0 * a + b) * (a + 3.0 * b))) * length)
+            return ellipse_perimeter(a, b) * length
         if self.kind == "cylinder":
             return float(2.0 * np.pi * self.size[0] * self.size[1])
         return 0.0
